@@ -1,0 +1,92 @@
+"""Extra physics that plugs into the MMG model without editing its sub-models.
+
+An :class:`Effect` adds named parameters and one or both of two hooks, each a scalar function
+compiled with :func:`mmg._jit.subfunction` and defined at module level (the kernel generator imports
+it by name):
+
+- ``force(u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh) -> (dX [N], dY [N], dN [N m])``:
+  an additional force and moment at midship, added to the sum of paper Eq. (2);
+- ``current(x0, y0, psi, e) -> (u_c, v_c)`` [m/s]: the body-frame velocity of the water at the ship.
+  The hydrodynamic sub-models then see the velocity through the water (u - u_c, v_m - v_c), the
+  wind still sees the velocity over ground, and the equations of motion are written for the
+  velocity through the water of a uniform steady current (u_c, v_c rotate with the heading:
+  d u_c / dt = r v_c, d v_c / dt = -r u_c). The state keeps the velocity over ground, as recorded.
+
+``e`` is the effect's own parameter NamedTuple. Values that make the effect vanish are the
+``neutral`` values of its parameters.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+
+class EffectParam(NamedTuple):
+    """One parameter of an effect: name, unit, neutral value, search interval, meaning."""
+
+    name: str
+    unit: str
+    neutral: float
+    lower: float
+    upper: float
+    description: str
+
+
+@dataclass(frozen=True)
+class Effect:
+    """A candidate piece of physics: hooks, parameter table and plain-words description."""
+
+    name: str
+    description: str
+    regime: str
+    params: tuple[EffectParam, ...]
+    param_type: type  # NamedTuple class of the parameters, fields = names of ``params``
+    force: Callable[..., Any] | None = None
+    current: Callable[..., Any] | None = None
+
+    def __post_init__(self) -> None:
+        fields = getattr(self.param_type, "_fields", None)
+        if fields != tuple(p.name for p in self.params):
+            raise ValueError(f"effect {self.name}: param_type fields differ from params")
+        if self.force is None and self.current is None:
+            raise ValueError(f"effect {self.name}: needs a force or a current hook")
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.params)
+
+    def neutral(self) -> tuple[float, ...]:
+        """Parameter values for which the effect vanishes."""
+        return tuple(p.neutral for p in self.params)
+
+
+_REGISTRY: dict[str, Effect] = {}
+
+
+def register(effect: Effect) -> Effect:
+    """Add an effect to the catalog under its name (replacing one of the same name)."""
+    _REGISTRY[effect.name] = effect
+    return effect
+
+
+def get_effect(name: str) -> Effect:
+    """Look an effect up by name; raises KeyError listing the known names."""
+    _load_catalog()
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        known = ", ".join(sorted(_REGISTRY))
+        raise KeyError(f"unknown effect {name!r}; known effects: {known}") from None
+
+
+def catalog() -> dict[str, Effect]:
+    """All registered effects by name."""
+    _load_catalog()
+    return dict(_REGISTRY)
+
+
+def _load_catalog() -> None:
+    # the catalog modules register themselves on import
+    import mmg.catalog  # noqa: F401

@@ -1,0 +1,103 @@
+"""Equations of motion at midship with the x_G coupling (paper Eqs. (1)-(3)).
+
+State x = (x0, u, y0, v_m, psi, r) [m, m/s, m, m/s, rad, rad/s]; control (delta [rad], n_p [rev/s]);
+wind (U_T [m/s], gamma_T [rad], the direction it blows from). These functions sum the sub-models;
+they know nothing of integration.
+"""
+
+from __future__ import annotations
+
+import math
+
+from mmg._jit import subfunction
+from mmg.hull import hull_forces
+from mmg.params import Ship, Theta
+from mmg.propeller import advance_ratio, propeller_forces, wake_factor
+from mmg.rudder import rudder_forces, rudder_inflow
+from mmg.wind import apparent_wind, wind_forces
+
+
+@subfunction
+def hydrodynamic_forces(
+    u: float, v_m: float, r: float, delta: float, n_p: float, th: Theta, sh: Ship
+) -> tuple[float, float, float, float, float, float, float, float, float]:
+    """Hull, propeller and rudder forces (X_H, Y_H, N_H, X_P, Y_P, N_P, X_R, Y_R, N_R).
+
+    u, v_m [m/s] velocity through the water at midship, r [rad/s], delta [rad], n_p [rev/s].
+    Forces in N, moments in N m, at midship.
+    """
+    X_H, Y_H, N_H = hull_forces(u, v_m, r, th, sh)
+    one_minus_w = wake_factor(u, v_m, r, th, sh)
+    J_s = advance_ratio(u, n_p, sh)
+    X_P, Y_P, N_P, K_T = propeller_forces(u, n_p, J_s, one_minus_w, th, sh)
+    u_R, v_R = rudder_inflow(u, v_m, r, n_p, one_minus_w, K_T, th, sh)
+    X_R, Y_R, N_R = rudder_forces(u_R, v_R, delta, th, sh)
+    return X_H, Y_H, N_H, X_P, Y_P, N_P, X_R, Y_R, N_R
+
+
+@subfunction
+def aerodynamic_forces(
+    u: float, v_m: float, psi: float, U_T: float, gamma_T: float, th: Theta, sh: Ship
+) -> tuple[float, float, float]:
+    """Wind forces (X_A [N], Y_A [N], N_A [N m]); u, v_m [m/s] velocity over ground."""
+    u_A, v_A = apparent_wind(u, v_m, psi, U_T, gamma_T)
+    return wind_forces(u_A, v_A, th, sh)
+
+
+@subfunction
+def all_forces(
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float, float, float, float, float, float, float, float, float, float]:
+    """The twelve force components (X_H, Y_H, N_H, X_P, Y_P, N_P, X_R, Y_R, N_R, X_A, Y_A, N_A).
+
+    Still water (velocity through the water = velocity over ground). Forces in N, moments in N m.
+    """
+    X_H, Y_H, N_H, X_P, Y_P, N_P, X_R, Y_R, N_R = hydrodynamic_forces(u, v_m, r, delta, n_p, th, sh)
+    X_A, Y_A, N_A = aerodynamic_forces(u, v_m, psi, U_T, gamma_T, th, sh)
+    return X_H, Y_H, N_H, X_P, Y_P, N_P, X_R, Y_R, N_R, X_A, Y_A, N_A
+
+
+@subfunction
+def accelerations(
+    X: float, Y: float, N: float, u: float, v_m: float, r: float, th: Theta, sh: Ship
+) -> tuple[float, float, float]:
+    """(u_dot [m/s^2], v_m_dot [m/s^2], r_dot [rad/s^2]) from the total force X, Y, N (Eq. (1)).
+
+    The sway-yaw pair is the 2x2 system
+    [[m + m_y, x_G m], [x_G m, I_zz + J_zz + x_G^2 m]] [v_m_dot, r_dot] = [Y - (m + m_x) u r,
+    N - x_G m u r], solved by Cramer's rule.
+    """
+    L = sh.L_pp
+    half_rho_L2d = 0.5 * sh.rho * L * L * sh.d
+    m = sh.m_nd * half_rho_L2d
+    m_x = th.m_x * half_rho_L2d
+    m_y = th.m_y * half_rho_L2d
+    I_zJ_z = th.I_zz_J_zz * half_rho_L2d * L * L
+    x_G = sh.x_G_nd * L
+    u_dot = (X + (m + m_y) * v_m * r + x_G * m * r * r) / (m + m_x)  # Eq. (1), surge
+    a11 = m + m_y
+    a12 = x_G * m
+    a22 = I_zJ_z + x_G * x_G * m
+    b1 = Y - (m + m_x) * u * r  # Eq. (1), sway
+    b2 = N - x_G * m * u * r  # Eq. (1), yaw
+    det = a11 * a22 - a12 * a12
+    v_dot = (a22 * b1 - a12 * b2) / det
+    r_dot = (a11 * b2 - a12 * b1) / det
+    return u_dot, v_dot, r_dot
+
+
+@subfunction
+def kinematics(u: float, v_m: float, psi: float) -> tuple[float, float]:
+    """Earth-fixed velocity of midship (x0_dot, y0_dot) [m/s] from body velocities and heading."""
+    c = math.cos(psi)
+    s = math.sin(psi)
+    return u * c - v_m * s, u * s + v_m * c

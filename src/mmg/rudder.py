@@ -1,0 +1,80 @@
+"""Rudder forces (paper section 2.3, Eqs. (14)-(26)).
+
+Standard MMG rudder model (Yasukawa & Yoshimura 2015) with the inflow angle by atan2, Yoshimura's
+low-speed longitudinal inflow for n_p >= 0, Kitagawa's propeller-reversal inflow, and u_R = u when
+going astern. Y_R uses (1 + a_H), the standard MMG form (the paper's text prints 1 - a_H: a typo,
+see reference "Where the paper's text and its authors' code differ").
+"""
+
+from __future__ import annotations
+
+import math
+
+from mmg._jit import subfunction
+from mmg.params import Ship, Theta
+
+
+@subfunction
+def rudder_inflow(
+    u: float,
+    v_m: float,
+    r: float,
+    n_p: float,
+    one_minus_w: float,
+    K_T: float,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float]:
+    """Longitudinal and lateral inflow velocity at the rudder, u_R and v_R [m/s].
+
+    u, v_m [m/s], r [rad/s], n_p [rev/s]; one_minus_w = 1 - w_P [-] and K_T [-] from
+    :mod:`mmg.propeller` (for n_p < 0, K_T of the reversal polynomial).
+    Branches (authors' implementation): Yoshimura's form whenever n_p >= 0 and K_T > 0 (also
+    astern, u < 0); otherwise Kitagawa's form for u >= 0 and u_R = u for u < 0.
+    """
+    L, D = sh.L_pp, sh.D_p
+    x_R = sh.x_R_nd * L
+    gamma = th.gamma_P if v_m + x_R * r >= 0.0 else th.gamma_N  # Eq. (21)
+    v_R = -gamma * (v_m + th.l_R * L * r)  # Eq. (21)
+    H_R = math.sqrt(sh.A_R * sh.lambda_R)  # rudder span [m]
+    eta = D / H_R
+    u_P = one_minus_w * u
+    nD = n_p * D
+    if n_p >= 0.0 and K_T > 0.0:
+        induced = math.sqrt(u_P * u_P + 8.0 * K_T * nD * nD / math.pi) - u_P
+        jet = u_P + th.k_x / th.epsilon * induced
+        u_R = th.epsilon * math.sqrt(eta * jet * jet + (1.0 - eta) * u_P * u_P)  # Eq. (22)
+    elif u >= 0.0:
+        u_RPR2 = u * th.epsilon * one_minus_w  # Eq. (26)
+        u_RPR1 = u_RPR2 + nD * th.k_xPR * math.sqrt(8.0 * abs(K_T) / math.pi)  # Eq. (25)
+        u_Rsq = (
+            eta * math.copysign(u_RPR1 * u_RPR1, u_RPR1)
+            + (1.0 - eta) * math.copysign(u_RPR2 * u_RPR2, u_RPR2)
+            + th.C_PR * u * u
+        )  # Eq. (24), last term C_PR u^2 (reference: the paper prints C_PR u)
+        u_R = math.copysign(math.sqrt(abs(u_Rsq)), u_Rsq)  # Eq. (23)
+    else:
+        u_R = u  # astern without positive thrust: inflow equals the ship's motion (Kobayashi 1994)
+    return u_R, v_R
+
+
+@subfunction
+def rudder_forces(
+    u_R: float, v_R: float, delta: float, th: Theta, sh: Ship
+) -> tuple[float, float, float]:
+    """Rudder forces X_R [N], Y_R [N] and yaw moment N_R [N m] at midship.
+
+    u_R, v_R [m/s] rudder inflow, delta [rad] rudder angle (positive turns to starboard).
+    F_N = 0.5 rho A_R U_R^2 f_alpha sin(alpha_R) with alpha_R = delta - atan2(v_R, u_R) is written
+    without the angle: U_R^2 sin(alpha_R) = U_R (u_R sin(delta) - v_R cos(delta)).
+    """
+    L = sh.L_pp
+    f_alpha = 6.13 * sh.lambda_R / (2.25 + sh.lambda_R)  # Eq. (18), Fujii's formula
+    U_R = math.sqrt(u_R * u_R + v_R * v_R)  # Eq. (19)
+    sin_d = math.sin(delta)
+    cos_d = math.cos(delta)
+    F_N = 0.5 * sh.rho * sh.A_R * f_alpha * U_R * (u_R * sin_d - v_R * cos_d)  # Eqs. (17), (20)
+    X_R = -(1.0 - th.t_R) * F_N * sin_d  # Eq. (14)
+    Y_R = -(1.0 + th.a_H) * F_N * cos_d  # Eq. (15), standard MMG sign
+    N_R = -(sh.x_R_nd * L + th.a_H * th.x_H * L) * F_N * cos_d  # Eq. (16)
+    return X_R, Y_R, N_R

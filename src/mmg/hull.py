@@ -10,6 +10,7 @@ import math
 
 from mmg._jit import subfunction
 from mmg.params import Ship, Theta
+from mmg.trig import atan2
 
 
 @subfunction
@@ -46,18 +47,14 @@ def hull_forces(u: float, v_m: float, r: float, th: Theta, sh: Ship) -> tuple[fl
     """
     L = sh.L_pp
     U = math.sqrt(u * u + v_m * v_m)
-    beta = math.atan2(v_m, u)  # drift angle; only |beta| / pi enters X_H
+    beta = atan2(v_m, u)  # drift angle; only |beta| / pi enters X_H
     half_rho_Ld = 0.5 * sh.rho * L * sh.d
     X_0 = sh.X_0F + (th.X_0A - sh.X_0F) * abs(beta) / math.pi  # Eq. (4), X_H resistance term
     X_H = half_rho_Ld * (X_0 * u * U + th.X_vr * L * v_m * r)  # Eq. (4)
     I_Y, _ = cross_flow_integrals(v_m, th.C_rY * r, L)
     _, I_N = cross_flow_integrals(v_m, th.C_rN * r, L)
-    Y_H = half_rho_Ld * (
-        th.Y_v * v_m * abs(u) + th.Y_r * L * r * u - th.C_D / L * I_Y
-    )  # Eq. (4)
+    Y_H = half_rho_Ld * (th.Y_v * v_m * abs(u) + th.Y_r * L * r * u - th.C_D / L * I_Y)  # Eq. (4)
     N_H = (
-        half_rho_Ld
-        * L
-        * (th.N_v * v_m * u + th.N_r * L * r * abs(u) - th.C_D / (L * L) * I_N)
+        half_rho_Ld * L * (th.N_v * v_m * u + th.N_r * L * r * abs(u) - th.C_D / (L * L) * I_N)
     )  # Eq. (4)
     return X_H, Y_H, N_H

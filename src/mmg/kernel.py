@@ -24,11 +24,22 @@ import threading
 from pathlib import Path
 from types import ModuleType
 
+import llvmlite.binding as llvm
 import numba
 import platformdirs
 
 from mmg.effects import Effect
 from mmg.params import N_THETA
+
+# LLVM's loop vectoriser gives up on the lane loop ("too many memory checks needed": it cannot
+# prove that a dozen arrays do not overlap) under its default thresholds; raise them
+# (performance.md, pitfall 4). Process-wide, affects only how loops are compiled.
+for _option in (
+    "-runtime-memory-check-threshold=1024",
+    "-memory-check-merge-threshold=1024",
+    "-vectorize-memory-check-threshold=1024",
+):
+    llvm.set_option("", _option)
 
 #: Algorithm 1: xdot_lim = (a, a, a, a, a / (0.5 L), a / (0.5 L)) with a = 1e10
 LIMIT_A = 1.0e10
@@ -54,27 +65,21 @@ def rhs(x0, u, y0, v_m, psi, r, delta, n_p, U_T, gamma_T, P, i, sh):
 {rhs_body}
 
 
-@numba.njit(inline="always", **JIT_OPTIONS)
-def limit(xdot, lim, scale):
-    """Algorithm 1 for one component: clip |xdot| > lim to sign(xdot) * scale * lim."""
-    if abs(xdot) > lim:
-        return math.copysign(scale * lim, xdot), 1
-    return xdot, 0
-
-
 @numba.njit(**JIT_OPTIONS)
 def rk4_step(X, Ks, delta, n_p, U_T, gamma_T, P, sh, k, dt, t_f, lim_lin, lim_ang, bad, W):
     """One RK4 step of W lanes in place; inputs held over the step (zero-order hold).
 
     X (6, W) state, Ks (4, 6, W) scratch, inputs (W,), P (N_PARAMS, W), t_f (W,) [s] segment
     durations, bad (W,) int64: first step at which the lane hit the limiter or went non-finite.
+    The limiter of Algorithm 1 clips each stage's xdot: |xdot_j| > lim_j becomes
+    sign(xdot_j) (2 - t / t_f) lim_j for x0, y0, psi and sign(xdot_j) lim_j for u, v_m, r.
     """
     t0 = k * dt
     for s in range(4):
         c = 0.0 if s == 0 else (0.5 if s < 3 else 1.0)
-        t = t0 + c * dt
+        h = c * dt
+        t = t0 + h
         for i in range(W):
-            h = c * dt
             if s == 0:
                 a0 = X[0, i]
                 a1 = X[1, i]
@@ -92,29 +97,28 @@ def rk4_step(X, Ks, delta, n_p, U_T, gamma_T, P, sh, k, dt, t_f, lim_lin, lim_an
             d0, d1, d2, d3, d4, d5 = rhs(
                 a0, a1, a2, a3, a4, a5, delta[i], n_p[i], U_T[i], gamma_T[i], P, i, sh
             )
-            scale = 2.0 - t / t_f[i]  # Algorithm 1, position and heading rows
-            d0, h0 = limit(d0, lim_lin, scale)
-            d1, h1 = limit(d1, lim_lin, 1.0)
-            d2, h2 = limit(d2, lim_lin, scale)
-            d3, h3 = limit(d3, lim_lin, 1.0)
-            d4, h4 = limit(d4, lim_ang, scale)
-            d5, h5 = limit(d5, lim_ang, 1.0)
-            Ks[s, 0, i] = d0
-            Ks[s, 1, i] = d1
-            Ks[s, 2, i] = d2
-            Ks[s, 3, i] = d3
-            Ks[s, 4, i] = d4
-            Ks[s, 5, i] = d5
-            hit = h0 + h1 + h2 + h3 + h4 + h5
-            bad[i] = k if (hit > 0 and bad[i] < 0) else bad[i]
+            scale = 2.0 - t / t_f[i]  # Algorithm 1, rows x0, y0, psi
+            Ks[s, 0, i] = math.copysign(scale * lim_lin, d0) if abs(d0) > lim_lin else d0
+            Ks[s, 1, i] = math.copysign(lim_lin, d1) if abs(d1) > lim_lin else d1
+            Ks[s, 2, i] = math.copysign(scale * lim_lin, d2) if abs(d2) > lim_lin else d2
+            Ks[s, 3, i] = math.copysign(lim_lin, d3) if abs(d3) > lim_lin else d3
+            Ks[s, 4, i] = math.copysign(scale * lim_ang, d4) if abs(d4) > lim_ang else d4
+            Ks[s, 5, i] = math.copysign(lim_ang, d5) if abs(d5) > lim_ang else d5
     w6 = dt / 6.0
     for j in range(6):
         for i in range(W):
             X[j, i] += w6 * (Ks[0, j, i] + 2.0 * Ks[1, j, i] + 2.0 * Ks[2, j, i] + Ks[3, j, i])
+    # Flag the lane (here, not in the stage loop: a store there stops LLVM from vectorising it).
+    # A clipped xdot has |xdot| = scale lim >= lim; an unclipped one reaching lim exactly is
+    # counted too, which only matters for a trajectory already at 1e10 m/s^2.
     for i in range(W):
         total = X[0, i] + X[1, i] + X[2, i] + X[3, i] + X[4, i] + X[5, i]
-        finite = abs(total) < np.inf
-        bad[i] = k if ((not finite) and bad[i] < 0) else bad[i]
+        ok = abs(total) < np.inf
+        for s in range(4):
+            ok = ok & (abs(Ks[s, 0, i]) < lim_lin) & (abs(Ks[s, 1, i]) < lim_lin)
+            ok = ok & (abs(Ks[s, 2, i]) < lim_lin) & (abs(Ks[s, 3, i]) < lim_lin)
+            ok = ok & (abs(Ks[s, 4, i]) < lim_ang) & (abs(Ks[s, 5, i]) < lim_ang)
+        bad[i] = k if ((not ok) and bad[i] < 0) else bad[i]
 
 
 @numba.njit(parallel=True, cache=True, **JIT_OPTIONS)
@@ -194,7 +198,16 @@ _CUSTOM_RHS = """\
     return {func}(x0, u, y0, v_m, psi, r, delta, n_p, U_T, gamma_T, P, i, sh)
 """
 
-_SOURCES = ("_jit.py", "params.py", "hull.py", "propeller.py", "rudder.py", "wind.py", "model.py")
+_SOURCES = (
+    "_jit.py",
+    "trig.py",
+    "params.py",
+    "hull.py",
+    "propeller.py",
+    "rudder.py",
+    "wind.py",
+    "model.py",
+)
 
 _lock = threading.Lock()
 _loaded: dict[str, ModuleType] = {}

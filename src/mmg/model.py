@@ -7,13 +7,12 @@ they know nothing of integration.
 
 from __future__ import annotations
 
-import math
-
 from mmg._jit import subfunction
 from mmg.hull import hull_forces
 from mmg.params import Ship, Theta
 from mmg.propeller import advance_ratio, propeller_forces, wake_factor
 from mmg.rudder import rudder_forces, rudder_inflow
+from mmg.trig import sincos
 from mmg.wind import apparent_wind, wind_forces
 
 
@@ -98,6 +97,5 @@ def accelerations(
 @subfunction
 def kinematics(u: float, v_m: float, psi: float) -> tuple[float, float]:
     """Earth-fixed velocity of midship (x0_dot, y0_dot) [m/s] from body velocities and heading."""
-    c = math.cos(psi)
-    s = math.sin(psi)
+    s, c = sincos(psi)
     return u * c - v_m * s, u * s + v_m * c

@@ -160,7 +160,9 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("B3", "B_3", "propeller", 1.96e-3, _S, "captive test (Hasegawa 1994)"),
     ParamSpec("B4", "B_4", "propeller", 2.33e-3, _S, "captive test (Hasegawa 1994)"),
     ParamSpec("B5", "B_5", "propeller", 2.25e-4, _S, "captive test (Hasegawa 1994)"),
-    ParamSpec("B6", "B_6", "propeller", -2.16e-3, _S, "captive test of a training ship (Ueno 2001)"),
+    ParamSpec(
+        "B6", "B_6", "propeller", -2.16e-3, _S, "captive test of a training ship (Ueno 2001)"
+    ),
     ParamSpec("B7", "B_7", "propeller", 6.27e-5, _S, "captive test of a training ship (Ueno 2001)"),
     ParamSpec("B8", "B_8", "propeller", 6.25e-5, _S, "captive test of a training ship (Ueno 2001)"),
     ParamSpec("C3", "C_3", "propeller", -0.251, _S, "captive test (Hasegawa 1994)"),

@@ -88,7 +88,9 @@ def propeller_forces(
         else:
             nP2 = (n_p * D * sh.pitch_ratio) * (n_p * D * sh.pitch_ratio)
             Y_P = 0.5 * rho * L * d * nP2 * (th.A6 * J_s * J_s + th.A7 * J_s + th.A8)  # Eq. (9)
-            N_P = 0.5 * rho * L * L * d * nP2 * (th.B6 * J_s * J_s + th.B7 * J_s + th.B8)  # Eq. (10)
+            N_P = (
+                0.5 * rho * L * L * d * nP2 * (th.B6 * J_s * J_s + th.B7 * J_s + th.B8)
+            )  # Eq. (10)
     else:
         K_T = th.C6 + th.C7 * J_s if J_s >= th.C10 else th.C3  # Eq. (11), t_P = 0 for n_p < 0
         X_P = rho_n2_D4 * K_T  # Eq. (11)

@@ -12,6 +12,7 @@ import math
 
 from mmg._jit import subfunction
 from mmg.params import Ship, Theta
+from mmg.trig import sincos
 
 
 @subfunction
@@ -71,8 +72,7 @@ def rudder_forces(
     L = sh.L_pp
     f_alpha = 6.13 * sh.lambda_R / (2.25 + sh.lambda_R)  # Eq. (18), Fujii's formula
     U_R = math.sqrt(u_R * u_R + v_R * v_R)  # Eq. (19)
-    sin_d = math.sin(delta)
-    cos_d = math.cos(delta)
+    sin_d, cos_d = sincos(delta)
     F_N = 0.5 * sh.rho * sh.A_R * f_alpha * U_R * (u_R * sin_d - v_R * cos_d)  # Eqs. (17), (20)
     X_R = -(1.0 - th.t_R) * F_N * sin_d  # Eq. (14)
     Y_R = -(1.0 + th.a_H) * F_N * cos_d  # Eq. (15), standard MMG sign

@@ -12,6 +12,7 @@ import math
 
 from mmg._jit import subfunction
 from mmg.params import Ship, Theta
+from mmg.trig import sincos
 
 
 @subfunction
@@ -23,8 +24,9 @@ def apparent_wind(
     U_A = hypot(u_A, v_A), gamma_A = atan2(v_A, u_A). u, v_m [m/s] ship velocity at midship,
     psi [rad] heading.
     """
-    u_A = U_T * math.cos(gamma_T - psi) + u
-    v_A = U_T * math.sin(gamma_T - psi) + v_m
+    s, c = sincos(gamma_T - psi)
+    u_A = U_T * c + u
+    v_A = U_T * s + v_m
     return u_A, v_A
 
 

@@ -12,6 +12,7 @@ from typing import NamedTuple
 
 from mmg._jit import subfunction
 from mmg.effects import Effect, EffectParam, register
+from mmg.trig import sincos
 
 
 class CurrentParams(NamedTuple):
@@ -22,7 +23,8 @@ class CurrentParams(NamedTuple):
 @subfunction
 def current_velocity(x0: float, y0: float, psi: float, e: CurrentParams) -> tuple[float, float]:
     """Body-frame current (u_c, v_c) [m/s] at heading psi [rad]."""
-    return e.V_c * math.cos(e.beta_c - psi), e.V_c * math.sin(e.beta_c - psi)
+    s, c = sincos(e.beta_c - psi)
+    return e.V_c * c, e.V_c * s
 
 
 CURRENT = register(

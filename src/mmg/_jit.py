@@ -22,4 +22,4 @@ JIT_OPTIONS: dict[str, Any] = {"error_model": "numpy", "nogil": True}
 
 def subfunction(func: F) -> F:
     """Compile a scalar sub-model function for inlining into the batched kernel."""
-    return numba.njit(inline="always", **JIT_OPTIONS)(func)  # type: ignore[no-any-return]
+    return numba.njit(inline="always", **JIT_OPTIONS)(func)

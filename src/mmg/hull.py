@@ -20,9 +20,10 @@ def cross_flow_integrals(v_m: float, b: float, L: float) -> tuple[float, float]:
     With s(x) = v_m + b x (b = C r [1/s]):
     I_0 = int |s| s dx [m^3/s^2] and I_1 = int |s| s x dx [m^4/s^2].
 
-    Where s keeps its sign on the hull (|v_m| >= |b| L / 2), |s| s = sign(v_m) s^2 and both integrals
-    are polynomials, exact and free of cancellation; otherwise s changes sign, |b| L > 2 |v_m|, and the
-    antiderivatives divided by b (reference "Numerical details") are well conditioned.
+    Where s keeps its sign on the hull (|v_m| >= |b| L / 2), |s| s = sign(v_m) s^2 and both
+    integrals are polynomials, exact and free of cancellation; otherwise s changes sign,
+    |b| L > 2 |v_m|, and the antiderivatives divided by b (reference "Numerical details") are well
+    conditioned.
     """
     half = 0.5 * L
     if abs(v_m) >= abs(b) * half:

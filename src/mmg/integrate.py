@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 
 from mmg.effects import Effect
@@ -23,8 +24,8 @@ from mmg.params import ESSO_OSAKA, N_THETA, FloatArray, Parameters, Ship
 
 ParamsLike = Parameters | Sequence[Parameters] | FloatArray
 
-#: default lane-chunk width of the kernel (lanes per thread work item); 8 x odd avoids L1 aliasing
-DEFAULT_CHUNK = 40
+#: lanes per work item of the kernel; 8 x an odd number (rows of 2^k doubles alias in L1 cache)
+DEFAULT_CHUNK = 120
 
 
 @dataclass(frozen=True)
@@ -56,23 +57,29 @@ def effect_vector(p: Parameters, effects: tuple[Effect, ...]) -> FloatArray:
     return np.asarray(values, dtype=np.float64)
 
 
+def kernel_array(a: Any, dtype: type = np.float64) -> np.ndarray:
+    """A writable, C-contiguous array: the one memory layout the compiled kernel is built for
+    (a read-only or strided array would be a different Numba signature and compile again)."""
+    return np.require(a, dtype=dtype, requirements=["C", "W", "A"])
+
+
 def parameter_matrix(p: ParamsLike, B: int, effects: tuple[Effect, ...] = ()) -> FloatArray:
-    """Per-lane parameters as a contiguous (n_params, B) float64 matrix."""
+    """Per-lane parameters as a contiguous, writable (n_params, B) float64 matrix."""
     n = N_THETA + sum(len(e.params) for e in effects)
     if isinstance(p, Parameters):
         vec = np.concatenate([p.vector(), effect_vector(p, effects)])
-        return np.ascontiguousarray(np.broadcast_to(vec[:, None], (n, B)))
+        return np.repeat(vec[:, None], B, axis=1)
     if isinstance(p, np.ndarray):
         arr = np.asarray(p, dtype=np.float64)
         if arr.ndim == 1:
             arr = np.broadcast_to(arr, (B, arr.shape[0]))
         if arr.shape != (B, n):
             raise ValueError(f"parameter array must have shape ({n},) or ({B}, {n}); got {p.shape}")
-        return np.ascontiguousarray(arr.T)
+        return kernel_array(arr.T)
     rows = [np.concatenate([q.vector(), effect_vector(q, effects)]) for q in p]
     if len(rows) != B:
         raise ValueError(f"{len(rows)} parameter sets for {B} trajectories")
-    return np.ascontiguousarray(np.array(rows).T)
+    return kernel_array(np.array(rows).T)
 
 
 def _ship_of(p: ParamsLike, ship: Ship | None) -> Ship:
@@ -106,7 +113,7 @@ def derivatives(
     w_arr = np.asarray(w, dtype=np.float64)
     shape = np.broadcast_shapes(x_arr.shape[:-1], u_arr.shape[:-1], w_arr.shape[:-1])
     M = int(np.prod(shape))
-    X = np.ascontiguousarray(np.broadcast_to(x_arr, (*shape, 6)).reshape(M, 6).T)
+    X = kernel_array(np.broadcast_to(x_arr, (*shape, 6)).reshape(M, 6).T)
     U = np.broadcast_to(u_arr, (*shape, 2)).reshape(M, 2)
     Wd = np.broadcast_to(w_arr, (*shape, 2)).reshape(M, 2)
     if isinstance(p, np.ndarray) and p.ndim > 1:
@@ -116,21 +123,23 @@ def derivatives(
     out = np.empty((6, M))
     kern.rhs_lanes(
         X,
-        np.ascontiguousarray(U[:, 0]),
-        np.ascontiguousarray(U[:, 1]),
-        np.ascontiguousarray(Wd[:, 0]),
-        np.ascontiguousarray(Wd[:, 1]),
-        P,
+        kernel_array(U[:, 0]),
+        kernel_array(U[:, 1]),
+        kernel_array(Wd[:, 0]),
+        kernel_array(Wd[:, 1]),
+        kernel_array(P),
         _ship_of(p, ship),
         out,
     )
     return out.T.reshape(*shape, 6)
 
 
-def _padded(B: int) -> int:
-    """Lane count rounded up to 8 x an odd number (rows of 2^k doubles alias in L1)."""
-    b = max(8, -(-B // 8) * 8)
-    return b if (b // 8) % 2 == 1 else b + 8
+def chunk_width(B: int, chunk: int = DEFAULT_CHUNK) -> int:
+    """Lanes per chunk: at most ``chunk``, with a number of chunks that the threads share evenly."""
+    threads = numba.get_num_threads()
+    n_chunks = max(1, -(-B // chunk))
+    n_chunks = -(-n_chunks // threads) * threads if threads <= B else n_chunks
+    return max(1, -(-B // n_chunks))
 
 
 def simulate_batch(
@@ -168,49 +177,26 @@ def simulate_batch(
     sh = _ship_of(p, ship)
     P = parameter_matrix(p, B, effects)
     kern = load_kernel(effects)
-
     order = np.argsort(-steps, kind="stable")  # similar lengths share a chunk
-    Bp = _padded(B)
-
-    def lanes(a: FloatArray) -> FloatArray:
-        """(B, ...) -> (..., Bp) contiguous, lanes in ``order``, padding repeats the last lane."""
-        idx = np.concatenate([order, np.full(Bp - B, order[-1] if B else 0)])
-        return np.ascontiguousarray(np.moveaxis(a[idx], 0, -1))
-
-    Pl = lanes(P.T)
-    stl = np.concatenate([steps[order], np.zeros(Bp - B, np.int64)])
-    out = np.empty((K + 1, 6, Bp))
-    bad = np.empty(Bp, dtype=np.int64)
-    lim_lin = LIMIT_A
-    lim_ang = LIMIT_A / (0.5 * sh.L_pp)
+    out = np.empty((B, K + 1, 6))
+    bad = np.empty(B, dtype=np.int64)
     kern.simulate_lanes(
-        lanes(X0),
-        lanes(U[:, :, 0]),
-        lanes(U[:, :, 1]),
-        lanes(Wd[:, :, 0]),
-        lanes(Wd[:, :, 1]),
-        Pl,
-        stl,
+        kernel_array(X0),
+        kernel_array(U),
+        kernel_array(Wd),
+        kernel_array(P),
+        kernel_array(steps, np.int64),
+        kernel_array(order, np.int64),
         sh,
         float(dt),
-        lim_lin,
-        lim_ang,
-        int(chunk),
+        LIMIT_A,
+        LIMIT_A / (0.5 * sh.L_pp),
+        chunk_width(B, chunk),
+        numba.get_num_threads(),
         out,
         bad,
     )
-    if np.array_equal(order, np.arange(B)):
-        inverse = order
-        states = out[:, :, :B].transpose(2, 0, 1)  # (B, K + 1, 6), a view
-    else:
-        inverse = np.empty(B, dtype=np.int64)
-        inverse[order] = np.arange(B)
-        states = out[:, :, inverse].transpose(2, 0, 1)
-    short = steps < K
-    if np.any(short):
-        mask = np.arange(K + 1)[None, :] > steps[:, None]
-        states[mask] = np.nan
-    return SimulationResult(states=states, bad_step=bad[inverse])
+    return SimulationResult(states=out, bad_step=bad)
 
 
 def simulate(
@@ -225,3 +211,38 @@ def simulate(
 ) -> FloatArray:
     """Trajectories (B, K + 1, 6); see :func:`simulate_batch` for flags and arguments."""
     return simulate_batch(x0, u_seq, w_seq, p, dt, n_steps, effects, ship).states
+
+
+def rk4_reference(
+    x0: Any,
+    u_seq: Any,
+    w_seq: Any,
+    p: Parameters,
+    dt: float = 0.1,
+    effects: tuple[Effect, ...] = (),
+) -> FloatArray:
+    """One trajectory by a plain NumPy RK4 loop with the limiter of Algorithm 1: (K + 1, 6).
+
+    The slow, obvious path that the batched kernel is tested against. x0 (6,), u_seq (K, 2),
+    w_seq (K, 2); uses :func:`derivatives` for the right-hand side.
+    """
+    x = np.asarray(x0, dtype=np.float64).copy()
+    U = np.asarray(u_seq, dtype=np.float64)
+    Wd = np.asarray(w_seq, dtype=np.float64)
+    K = U.shape[0]
+    t_f = K * dt
+    lim = np.array([LIMIT_A] * 4 + [LIMIT_A / (0.5 * p.ship.L_pp)] * 2)
+    position_rows = np.array([True, False, True, False, True, False])
+    out = np.empty((K + 1, 6))
+    out[0] = x
+    for k in range(K):
+        ks: list[FloatArray] = []
+        for c, prev in ((0.0, None), (0.5, 0), (0.5, 1), (1.0, 2)):
+            xs = x if prev is None else x + c * dt * ks[prev]
+            d = derivatives(xs, U[k], Wd[k], p, effects)
+            scale = np.where(position_rows, 2.0 - (k * dt + c * dt) / t_f, 1.0)
+            d = np.where(np.abs(d) > lim, np.sign(d) * scale * lim, d)
+            ks.append(d)
+        x = x + dt / 6.0 * (ks[0] + 2.0 * ks[1] + 2.0 * ks[2] + ks[3])
+        out[k + 1] = x
+    return out

@@ -54,27 +54,34 @@ import numpy as np
 from mmg._jit import JIT_OPTIONS
 from mmg.model import accelerations, aerodynamic_forces, hydrodynamic_forces, kinematics
 from mmg.params import Theta
+from mmg.trig import sincos
 {imports}
 
 N_PARAMS = {n_params}
 
 
 @numba.njit(inline="always", **JIT_OPTIONS)
-def rhs(x0, u, y0, v_m, psi, r, delta, n_p, U_T, gamma_T, P, i, sh):
-    """Paper Eq. (3): xdot = f(x, u, w; theta) for lane i of the parameter matrix P."""
+def rhs(x0, u, y0, v_m, psi, r, delta, sin_d, cos_d, n_p, U_T, gamma_T, sin_g, cos_g, P, i, sh):
+    """Paper Eq. (3): xdot = f(x, u, w; theta) for lane i of the parameter matrix P.
+
+    Input angles come with their sine and cosine, computed once per step by the caller."""
 {rhs_body}
 
 
 @numba.njit(**JIT_OPTIONS)
-def rk4_step(X, Ks, delta, n_p, U_T, gamma_T, P, sh, k, dt, t_f, lim_lin, lim_ang, bad, W):
+def rk4_step(X, Ks, Tr, delta, n_p, U_T, gamma_T, P, sh, k, dt, t_f, lim_lin, lim_ang, bad, W):
     """One RK4 step of W lanes in place; inputs held over the step (zero-order hold).
 
-    X (6, W) state, Ks (4, 6, W) scratch, inputs (W,), P (N_PARAMS, W), t_f (W,) [s] segment
+    X (6, W) state, Ks (4, 6, W) and Tr (4, W) scratch, inputs (W,), P (N_PARAMS, W), t_f (W,) [s]
+    segment
     durations, bad (W,) int64: first step at which the lane hit the limiter or went non-finite.
     The limiter of Algorithm 1 clips each stage's xdot: |xdot_j| > lim_j becomes
     sign(xdot_j) (2 - t / t_f) lim_j for x0, y0, psi and sign(xdot_j) lim_j for u, v_m, r.
     """
     t0 = k * dt
+    for i in range(W):
+        Tr[0, i], Tr[1, i] = sincos(delta[i])
+        Tr[2, i], Tr[3, i] = sincos(gamma_T[i])
     for s in range(4):
         c = 0.0 if s == 0 else (0.5 if s < 3 else 1.0)
         h = c * dt
@@ -95,7 +102,8 @@ def rk4_step(X, Ks, delta, n_p, U_T, gamma_T, P, sh, k, dt, t_f, lim_lin, lim_an
                 a4 = X[4, i] + h * Ks[s - 1, 4, i]
                 a5 = X[5, i] + h * Ks[s - 1, 5, i]
             d0, d1, d2, d3, d4, d5 = rhs(
-                a0, a1, a2, a3, a4, a5, delta[i], n_p[i], U_T[i], gamma_T[i], P, i, sh
+                a0, a1, a2, a3, a4, a5, delta[i], Tr[0, i], Tr[1, i], n_p[i],
+                U_T[i], gamma_T[i], Tr[2, i], Tr[3, i], P, i, sh,
             )
             scale = 2.0 - t / t_f[i]  # Algorithm 1, rows x0, y0, psi
             Ks[s, 0, i] = math.copysign(scale * lim_lin, d0) if abs(d0) > lim_lin else d0
@@ -122,52 +130,82 @@ def rk4_step(X, Ks, delta, n_p, U_T, gamma_T, P, sh, k, dt, t_f, lim_lin, lim_an
 
 
 @numba.njit(parallel=True, cache=True, **JIT_OPTIONS)
-def simulate_lanes(X0, delta, n_p, U_T, gamma_T, P, n_steps, sh, dt, lim_lin, lim_ang, W, out, bad):
-    """Integrate B lanes. X0 (6, B); inputs (K, B); P (N_PARAMS, B); n_steps (B,) int64;
-    out (K + 1, 6, B) receives the states; bad (B,) int64 the first bad step (-1: none)."""
-    B = X0.shape[1]
+def simulate_lanes(
+    x0, u_seq, w_seq, P, n_steps, lane_ids, sh, dt, lim_lin, lim_ang, W, n_threads, out, bad
+):
+    """Integrate B trajectories in chunks of W lanes; thread t takes chunks t, t + n_threads, ...
+
+    x0 (B, 6); u_seq, w_seq (B, K, 2); P (N_PARAMS, B); n_steps (B,) int64; lane_ids (B,) the
+    order in which trajectories are packed into chunks (similar lengths together). Writes
+    out (B, K + 1, 6), NaN after each trajectory's own length, and bad (B,) the first step at which
+    the trajectory hit the limiter or became non-finite (-1: never).
+    Inputs are gathered and states scattered one step at a time: W rows advancing together keep
+    a few kB of cache lines live, where a whole-chunk transpose would stream them from memory.
+    """
+    B = x0.shape[0]
+    K = u_seq.shape[1]
+    NP = P.shape[0]
     n_chunks = (B + W - 1) // W
-    for c in numba.prange(n_chunks):
-        lo = c * W
-        hi = min(lo + W, B)
-        w = hi - lo
-        X = np.empty((6, w))
-        for j in range(6):
+    for t in numba.prange(n_threads):
+        X = np.empty((6, W))  # work buffers, once per thread
+        Pc = np.empty((NP, W))
+        cur = np.empty((4, W))  # delta, n_p, U_T, gamma_T of the current step
+        Ks = np.empty((4, 6, W))
+        Tr = np.empty((4, W))
+        t_f = np.empty(W)
+        fb = np.empty(W, dtype=np.int64)
+        ids = np.empty(W, dtype=np.int64)
+        last = np.empty(W, dtype=np.int64)
+        for c in range(t, n_chunks, n_threads):
+            lo = c * W
+            w = min(lo + W, B) - lo
+            kmax = 0
             for i in range(w):
-                X[j, i] = X0[j, lo + i]
-        Pc = np.empty((P.shape[0], w))
-        for j in range(P.shape[0]):
-            for i in range(w):
-                Pc[j, i] = P[j, lo + i]
-        Ks = np.empty((4, 6, w))
-        t_f = np.empty(w)
-        fb = np.full(w, -1, dtype=np.int64)
-        kmax = 0
-        for i in range(w):
-            t_f[i] = n_steps[lo + i] * dt
-            kmax = max(kmax, n_steps[lo + i])
-        for j in range(6):
-            for i in range(w):
-                out[0, j, lo + i] = X[j, i]
-        for k in range(kmax):
-            rk4_step(
-                X, Ks, delta[k, lo:hi], n_p[k, lo:hi], U_T[k, lo:hi], gamma_T[k, lo:hi],
-                Pc, sh, k, dt, t_f, lim_lin, lim_ang, fb, w,
-            )
-            for j in range(6):
+                b = lane_ids[lo + i]
+                ids[i] = b
+                kmax = max(kmax, n_steps[b])
+                last[i] = max(n_steps[b] - 1, 0)
+                t_f[i] = n_steps[b] * dt
+                fb[i] = -1
+                for j in range(6):
+                    X[j, i] = x0[b, j]
+                    out[b, 0, j] = x0[b, j]
+                for j in range(NP):
+                    Pc[j, i] = P[j, b]
+            for k in range(kmax):
                 for i in range(w):
-                    out[k + 1, j, lo + i] = X[j, i]
-        for i in range(w):
-            bad[lo + i] = fb[i] if fb[i] < n_steps[lo + i] else -1
+                    b = ids[i]
+                    kk = min(k, last[i])  # past its end a lane repeats its last input
+                    cur[0, i] = u_seq[b, kk, 0]
+                    cur[1, i] = u_seq[b, kk, 1]
+                    cur[2, i] = w_seq[b, kk, 0]
+                    cur[3, i] = w_seq[b, kk, 1]
+                rk4_step(
+                    X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
+                    Pc, sh, k, dt, t_f, lim_lin, lim_ang, fb, w,
+                )
+                for i in range(w):
+                    if k < n_steps[ids[i]]:
+                        for j in range(6):
+                            out[ids[i], k + 1, j] = X[j, i]
+            for i in range(w):
+                b = ids[i]
+                n = n_steps[b]
+                for k in range(n + 1, K + 1):
+                    for j in range(6):
+                        out[b, k, j] = np.nan
+                bad[b] = fb[i] if fb[i] < n else -1
 
 
 @numba.njit(cache=True, **JIT_OPTIONS)
 def rhs_lanes(X, delta, n_p, U_T, gamma_T, P, sh, out):
     """xdot for M independent points: X (6, M), inputs (M,), P (N_PARAMS, M) -> out (6, M)."""
     for i in range(X.shape[1]):
+        sin_d, cos_d = sincos(delta[i])
+        sin_g, cos_g = sincos(gamma_T[i])
         d = rhs(
             X[0, i], X[1, i], X[2, i], X[3, i], X[4, i], X[5, i],
-            delta[i], n_p[i], U_T[i], gamma_T[i], P, i, sh,
+            delta[i], sin_d, cos_d, n_p[i], U_T[i], gamma_T[i], sin_g, cos_g, P, i, sh,
         )
         for j in range(6):
             out[j, i] = d[j]
@@ -181,8 +219,9 @@ _MMG_RHS = """\
 {current_lines}\
     u_w = u - u_c
     v_w = v_m - v_c
-    F = hydrodynamic_forces(u_w, v_w, r, delta, n_p, th, sh)
-    X_A, Y_A, N_A = aerodynamic_forces(u, v_m, psi, U_T, gamma_T, th, sh)
+    sin_psi, cos_psi = sincos(psi)
+    F = hydrodynamic_forces(u_w, v_w, r, sin_d, cos_d, n_p, th, sh)
+    X_A, Y_A, N_A = aerodynamic_forces(u, v_m, sin_psi, cos_psi, U_T, sin_g, cos_g, th, sh)
     X = F[0] + F[3] + F[6] + X_A  # Eq. (2)
     Y = F[1] + F[4] + F[7] + Y_A  # Eq. (2)
     N = F[2] + F[5] + F[8] + N_A  # Eq. (2)
@@ -190,7 +229,7 @@ _MMG_RHS = """\
     u_dot, v_dot, r_dot = accelerations(X, Y, N, u_w, v_w, r, th, sh)  # Eq. (1)
     u_dot += r * v_c  # uniform current rotating with the heading (zero without a current)
     v_dot -= r * u_c
-    x_dot, y_dot = kinematics(u, v_m, psi)
+    x_dot, y_dot = kinematics(u, v_m, sin_psi, cos_psi)
     return x_dot, u_dot, y_dot, v_dot, r, r_dot
 """
 

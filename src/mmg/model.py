@@ -18,28 +18,44 @@ from mmg.wind import apparent_wind, wind_forces
 
 @subfunction
 def hydrodynamic_forces(
-    u: float, v_m: float, r: float, delta: float, n_p: float, th: Theta, sh: Ship
+    u: float,
+    v_m: float,
+    r: float,
+    sin_delta: float,
+    cos_delta: float,
+    n_p: float,
+    th: Theta,
+    sh: Ship,
 ) -> tuple[float, float, float, float, float, float, float, float, float]:
     """Hull, propeller and rudder forces (X_H, Y_H, N_H, X_P, Y_P, N_P, X_R, Y_R, N_R).
 
-    u, v_m [m/s] velocity through the water at midship, r [rad/s], delta [rad], n_p [rev/s].
-    Forces in N, moments in N m, at midship.
+    u, v_m [m/s] velocity through the water at midship, r [rad/s], rudder angle delta [rad] as
+    sin(delta), cos(delta), n_p [rev/s]. Forces in N, moments in N m, at midship.
     """
     X_H, Y_H, N_H = hull_forces(u, v_m, r, th, sh)
     one_minus_w = wake_factor(u, v_m, r, th, sh)
     J_s = advance_ratio(u, n_p, sh)
     X_P, Y_P, N_P, K_T = propeller_forces(u, n_p, J_s, one_minus_w, th, sh)
     u_R, v_R = rudder_inflow(u, v_m, r, n_p, one_minus_w, K_T, th, sh)
-    X_R, Y_R, N_R = rudder_forces(u_R, v_R, delta, th, sh)
+    X_R, Y_R, N_R = rudder_forces(u_R, v_R, sin_delta, cos_delta, th, sh)
     return X_H, Y_H, N_H, X_P, Y_P, N_P, X_R, Y_R, N_R
 
 
 @subfunction
 def aerodynamic_forces(
-    u: float, v_m: float, psi: float, U_T: float, gamma_T: float, th: Theta, sh: Ship
+    u: float,
+    v_m: float,
+    sin_psi: float,
+    cos_psi: float,
+    U_T: float,
+    sin_gamma_T: float,
+    cos_gamma_T: float,
+    th: Theta,
+    sh: Ship,
 ) -> tuple[float, float, float]:
-    """Wind forces (X_A [N], Y_A [N], N_A [N m]); u, v_m [m/s] velocity over ground."""
-    u_A, v_A = apparent_wind(u, v_m, psi, U_T, gamma_T)
+    """Wind forces (X_A [N], Y_A [N], N_A [N m]); u, v_m [m/s] velocity over ground; angles as
+    sine and cosine (see :func:`mmg.wind.apparent_wind`)."""
+    u_A, v_A = apparent_wind(u, v_m, sin_psi, cos_psi, U_T, sin_gamma_T, cos_gamma_T)
     return wind_forces(u_A, v_A, th, sh)
 
 
@@ -58,10 +74,16 @@ def all_forces(
 ) -> tuple[float, float, float, float, float, float, float, float, float, float, float, float]:
     """The twelve force components (X_H, Y_H, N_H, X_P, Y_P, N_P, X_R, Y_R, N_R, X_A, Y_A, N_A).
 
-    Still water (velocity through the water = velocity over ground). Forces in N, moments in N m.
+    Still water (velocity through the water = velocity over ground). Angles in rad, forces in N,
+    moments in N m. The reference entry point for tests; the kernel calls the parts directly.
     """
-    X_H, Y_H, N_H, X_P, Y_P, N_P, X_R, Y_R, N_R = hydrodynamic_forces(u, v_m, r, delta, n_p, th, sh)
-    X_A, Y_A, N_A = aerodynamic_forces(u, v_m, psi, U_T, gamma_T, th, sh)
+    sin_d, cos_d = sincos(delta)
+    sin_psi, cos_psi = sincos(psi)
+    sin_g, cos_g = sincos(gamma_T)
+    X_H, Y_H, N_H, X_P, Y_P, N_P, X_R, Y_R, N_R = hydrodynamic_forces(
+        u, v_m, r, sin_d, cos_d, n_p, th, sh
+    )
+    X_A, Y_A, N_A = aerodynamic_forces(u, v_m, sin_psi, cos_psi, U_T, sin_g, cos_g, th, sh)
     return X_H, Y_H, N_H, X_P, Y_P, N_P, X_R, Y_R, N_R, X_A, Y_A, N_A
 
 
@@ -95,7 +117,7 @@ def accelerations(
 
 
 @subfunction
-def kinematics(u: float, v_m: float, psi: float) -> tuple[float, float]:
-    """Earth-fixed velocity of midship (x0_dot, y0_dot) [m/s] from body velocities and heading."""
-    s, c = sincos(psi)
-    return u * c - v_m * s, u * s + v_m * c
+def kinematics(u: float, v_m: float, sin_psi: float, cos_psi: float) -> tuple[float, float]:
+    """Earth-fixed velocity of midship (x0_dot, y0_dot) [m/s] from body velocities [m/s] and the
+    heading psi as sin(psi), cos(psi)."""
+    return u * cos_psi - v_m * sin_psi, u * sin_psi + v_m * cos_psi

@@ -12,7 +12,6 @@ import math
 
 from mmg._jit import subfunction
 from mmg.params import Ship, Theta
-from mmg.trig import sincos
 
 
 @subfunction
@@ -61,18 +60,20 @@ def rudder_inflow(
 
 @subfunction
 def rudder_forces(
-    u_R: float, v_R: float, delta: float, th: Theta, sh: Ship
+    u_R: float, v_R: float, sin_delta: float, cos_delta: float, th: Theta, sh: Ship
 ) -> tuple[float, float, float]:
     """Rudder forces X_R [N], Y_R [N] and yaw moment N_R [N m] at midship.
 
-    u_R, v_R [m/s] rudder inflow, delta [rad] rudder angle (positive turns to starboard).
+    u_R, v_R [m/s] rudder inflow; the rudder angle delta [rad] (positive turns to starboard)
+    enters through sin(delta) and cos(delta), which the caller computes once per input sample.
     F_N = 0.5 rho A_R U_R^2 f_alpha sin(alpha_R) with alpha_R = delta - atan2(v_R, u_R) is written
     without the angle: U_R^2 sin(alpha_R) = U_R (u_R sin(delta) - v_R cos(delta)).
     """
     L = sh.L_pp
     f_alpha = 6.13 * sh.lambda_R / (2.25 + sh.lambda_R)  # Eq. (18), Fujii's formula
     U_R = math.sqrt(u_R * u_R + v_R * v_R)  # Eq. (19)
-    sin_d, cos_d = sincos(delta)
+    sin_d = sin_delta
+    cos_d = cos_delta
     F_N = 0.5 * sh.rho * sh.A_R * f_alpha * U_R * (u_R * sin_d - v_R * cos_d)  # Eqs. (17), (20)
     X_R = -(1.0 - th.t_R) * F_N * sin_d  # Eq. (14)
     Y_R = -(1.0 + th.a_H) * F_N * cos_d  # Eq. (15), standard MMG sign

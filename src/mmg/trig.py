@@ -7,7 +7,8 @@ vectorises them across trajectories:
 
 - ``sincos``: Cody-Waite reduction by pi/2 in three parts and the fdlibm minimax kernels
   (``__kernel_sin``, ``__kernel_cos``) on [-pi/4, pi/4]; within 1 ulp of ``math.sin``/``math.cos``
-  for |x| < 1e5 (accuracy degrades gracefully beyond; never NaN for finite input).
+  for |x| < 1e5 (accuracy degrades gracefully beyond); NaN for |x| >= 2^50, which only a diverged
+  trajectory reaches (and which the kernel then flags).
 - ``atan2``: reduction to [0, 1] by min/max, then Cephes' rational atan (reduction at tan(pi/8)
   style threshold 0.66); within 2 ulp of ``math.atan2``.
 
@@ -59,7 +60,10 @@ _PIO2 = 1.57079632679489661923e00
 
 @subfunction
 def sincos(x: float) -> tuple[float, float]:
-    """(sin x, cos x) for x [rad]."""
+    """(sin x, cos x) for x [rad]; NaN for |x| >= 2^50 (no digit of the reduction would be right)
+    and for non-finite x."""
+    if not abs(x) < 1.125899906842624e15:
+        return math.nan, math.nan
     k = math.floor(x * _TWO_OVER_PI + 0.5)
     r = ((x - k * _PIO2_1) - k * _PIO2_2) - k * _PIO2_3  # Cody-Waite, |r| <= pi/4
     z = r * r
@@ -76,9 +80,7 @@ def sincos(x: float) -> tuple[float, float]:
         return c, -s
     if q == 2.0:
         return -s, -c
-    if q == 3.0:
-        return -c, s
-    return x - x, x - x  # non-finite x: NaN, like math.sin
+    return -c, s
 
 
 @subfunction

@@ -12,19 +12,26 @@ import math
 
 from mmg._jit import subfunction
 from mmg.params import Ship, Theta
-from mmg.trig import sincos
 
 
 @subfunction
 def apparent_wind(
-    u: float, v_m: float, psi: float, U_T: float, gamma_T: float
+    u: float,
+    v_m: float,
+    sin_psi: float,
+    cos_psi: float,
+    U_T: float,
+    sin_gamma_T: float,
+    cos_gamma_T: float,
 ) -> tuple[float, float]:
     """Body-frame components (u_A, v_A) [m/s] of the apparent wind, pointing where it comes FROM.
 
-    U_A = hypot(u_A, v_A), gamma_A = atan2(v_A, u_A). u, v_m [m/s] ship velocity at midship,
-    psi [rad] heading.
+    U_A = hypot(u_A, v_A), gamma_A = atan2(v_A, u_A). u, v_m [m/s] ship velocity over ground at
+    midship; heading psi and true wind direction gamma_T [rad] enter through their sine and
+    cosine; the relative angle gamma_T - psi follows by the angle-difference identities.
     """
-    s, c = sincos(gamma_T - psi)
+    c = cos_gamma_T * cos_psi + sin_gamma_T * sin_psi  # cos(gamma_T - psi)
+    s = sin_gamma_T * cos_psi - cos_gamma_T * sin_psi  # sin(gamma_T - psi)
     u_A = U_T * c + u
     v_A = U_T * s + v_m
     return u_A, v_A

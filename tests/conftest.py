@@ -1,0 +1,31 @@
+"""Shared fixtures: where the reference files and the real recordings are."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+
+
+def data_dir() -> Path:
+    """The FRT-DS-ESSO recordings: $MMG_DATA_DIR, else ../shared/data/frt-ds-esso."""
+    env = os.environ.get("MMG_DATA_DIR")
+    return Path(env) if env else SHARED / "data" / "frt-ds-esso"
+
+
+@pytest.fixture(scope="session")
+def shared_dir() -> Path:
+    if not SHARED.is_dir():
+        pytest.fail(f"the shared reference directory {SHARED} is missing")
+    return SHARED
+
+
+@pytest.fixture(scope="session")
+def frt_dir() -> Path:
+    d = data_dir()
+    if not (d / "data").is_dir():
+        pytest.fail(f"recordings not found under {d}: set MMG_DATA_DIR")
+    return d

@@ -1,0 +1,143 @@
+"""The RK4 kernel: convergence order, batch vs single trajectory, limiter, divergence flags."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+from scipy.linalg import expm
+
+from mmg import bounds, derivatives, efd_parameters, simulate, simulate_batch
+from mmg.integrate import parameter_matrix, rk4_reference
+from mmg.kernel import LIMIT_A, load_kernel
+from tests.rk4_linear import A, linear_rhs
+
+
+def _run_linear(dt: float, T: float) -> np.ndarray:
+    kern = load_kernel(rhs_override=linear_rhs)
+    K = round(T / dt)
+    x0 = np.array([[1.0, 0.0, 0.5, -0.5, 0.2, 0.1]])
+    out = np.empty((1, K + 1, 6))
+    bad = np.empty(1, np.int64)
+    p = efd_parameters()
+    kern.simulate_lanes(
+        x0, np.zeros((1, K, 2)), np.zeros((1, K, 2)), parameter_matrix(p, 1),
+        np.array([K]), np.array([0]), p.ship, dt, LIMIT_A, LIMIT_A, 8, 1, out, bad,
+    )  # fmt: skip
+    return out[0, -1]
+
+
+def test_rk4_error_slope_is_four_on_a_linear_system():
+    T = 10.0
+    exact = expm(A * T) @ np.array([1.0, 0.0, 0.5, -0.5, 0.2, 0.1])
+    dts = np.array([0.4, 0.2, 0.1, 0.05])
+    errors = np.array([np.linalg.norm(_run_linear(dt, T) - exact) for dt in dts])
+    slope = np.polyfit(np.log(dts), np.log(errors), 1)[0]
+    assert 3.8 < slope < 4.2, (slope, errors)
+
+
+def _random_inputs(rng, B, K):
+    u = np.empty((B, K, 2))
+    u[..., 0] = rng.uniform(-0.6, 0.6, (B, 1)) + 0.1 * np.sin(np.arange(K) * 0.05)
+    u[..., 1] = rng.choice([-15.0, -5.0, 0.0, 4.0, 10.0], (B, 1))
+    w = np.empty((B, K, 2))
+    w[..., 0] = rng.uniform(0.0, 3.0, (B, 1))
+    w[..., 1] = rng.uniform(-np.pi, np.pi, (B, 1))
+    x0 = np.zeros((B, 6))
+    x0[:, 1] = rng.uniform(-0.2, 0.35, B)
+    x0[:, 3] = rng.uniform(-0.05, 0.05, B)
+    x0[:, 4] = rng.uniform(-3, 3, B)
+    x0[:, 5] = rng.uniform(-0.03, 0.03, B)
+    return x0, u, w
+
+
+def _perturbed(rng, n, scale=0.2):
+    base = efd_parameters().vector()
+    lo, hi = bounds()
+    theta = base * (1 + scale * rng.standard_normal((n, base.size)))
+    return np.clip(theta, lo, hi)
+
+
+def test_batched_paths_agree_with_single_trajectory_reference():
+    rng = np.random.default_rng(1)
+    B, K = 13, 150
+    x0, u, w = _random_inputs(rng, B, K)
+    theta = _perturbed(rng, B)
+    steps = rng.integers(40, K + 1, B)
+    res = simulate_batch(x0, u, w, theta, n_steps=steps, chunk=8)
+    p0 = efd_parameters()
+    for b in range(B):
+        ref = rk4_reference(
+            x0[b], u[b, : steps[b]], w[b, : steps[b]], type(p0).from_vector(theta[b])
+        )
+        got = res.states[b, : steps[b] + 1]
+        np.testing.assert_allclose(got, ref, rtol=1e-10, atol=1e-12)
+        assert np.all(np.isnan(res.states[b, steps[b] + 1 :]))
+
+
+def test_results_do_not_depend_on_chunking_or_batch_companions():
+    rng = np.random.default_rng(2)
+    x0, u, w = _random_inputs(rng, 37, 200)
+    theta = _perturbed(rng, 37)
+    a = simulate_batch(x0, u, w, theta, chunk=8).states
+    b = simulate_batch(x0, u, w, theta, chunk=120).states
+    c = simulate_batch(x0[5:6], u[5:6], w[5:6], theta[5:6]).states
+    assert np.array_equal(a, b)
+    assert np.array_equal(a[5], c[0])
+
+
+def test_diverging_candidate_is_flagged_and_does_not_spoil_the_batch():
+    rng = np.random.default_rng(3)
+    x0, u, w = _random_inputs(rng, 4, 300)
+    theta = np.tile(efd_parameters().vector(), (4, 1))
+    lo, hi = bounds()
+    theta[2] = np.where(rng.random(lo.size) < 0.5, lo, hi)  # a corner of the search box
+    theta[2, :3] = 0.7 * efd_parameters().vector()[:3]
+    res = simulate_batch(x0, u, w, theta)
+    solo = simulate_batch(x0[[0, 1, 3]], u[[0, 1, 3]], w[[0, 1, 3]], theta[[0, 1, 3]])
+    assert not res.diverged[[0, 1, 3]].any()
+    assert np.array_equal(res.states[[0, 1, 3]], solo.states)
+    # a candidate whose derivatives exceed the limiter is flagged, never raised
+    theta[1, 0] = -1e12  # m_x' absurdly negative: surge equation is near-singular
+    res2 = simulate_batch(x0, u, w, theta)
+    assert res2.diverged[1] and res2.bad_step[1] >= 0
+    assert not res2.diverged[[0, 3]].any()
+
+
+def test_limiter_clips_to_the_algorithm_1_bounds():
+    """With an absurd mass the limiter must act and position rows follow (2 - t/t_f) a."""
+    p = efd_parameters().replace(m_x=-0.27078 + 1e-14)  # m + m_x ~ 0: u_dot explodes
+    x0 = np.array([[0.0, 0.3, 0.0, 0.0, 0.0, 0.0]])
+    u = np.tile([0.0, 10.0], (1, 10, 1))
+    w = np.zeros((1, 10, 2))
+    res = simulate_batch(x0, u, w, p)
+    ref = rk4_reference(x0[0], u[0], w[0], p)
+    assert res.diverged[0] and res.bad_step[0] == 0
+    np.testing.assert_allclose(res.states[0], ref, rtol=1e-12)
+    raw = derivatives(x0[0], u[0, 0], w[0, 0], p)
+    assert abs(raw[1]) > LIMIT_A  # unclipped, u_dot would exceed the limit
+    # every stage is clipped, so no step moves a state by more than dt x (its bound)
+    step = np.abs(np.diff(res.states[0], axis=0))
+    a, L = LIMIT_A, p.ship.L_pp
+    bound = 0.1 * np.array([2 * a, a, 2 * a, a, 2 * a / (0.5 * L), a / (0.5 * L)])
+    assert np.all(step <= bound * (1 + 1e-12))
+    assert step.max() > 1e6  # and the limiter, not the physics, set the scale
+
+
+def test_recorded_turning_test_is_followed_for_100_seconds(frt_dir):
+    """EFD model, 100 s of the recorded Test-T run (t = 300-400 s, steady 35 deg turn)."""
+    df = pd.read_csv(frt_dir / "data/turning/turn_14-Sep-2020_14_50_41.csv")
+    cols = ["x_position_mid [m]", "u_velo [m/s]", "y_position_mid [m]", "vm_velo [m/s]"]
+    cols += ["psi_hat [rad]", "r_angvelo [rad/s]"]
+    x = df[cols].to_numpy()
+    x[:, 4] = np.unwrap(x[:, 4])
+    u = df[["delta_rudder [rad]", "n_prop [rps]"]].to_numpy()
+    w = df[["wind_velo_true [m/s]", "wind_dir_true [rad]"]].to_numpy()
+    s0, K = 3000, 1000
+    traj = simulate(x[None, s0], u[None, s0 : s0 + K], w[None, s0 : s0 + K], efd_parameters())[0]
+    assert np.all(np.isfinite(traj))
+    err = np.hypot(traj[:, 0] - x[s0 : s0 + K + 1, 0], traj[:, 2] - x[s0 : s0 + K + 1, 2])
+    # measured: 2.1 m after 100 s and 17 m of travel (model length 3 m)
+    assert err[-1] < 3.0
+    # the ship turns to starboard like the recording: heading grows by more than 2 rad
+    assert traj[-1, 4] - traj[0, 4] > 2.0
+    assert abs(traj[-1, 4] - x[s0 + K, 4]) < 1.0

@@ -246,3 +246,92 @@ def rk4_reference(
         x = x + dt / 6.0 * (ks[0] + 2.0 * ks[1] + 2.0 * ks[2] + ks[3])
         out[k + 1] = x
     return out
+
+
+#: the observables whose moments :func:`segment_moments` accumulates (the J2 state of the paper)
+OBSERVABLES = ("x0", "u", "y0", "v_m", "sin_psi", "cos_psi", "r")
+
+
+@dataclass(frozen=True)
+class Segments:
+    """Initial-value problems shared by every candidate of a population.
+
+    x0 (S, 6) recorded first states; u (S, K, 2) controls and w (S, K, 2) true wind (zero-order
+    hold); n_steps (S,) lengths <= K; ref (S, K + 1, 7) a reference series per observable (e.g. the
+    standardised recording); shift (S, 7) subtracted from the simulated observables before the
+    moments are formed (numerical conditioning: use the recorded first values).
+    """
+
+    x0: FloatArray
+    u: FloatArray
+    w: FloatArray
+    n_steps: np.ndarray
+    ref: FloatArray
+    shift: FloatArray
+
+    def __post_init__(self) -> None:
+        S, K = self.u.shape[:2]
+        shapes = {
+            "x0": (self.x0.shape, (S, 6)),
+            "u": (self.u.shape, (S, K, 2)),
+            "w": (self.w.shape, (S, K, 2)),
+            "n_steps": (self.n_steps.shape, (S,)),
+            "ref": (self.ref.shape, (S, K + 1, 7)),
+            "shift": (self.shift.shape, (S, 7)),
+        }
+        for name, (got, want) in shapes.items():
+            if got != want:
+                raise ValueError(f"Segments.{name} must have shape {want}; got {got}")
+
+
+def segment_moments(
+    segments: Segments,
+    p: ParamsLike,
+    dt: float = 0.1,
+    effects: tuple[Effect, ...] = (),
+    ship: Ship | None = None,
+    chunk: int = DEFAULT_CHUNK,
+) -> tuple[FloatArray, np.ndarray]:
+    """Simulate every (candidate, segment) pair, streaming moments instead of trajectories.
+
+    ``p``: C candidates (array (C, n) or a sequence), or one :class:`Parameters`. Returns
+    mom (C, S, 7, 5): per observable of :data:`OBSERVABLES`, over the samples k = 0..n_steps of the
+    segment, with trapezoid weights w_k (1/2 at both ends): (sum z, sum z^2, sum w z, sum w z^2,
+    sum w z ref), z shifted by ``segments.shift``; and bad_step (C, S), -1 where the simulation
+    stayed finite and within the limiter. Memory is O(C S), not O(C S K).
+    """
+    S = segments.x0.shape[0]
+    C = 1 if isinstance(p, Parameters) else len(p)
+    sh = _ship_of(p, ship)
+    P = parameter_matrix(p, C, effects)
+    kern = load_kernel(effects)
+    seg_order = np.argsort(-segments.n_steps, kind="stable")  # long segments first
+    lane_seg = np.repeat(seg_order, C)
+    lane_cand = np.tile(np.arange(C), S)
+    L = C * S
+    mom = np.empty((L, 7, 5))
+    bad = np.empty(L, dtype=np.int64)
+    kern.moments_lanes(
+        kernel_array(segments.x0),
+        kernel_array(segments.u),
+        kernel_array(segments.w),
+        kernel_array(segments.ref),
+        kernel_array(segments.shift),
+        kernel_array(segments.n_steps, np.int64),
+        kernel_array(P),
+        kernel_array(lane_cand, np.int64),
+        kernel_array(lane_seg, np.int64),
+        sh,
+        float(dt),
+        LIMIT_A,
+        LIMIT_A / (0.5 * sh.L_pp),
+        chunk_width(L, chunk),
+        numba.get_num_threads(),
+        mom,
+        bad,
+    )
+    out = np.empty((C, S, 7, 5))
+    out[lane_cand, lane_seg] = mom
+    bad_cs = np.empty((C, S), dtype=np.int64)
+    bad_cs[lane_cand, lane_seg] = bad
+    return out, bad_cs

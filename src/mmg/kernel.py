@@ -197,6 +197,96 @@ def simulate_lanes(
                 bad[b] = fb[i] if fb[i] < n else -1
 
 
+@numba.njit(parallel=True, cache=True, **JIT_OPTIONS)
+def moments_lanes(
+    seg_x0, seg_u, seg_w, seg_ref, seg_shift, seg_steps, P, lane_cand, lane_seg,
+    sh, dt, lim_lin, lim_ang, W, n_threads, mom, bad,
+):
+    """Integrate lanes (candidate, segment) and accumulate moments of the observables.
+
+    Observables z = (x0, u, y0, v_m, sin psi, cos psi, r), shifted by seg_shift (S, 7).
+    Segments: seg_x0 (S, 6), seg_u / seg_w (S, K, 2), seg_ref (S, K + 1, 7) a reference series,
+    seg_steps (S,).
+    Lanes: lane_cand, lane_seg (L,) index P (N_PARAMS, C) and the segments. For every lane and
+    observable, mom (L, 7, 5) receives over the samples k = 0..K of its segment, with trapezoid
+    weights w_k (1/2 at both ends, else 1): sum z, sum z^2, sum w z, sum w z^2, sum w z ref.
+    bad (L,) is the first step at which the lane hit the limiter or became non-finite (-1: none).
+    """
+    L = lane_cand.shape[0]
+    NP = P.shape[0]
+    n_chunks = (L + W - 1) // W
+    for t in numba.prange(n_threads):
+        X = np.empty((6, W))
+        Pc = np.empty((NP, W))
+        cur = np.empty((4, W))
+        Ks = np.empty((4, 6, W))
+        Tr = np.empty((4, W))
+        t_f = np.empty(W)
+        fb = np.empty(W, dtype=np.int64)
+        seg = np.empty(W, dtype=np.int64)
+        acc = np.empty((7, 5, W))
+        for c in range(t, n_chunks, n_threads):
+            lo = c * W
+            w = min(lo + W, L) - lo
+            kmax = 0
+            for i in range(w):
+                s = lane_seg[lo + i]
+                seg[i] = s
+                kmax = max(kmax, seg_steps[s])
+                t_f[i] = seg_steps[s] * dt
+                fb[i] = -1
+                for j in range(6):
+                    X[j, i] = seg_x0[s, j]
+                for j in range(NP):
+                    Pc[j, i] = P[j, lane_cand[lo + i]]
+                for q in range(7):
+                    for m in range(5):
+                        acc[q, m, i] = 0.0
+            for k in range(kmax + 1):
+                # accumulate sample k (the state before step k)
+                for i in range(w):
+                    s = seg[i]
+                    n = seg_steps[s]
+                    on = 1.0 if k <= n else 0.0
+                    wt = on * (0.5 if (k == 0 or k == n) else 1.0)
+                    kk = min(k, n)
+                    sp, cp = sincos(X[4, i])
+                    for q in range(7):
+                        if q == 4:
+                            z = sp
+                        elif q == 5:
+                            z = cp
+                        elif q == 6:
+                            z = X[5, i]
+                        else:
+                            z = X[q, i]
+                        z = z - seg_shift[s, q]
+                        acc[q, 0, i] += on * z
+                        acc[q, 1, i] += on * z * z
+                        acc[q, 2, i] += wt * z
+                        acc[q, 3, i] += wt * z * z
+                        acc[q, 4, i] += wt * z * seg_ref[s, kk, q]
+                if k == kmax:
+                    break
+                for i in range(w):
+                    s = seg[i]
+                    kk = min(k, max(seg_steps[s] - 1, 0))
+                    cur[0, i] = seg_u[s, kk, 0]
+                    cur[1, i] = seg_u[s, kk, 1]
+                    cur[2, i] = seg_w[s, kk, 0]
+                    cur[3, i] = seg_w[s, kk, 1]
+                rk4_step(
+                    X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
+                    Pc, sh, k, dt, t_f, lim_lin, lim_ang, fb, w,
+                )
+            for i in range(w):
+                lane = lo + i
+                for q in range(7):
+                    for m in range(5):
+                        mom[lane, q, m] = acc[q, m, i]
+                bad[lane] = fb[i] if fb[i] < seg_steps[seg[i]] else -1
+
+
 @numba.njit(cache=True, **JIT_OPTIONS)
 def rhs_lanes(X, delta, n_p, U_T, gamma_T, P, sh, out):
     """xdot for M independent points: X (6, M), inputs (M,), P (N_PARAMS, M) -> out (6, M)."""
@@ -324,7 +414,8 @@ def _fingerprint(source: str, effects: tuple[Effect, ...], rhs_override: object 
 def load_kernel(effects: tuple[Effect, ...] = (), rhs_override: object | None = None) -> ModuleType:
     """Generate (if needed), import and return the kernel module for ``effects``.
 
-    The module exposes ``simulate_lanes``, ``rhs_lanes``, ``rhs`` and ``N_PARAMS``.
+    The module exposes ``simulate_lanes``, ``moments_lanes``, ``rhs_lanes``, ``rhs`` and
+    ``N_PARAMS``.
     """
     source = render(effects, rhs_override)
     key = _fingerprint(source, effects, rhs_override)

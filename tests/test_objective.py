@@ -108,7 +108,7 @@ def test_diverged_candidate_costs_a_finite_penalty(test_set):
 def test_floor_keeps_a_still_channel_from_exploding():
     """Heading constant to 1e-6 rad in the recording: sin/cos psi are pure noise without a floor."""
     n = 301
-    t = np.arange(n) * 0.1
+    t = np.arange(n, dtype=np.float64) * 0.1
     x = np.zeros((n, 6))
     x[:, 1] = 0.2
     x[:, 0] = 0.2 * t

@@ -37,10 +37,8 @@ def test_parameters_file_and_recordings_directory(frt_dir, tmp_path):
     p = efd_parameters().replace(a_H=0.2)
     p.save_json(tmp_path / "p.json")
     out = tmp_path / "j.json"
-    rc = main(
-        ["--params", str(tmp_path / "p.json"), "--recordings", str(frt_dir / "data/berthing")]
-        + ["--json", str(out)]
-    )
+    args = ["--params", str(tmp_path / "p.json"), "--json", str(out)]
+    rc = main([*args, "--recordings", str(frt_dir / "data/berthing")])
     assert rc == 0
     table = json.loads(out.read_text())
     assert set(table["J1"]) == {

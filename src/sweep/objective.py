@@ -212,6 +212,12 @@ class Objective:
     def n_segments(self) -> int:
         return len(self.data.index)
 
+    @property
+    def max_penalty(self) -> float:
+        """The value of a candidate whose every subsequence diverged (the worst finite value)."""
+        n_channels = len(CHANNELS[self.name])
+        return float(PENALTY_FACTOR * self.data.durations.sum() * n_channels)
+
     def costs(self, thetas: Any) -> tuple[FloatArray, np.ndarray]:
         """(C, S, 7) per-channel integrals and (C, S) divergence flags for C candidates.
 

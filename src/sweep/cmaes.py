@@ -1,0 +1,337 @@
+"""Restart CMA-ES over the normalised search box (paper section 3.2-3.3).
+
+The paper runs CMA-ES with box constraints and the restart strategy of Auger & Hansen (2005):
+the population starts at 20 and doubles at every restart, up to 720. pycma's own IPOP (``fmin2``
+with ``incpopsize``) has no cap, so this module is the restart layer: it builds a fresh
+``cma.CMAEvolutionStrategy`` per restart, keeps the best solution across restarts, records every
+restart's termination reason, and stops on a budget of function evaluations or wall-clock time.
+
+Search space: y in [0, 1]^n with theta = lower + y (upper - lower) (the paper's domain,
+:func:`mmg.bounds`); the initial mean is the EFD vector (``x0="efd"``) or any given vector.
+
+Box constraints (setting ``bound_handling``):
+
+- ``"penalty"`` (default): pycma's ``BoundPenalty``, Hansen et al. (2009) with pycma's
+  modifications: candidates are evaluated at their projection onto the box and ranked by
+  f + an adaptive quadratic penalty on the distance to it. This is the handler that the paper's
+  "modified box constraint" (Sakamoto & Akimoto 2017) modifies, and the closest one with a
+  maintained implementation: both repair to the box and rank with an adapted penalty; Sakamoto &
+  Akimoto additionally adapt the penalty weights with the distribution's variance. The
+  distribution mean may leave the box, as in the paper.
+- ``"transform"``: pycma's ``BoundTransform`` (a smooth periodic map into the box).
+- ``"none"``: no handling; candidates are evaluated where sampled (the model then runs with
+  parameters outside the paper's domain).
+
+Post-filter (paper section 5): a result (the best evaluated parameters) with some
+theta_j > 10 |upper_j| or theta_j < -10 |lower_j| is reported as ``rejected`` (the paper removed
+such seeds from its tables and used other results "without correction"). With ``penalty`` or
+``transform`` every evaluated point lies in the box, so only ``none`` can produce a rejected
+result; the final distribution mean is checked too and reported as ``mean_outside``.
+
+Reproducibility: one integer seed fixes everything. Restart r draws its generator from
+``numpy.random.SeedSequence(seed).spawn``; pycma samples with that generator (``randn`` option),
+never numpy's global state. A checkpoint written after every generation holds the strategy
+(pickled, with its generator), the restart index, the evaluations used, the best so far and the
+history, so that a resumed run ends exactly where an uninterrupted one would.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import pickle
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import cma
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+BoundHandling = Literal["penalty", "transform", "none"]
+
+#: paper: initial population 20, doubled at each restart, at most 720
+POPSIZE_START = 20
+POPSIZE_MAX = 720
+
+
+def population_schedule(restart: int, start: int = POPSIZE_START, cap: int = POPSIZE_MAX) -> int:
+    """Population size of restart ``restart`` (0-based): start * 2^restart, capped."""
+    return int(min(start * 2**restart, cap))
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Options of one optimisation job (all plain data, stored with the checkpoint)."""
+
+    seed: int = 0
+    max_evaluations: int = 100_000
+    max_seconds: float | None = None
+    sigma0: float = 0.1  # initial step size in the normalised box
+    popsize_start: int = POPSIZE_START
+    popsize_max: int = POPSIZE_MAX
+    max_restarts: int = 100
+    bound_handling: BoundHandling = "penalty"
+    tolfun: float = 1e-11
+    tolx: float = 1e-11
+
+    def __post_init__(self) -> None:
+        if self.bound_handling not in ("penalty", "transform", "none"):
+            raise ValueError("bound_handling must be penalty, transform or none")
+        if self.max_evaluations < self.popsize_start:
+            raise ValueError("max_evaluations is smaller than one generation")
+        if not 0.0 < self.sigma0 <= 1.0:
+            raise ValueError("sigma0 must lie in (0, 1] (normalised box)")
+
+
+@dataclass
+class RestartRecord:
+    """One restart: its population, generations, evaluations, best f and why it stopped."""
+
+    index: int
+    popsize: int
+    generations: int = 0
+    evaluations: int = 0
+    best_f: float = math.inf
+    stop: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class State:
+    """Everything needed to continue a job exactly: the checkpoint."""
+
+    settings: Settings
+    n: int
+    restart: int = 0
+    evaluations: int = 0
+    es_pickle: bytes | None = None
+    best_y: FloatArray | None = None
+    best_f: float = math.inf
+    best_restart: int = -1
+    best_mean_y: FloatArray | None = None
+    restarts: list[RestartRecord] = field(default_factory=list)
+    history: list[dict[str, float]] = field(default_factory=list)
+    seconds: float = 0.0
+    finished: bool = False
+    stop_reason: str = ""
+
+
+@dataclass(frozen=True)
+class Result:
+    """Outcome of a job, in the parameter space (theta) and the normalised box (y)."""
+
+    theta: FloatArray  # best evaluated parameters (C,) = (n,)
+    f: float
+    mean_theta: FloatArray  # final distribution mean of the restart that found the best
+    evaluations: int
+    restarts: list[RestartRecord]
+    history: list[dict[str, float]]
+    rejected: bool  # the paper's post-filter applied to theta
+    mean_outside: bool  # the final mean fails the same test (information only)
+    seconds: float
+    stop_reason: str
+
+
+class Box:
+    """Map between the parameter space and the normalised box [0, 1]^n."""
+
+    def __init__(self, lower: FloatArray, upper: FloatArray) -> None:
+        self.lower = np.asarray(lower, dtype=np.float64)
+        self.upper = np.asarray(upper, dtype=np.float64)
+        if self.lower.shape != self.upper.shape or np.any(self.upper <= self.lower):
+            raise ValueError("bounds must have equal shapes with upper > lower")
+
+    @property
+    def n(self) -> int:
+        return int(self.lower.size)
+
+    def to_theta(self, y: Any) -> FloatArray:
+        return self.lower + np.asarray(y, dtype=np.float64) * (self.upper - self.lower)
+
+    def to_y(self, theta: Any) -> FloatArray:
+        return (np.asarray(theta, dtype=np.float64) - self.lower) / (self.upper - self.lower)
+
+    def rejected(self, theta: Any) -> bool:
+        """The paper's post-filter: some theta_j more than 10 times beyond its bound."""
+        t = np.asarray(theta, dtype=np.float64)
+        return bool(np.any(t > 10.0 * np.abs(self.upper)) or np.any(t < -10.0 * np.abs(self.lower)))
+
+
+def _new_strategy(state: State, y0: FloatArray) -> cma.CMAEvolutionStrategy:
+    s = state.settings
+    seeds = np.random.SeedSequence(s.seed).spawn(state.restart + 1)
+    child = int(seeds[state.restart].generate_state(1)[0])
+    rng = np.random.RandomState(child)
+    opts: dict[str, Any] = {
+        "popsize": population_schedule(state.restart, s.popsize_start, s.popsize_max),
+        "seed": child,  # pycma also seeds numpy's global generator with it: deterministic anyway
+        "randn": rng.randn,
+        "verbose": -9,
+        "tolfun": s.tolfun,
+        "tolx": s.tolx,
+        "maxfevals": math.inf,  # the job's budget is enforced here, across restarts
+    }
+    if s.bound_handling == "penalty":
+        opts.update(BoundaryHandler=cma.BoundPenalty, bounds=[0.0, 1.0])
+    elif s.bound_handling == "transform":
+        opts.update(BoundaryHandler=cma.BoundTransform, bounds=[0.0, 1.0])
+    return cma.CMAEvolutionStrategy(y0, s.sigma0, opts)
+
+
+def save_checkpoint(state: State, path: str | Path) -> None:
+    """Write atomically (a crash mid-write leaves the previous checkpoint intact)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+    tmp.write_bytes(pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: str | Path) -> State:
+    state = pickle.loads(Path(path).read_bytes())
+    if not isinstance(state, State):
+        raise ValueError(f"{path}: not a checkpoint of sweep.cmaes")
+    return state
+
+
+Evaluate = Callable[[FloatArray], FloatArray]
+Progress = Callable[[State, dict[str, float]], None]
+
+
+def optimise(
+    evaluate: Evaluate,
+    box: Box,
+    x0: FloatArray,
+    settings: Settings,
+    checkpoint: str | Path | None = None,
+    progress: Progress | None = None,
+    stop_after_generations: int | None = None,
+) -> Result:
+    """Run (or resume from ``checkpoint``) a restart CMA-ES job.
+
+    ``evaluate(thetas (C, n)) -> (C,)`` objective values (finite; penalties for failures).
+    ``x0`` (n,) the initial mean in parameter space. ``stop_after_generations`` interrupts the run
+    after that many generations of this call (for tests of resume), leaving a checkpoint.
+    """
+    state: State | None = None
+    if checkpoint is not None and Path(checkpoint).exists():
+        state = load_checkpoint(checkpoint)
+        if state.settings != settings or state.n != box.n:
+            raise ValueError(
+                f"{checkpoint}: checkpoint was written with other settings "
+                f"({state.settings}); remove it or use the same settings"
+            )
+    if state is None:
+        state = State(settings=settings, n=box.n)
+    y0 = np.clip(box.to_y(x0), 0.0, 1.0)
+    t_start = time.perf_counter() - state.seconds
+    generations_here = 0
+    s = settings
+    while not state.finished:
+        if state.es_pickle is None:
+            if state.restart >= s.max_restarts:
+                state.finished, state.stop_reason = True, "max_restarts"
+                break
+            es = _new_strategy(state, y0)
+            state.restarts.append(RestartRecord(state.restart, es.popsize))
+        else:
+            es = pickle.loads(state.es_pickle)
+        record = state.restarts[-1]
+        stop: dict[str, Any] = {}
+        while True:
+            if state.evaluations + es.popsize > s.max_evaluations:
+                stop = {"budget": s.max_evaluations}
+                break
+            if s.max_seconds is not None and time.perf_counter() - t_start > s.max_seconds:
+                stop = {"wall_clock": s.max_seconds}
+                break
+            Y = np.asarray(es.ask())
+            f = np.asarray(evaluate(box.to_theta(Y)), dtype=np.float64)
+            if f.shape != (Y.shape[0],):
+                raise ValueError(f"evaluate returned shape {f.shape} for {Y.shape[0]} candidates")
+            f = np.where(np.isfinite(f), f, np.finfo(np.float64).max / 1e3)
+            es.tell(list(Y), f.tolist())
+            state.evaluations += len(f)
+            record.generations += 1
+            record.evaluations += len(f)
+            i = int(np.argmin(f))
+            if f[i] < record.best_f:
+                record.best_f = float(f[i])
+            if f[i] < state.best_f:
+                state.best_f = float(f[i])
+                state.best_y = Y[i].copy()
+                state.best_restart = state.restart
+            if state.best_restart == state.restart:
+                state.best_mean_y = np.asarray(es.mean, dtype=np.float64).copy()
+            row = {
+                "restart": float(state.restart),
+                "popsize": float(es.popsize),
+                "generation": float(record.generations),
+                "evaluations": float(state.evaluations),
+                "best_f": float(f[i]),
+                "median_f": float(np.median(f)),
+                "best_so_far": state.best_f,
+                "sigma": float(es.sigma),
+            }
+            state.history.append(row)
+            stop = dict(es.stop())
+            state.seconds = time.perf_counter() - t_start
+            if stop:
+                break
+            generations_here += 1
+            interrupt = stop_after_generations is not None and (
+                generations_here >= stop_after_generations
+            )
+            if checkpoint is not None or interrupt:
+                state.es_pickle = es.pickle_dumps()  # about 1 MB at population 720
+            if checkpoint is not None:
+                save_checkpoint(state, checkpoint)
+            if progress is not None:
+                progress(state, row)
+            if interrupt:
+                return _result(state, box)
+        record.stop = {k: _plain(v) for k, v in stop.items()}
+        state.es_pickle = None
+        if "budget" in stop or "wall_clock" in stop:
+            state.finished = True
+            state.stop_reason = next(iter(stop))
+        else:
+            state.restart += 1
+        state.seconds = time.perf_counter() - t_start
+        if checkpoint is not None:
+            save_checkpoint(state, checkpoint)
+    return _result(state, box)
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return [_plain(x) for x in v]
+    return v
+
+
+def _result(state: State, box: Box) -> Result:
+    if state.best_y is None:
+        raise RuntimeError("no generation was evaluated")
+    theta = box.to_theta(state.best_y)
+    mean = box.to_theta(state.best_mean_y if state.best_mean_y is not None else state.best_y)
+    return Result(
+        theta=theta,
+        f=state.best_f,
+        mean_theta=mean,
+        evaluations=state.evaluations,
+        restarts=list(state.restarts),
+        history=list(state.history),
+        rejected=box.rejected(theta),
+        mean_outside=box.rejected(mean),
+        seconds=state.seconds,
+        stop_reason=state.stop_reason,
+    )
+
+
+def restart_table(result: Result) -> list[dict[str, Any]]:
+    """The restarts as plain dictionaries (for logging)."""
+    return [asdict(r) for r in result.restarts]

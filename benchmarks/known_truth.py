@@ -50,7 +50,7 @@ def main() -> None:
     ap.add_argument("--budget", type=int, default=10_000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--spread", type=float, default=0.3)
-    ap.add_argument("--sigma0", type=float, default=0.1)
+    ap.add_argument("--sigma0", type=float, default=0.03)
     args = ap.parse_args()
     default_root = Path(__file__).resolve().parents[2] / "shared/data/frt-ds-esso"
     root = os.environ.get("MMG_DATA_DIR", str(default_root))

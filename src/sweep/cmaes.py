@@ -70,7 +70,7 @@ class Settings:
     seed: int = 0
     max_evaluations: int = 100_000
     max_seconds: float | None = None
-    sigma0: float = 0.1  # initial step size in the normalised box
+    sigma0: float = 0.03  # initial step size in the normalised box (see README: 0.03 vs 0.1)
     popsize_start: int = POPSIZE_START
     popsize_max: int = POPSIZE_MAX
     max_restarts: int = 100

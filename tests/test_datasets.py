@@ -153,7 +153,7 @@ def test_hydra_composes_the_same_groups() -> None:
     from hydra import compose, initialize_config_dir
 
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        cfg = compose(overrides=["+train=TR", "+test=paper"])
+        cfg = compose(config_name="config", overrides=["train=TR", "test=paper"])
     assert list(cfg.train.files) == list(load_split("TR").files)
     assert cfg.train.name == "Train-TR"
     assert dict(cfg.test.subsets) == TEST

@@ -217,6 +217,12 @@ def _parse_split(doc: Any, source: Path, group: str) -> Split:
     return Split(name=name, group=group, source=source, subsets=subsets)
 
 
+def split_from_mapping(doc: Any, origin: str = "config") -> Split:
+    """A split from an already-parsed mapping (e.g. the ``train`` node of a Hydra config)."""
+    group = "test" if isinstance(doc, dict) and "subsets" in doc else "train"
+    return _parse_split(doc, Path(origin), group)
+
+
 def _read_yaml(path: Path) -> Any:
     try:
         with path.open(encoding="utf-8") as fh:

@@ -1,0 +1,146 @@
+"""The ``mmg_ray`` Hydra launcher: runs a multirun as one mmg-sweep on Ray.
+
+Hydra composes the configuration of every job of ``python -m sweep -m ...``; this launcher turns
+them into :class:`sweep.job.JobSpec` and hands them to :func:`sweep.service.run_sweep` with a
+Ray executor and an MLflow tracker: bounded concurrency, skip-if-finished, resume from
+checkpoints, failures recorded, a live progress display, summary tables at the end. Its job
+directories are ``hydra.sweep.dir/hydra.sweep.subdir`` (stable names, so a rerun resumes).
+"""
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from hydra.core.config_store import ConfigStore
+from hydra.core.hydra_config import HydraConfig
+from hydra.core.utils import JobReturn, JobStatus
+from hydra.plugins.launcher import Launcher
+from hydra.types import HydraContext, TaskFunction
+from omegaconf import DictConfig, OmegaConf, open_dict
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class MmgRayLauncherConf:
+    _target_: str = "hydra_plugins.mmg_sweep_launcher.mmg_ray_launcher.MmgRayLauncher"
+
+
+ConfigStore.instance().store(group="hydra/launcher", name="mmg_ray", node=MmgRayLauncherConf)
+
+#: the last sweep's summary, for ``python -m sweep`` to set its exit status
+LAST_SUMMARY: Any = None
+
+
+def job_config(cfg: DictConfig) -> dict[str, Any]:
+    """The job's configuration as plain data, interpolations resolved (no Hydra node)."""
+    out: dict[str, Any] = {}
+    for key in cfg:
+        if key == "hydra":
+            continue
+        value = cfg[key]
+        out[str(key)] = (
+            OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
+        )
+    return out
+
+
+class MmgRayLauncher(Launcher):
+    def __init__(self) -> None:
+        self.config: DictConfig | None = None
+        self.hydra_context: HydraContext | None = None
+        self.task_function: TaskFunction | None = None
+
+    def setup(
+        self, *, hydra_context: HydraContext, task_function: TaskFunction, config: DictConfig
+    ) -> None:
+        self.config = config
+        self.hydra_context = hydra_context
+        self.task_function = task_function
+
+    def launch(
+        self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int
+    ) -> Sequence[JobReturn]:
+        from sweep.errors import exit_on_user_error
+
+        with exit_on_user_error():
+            return self._launch(job_overrides, initial_job_idx)
+
+    def _launch(
+        self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int
+    ) -> Sequence[JobReturn]:
+        global LAST_SUMMARY
+        from sweep.job import JobSpec
+        from sweep.raycluster import RayExecutor
+        from sweep.service import Progress, efd_reference, run_sweep, spec_from_config
+        from sweep.tracking import MlflowTracker
+
+        assert self.config is not None and self.hydra_context is not None
+        specs: list[JobSpec] = []
+        job_cfgs: list[DictConfig] = []
+        for idx, overrides in enumerate(job_overrides):
+            cfg = self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
+            with open_dict(cfg):
+                cfg.hydra.job.id = f"job_{initial_job_idx + idx}"
+                cfg.hydra.job.num = initial_job_idx + idx
+            HydraConfig.instance().set_config(cfg)
+            job_dir = Path(cfg.hydra.sweep.dir) / str(cfg.hydra.sweep.subdir)
+            specs.append(spec_from_config(job_config(cfg), job_dir))
+            job_cfgs.append(cfg)
+        first = job_cfgs[0]
+        sweep_dir = Path(first.hydra.sweep.dir)
+        sweep_dir.mkdir(parents=True, exist_ok=True)
+        tracker = MlflowTracker(
+            str(first.tracking.uri),
+            str(first.tracking.experiment),
+            allow_config_change=bool(first.sweep.allow_config_change),
+        )
+        data_root = first.data.root
+        efd = efd_reference(job_config(first)["test"], data_root)
+        executor = RayExecutor(
+            address=first.ray.address,
+            num_cpus=first.ray.num_cpus,
+            workers_per_job=int(first.ray.workers_per_job),
+        )
+        try:
+            summary = run_sweep(
+                name=str(first.sweep.name),
+                specs=specs,
+                executor=executor,
+                tracker=tracker,
+                efd=efd,
+                out_dir=sweep_dir,
+                sweep_config={
+                    "overrides": [" ".join(o) for o in job_overrides],
+                    "jobs": len(specs),
+                },
+                max_concurrent=first.ray.max_concurrent_jobs,
+                progress=Progress(every=float(first.sweep.progress_seconds)),
+            )
+        finally:
+            executor.shutdown()
+        LAST_SUMMARY = summary
+        log.info(
+            "sweep %s: %d finished, %d skipped, %d failed in %.0f s; tables in %s",
+            first.sweep.name,
+            len(summary.finished),
+            len(summary.skipped),
+            len(summary.failed),
+            summary.seconds,
+            sweep_dir / "summary",
+        )
+        returns = []
+        for spec, cfg, overrides in zip(specs, job_cfgs, job_overrides, strict=True):
+            ret = JobReturn(
+                overrides=list(overrides),
+                cfg=cfg,
+                hydra_cfg=cfg,
+                working_dir=str(spec.job_dir),
+                task_name="sweep",
+                status=JobStatus.COMPLETED,
+                _return_value=summary.failed.get(spec.key, "ok"),
+            )
+            returns.append(ret)
+        return returns

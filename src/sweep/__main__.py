@@ -1,0 +1,73 @@
+"""``python -m sweep``: the Hydra application.
+
+Multirun (the paper's grid, on Ray, tracked in MLflow)::
+
+    python -m sweep -m objective=J1,J2,J3 train=R,TR,TZR seed=0,1,2 [budget=smoke|short|paper]
+        [tracking.uri=...] [ray.address=auto] [data.root=DIR] [sweep.name=NAME]
+
+A single run (``python -m sweep objective=J2 train=R seed=0``) runs one job in this process.
+The exit status is non-zero if any job failed.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import hydra
+from omegaconf import DictConfig
+
+CONF = str(Path(__file__).resolve().parents[2] / "conf")
+
+
+def single_job(cfg: DictConfig) -> Any:
+    """One job in this process (no Ray): identification, test metrics, MLflow child run."""
+    from hydra.core.hydra_config import HydraConfig
+
+    from hydra_plugins.mmg_sweep_launcher.mmg_ray_launcher import job_config
+    from sweep.service import LocalExecutor, Progress, efd_reference, run_sweep, spec_from_config
+    from sweep.tracking import MlflowTracker
+
+    plain = job_config(cfg)
+    job_dir = Path(HydraConfig.get().runtime.output_dir)
+    spec = spec_from_config(plain, job_dir)
+    tracker = MlflowTracker(
+        str(cfg.tracking.uri), str(cfg.tracking.experiment), bool(cfg.sweep.allow_config_change)
+    )
+    efd = efd_reference(plain["test"], cfg.data.root)
+    summary = run_sweep(
+        str(cfg.sweep.name), [spec], LocalExecutor(), tracker, efd, job_dir, progress=Progress()
+    )
+    return summary
+
+
+@hydra.main(version_base=None, config_path=CONF, config_name="config")
+def main(cfg: DictConfig) -> Any:
+    from sweep.errors import exit_on_user_error
+
+    with exit_on_user_error():
+        summary = single_job(cfg)
+    if not summary.ok:
+        raise SystemExit(1)
+    return summary
+
+
+def run() -> int:
+    from hydra_plugins.mmg_sweep_launcher import mmg_ray_launcher
+
+    try:
+        main()
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    summary = mmg_ray_launcher.LAST_SUMMARY
+    if summary is not None and not summary.ok:
+        print(f"{len(summary.failed)} job(s) failed:", file=sys.stderr)
+        for key, err in summary.failed.items():
+            print(f"  {key}: {err}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run())

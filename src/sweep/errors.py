@@ -1,0 +1,32 @@
+"""User mistakes become one line on stderr and exit status 2, never a traceback."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from mmg.params import ParameterError
+from sweep.datasets import DataNotFoundError, SplitError
+from sweep.recordings import RecordingError
+
+#: exceptions that report a mistake in the user's input or set-up, not a bug
+USER_ERRORS: tuple[type[BaseException], ...] = (
+    DataNotFoundError,
+    SplitError,
+    RecordingError,
+    ParameterError,
+)
+
+
+@contextmanager
+def exit_on_user_error() -> Iterator[None]:
+    """Turn a user error (including a refused config change) into ``error: ...`` and exit 2."""
+    from sweep.tracking import ConfigChangedError
+
+    errors: tuple[type[BaseException], ...] = (*USER_ERRORS, ConfigChangedError)
+    try:
+        yield
+    except errors as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None

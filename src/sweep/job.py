@@ -1,0 +1,182 @@
+"""One job of a sweep: identify on a training set, evaluate on the test set, draw the plots.
+
+A job is described by a :class:`JobSpec` (plain data: the job's composed configuration and its
+directory) and run by :func:`run_job` wherever an executor puts it (this process, a Ray actor).
+It knows nothing of Ray, MLflow or Hydra: evaluation goes through the evaluator it is given, and
+the result comes back as a :class:`~sweep.outcome.JobOutcome` plus the plot files as bytes (so
+that a job on another machine can hand them to the driver).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mmg import Parameters, bounds, efd_parameters, simulate_batch
+from sweep.cmaes import Box, Settings, State, optimise, restart_table
+from sweep.datasets import split_from_mapping
+from sweep.objective import OBJECTIVES, Objective, split_recording
+from sweep.outcome import SUBSETS, JobOutcome, complete_subsets, config_hash, make_job_key
+from sweep.recordings import Recording
+
+#: test-set labels of conf/test/paper.yaml -> metric suffixes
+SUBSET_OF_LABEL = {
+    "Test-B-S": "B-S",
+    "Test-B-P": "B-P",
+    "Test-R": "R",
+    "Test-T": "T",
+    "Test-Z": "Z",
+}
+
+
+@dataclass(frozen=True)
+class JobSpec:
+    """Everything a job needs, as plain data.
+
+    ``config``: the job-relevant configuration (objective, train and test splits, budget, cmaes
+    settings, seed); its hash identifies the job's result. ``job_dir`` holds the checkpoint.
+    """
+
+    key: str
+    objective: str
+    train: str
+    seed: int
+    config: Mapping[str, Any]
+    job_dir: Path
+    data_root: str | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def config_hash(self) -> str:
+        return config_hash(dict(self.config))
+
+
+def job_key(objective: str, train: str, seed: int) -> str:
+    """The stable key of a job: ``objective=J2,seed=0,train=R`` (sorted like Hydra's dirs)."""
+    return make_job_key(objective=objective, train=train, seed=seed)
+
+
+def settings_of(config: Mapping[str, Any], seed: int) -> Settings:
+    budget = config["budget"]
+    cm = config["cmaes"]
+    return Settings(
+        seed=seed,
+        max_evaluations=int(budget["max_evaluations"]),
+        max_seconds=budget.get("max_seconds"),
+        sigma0=float(cm["sigma0"]),
+        bound_handling=cm["bound_handling"],
+        popsize_start=int(cm["popsize_start"]),
+        popsize_max=int(cm["popsize_max"]),
+    )
+
+
+def test_metrics(params: Parameters, test: Mapping[str, Recording]) -> dict[str, dict[str, float]]:
+    """{J: {subset: value}} on the paper's test set, subsets B-S, B-P, B, R, T, Z, total."""
+    labels = list(test)
+    table = Objective(list(test.values()), labels=labels).table(params)
+    out: dict[str, dict[str, float]] = {}
+    for J in OBJECTIVES:
+        row = complete_subsets({SUBSET_OF_LABEL[lab]: table[J][lab][0] for lab in labels})
+        out[J] = {s: row[s] for s in SUBSETS}
+    return out
+
+
+def simulated_subsequences(rec: Recording, params: Parameters) -> np.ndarray:
+    """The recording re-simulated subsequence by subsequence (the paper's Figs. 6-8), (N, 6)."""
+    out = np.full_like(rec.x, np.nan)
+    for seg in split_recording(rec):
+        sl = slice(seg.start, seg.start + seg.n_steps + 1)
+        traj = simulate_batch(
+            rec.x[None, seg.start], rec.u[None, sl][:, :-1], rec.w[None, sl][:, :-1], params
+        ).states[0]
+        out[sl] = traj
+    return out
+
+
+def draw_plots(
+    history: list[dict[str, float]], params: Parameters, test: Mapping[str, Recording], title: str
+) -> dict[str, bytes]:
+    """Convergence and test trajectories (best vs EFD vs recorded) as PNG bytes by file name."""
+    from sweep import report
+
+    files: dict[str, bytes] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "convergence.png"
+        report.plot_convergence(history, path)
+        files[path.name] = path.read_bytes()
+        efd = efd_parameters()
+        for label in ("Test-B-S", "Test-B-P", "Test-R"):
+            if label not in test:
+                continue
+            rec = test[label]
+            sims = {
+                "identified": simulated_subsequences(rec, params),
+                "EFD": simulated_subsequences(rec, efd),
+            }
+            path = Path(tmp) / f"trajectory_{label}.png"
+            report.plot_trajectories(np.asarray(rec.x), sims, path, f"{title}: {label}")
+            files[path.name] = path.read_bytes()
+    return files
+
+
+Evaluator = Any  # callable thetas -> f with close(); see sweep.workers
+Status = Callable[[dict[str, float]], None]
+
+
+def run_job(
+    spec: JobSpec,
+    make_evaluator: Callable[[Objective], Evaluator],
+    status: Status | None = None,
+    plots: bool = True,
+) -> tuple[JobOutcome, dict[str, bytes]]:
+    """Identify, evaluate on the test set, plot. Resumes from ``spec.job_dir/checkpoint.pkl``."""
+    cfg = spec.config
+    train = split_from_mapping(dict(cfg["train"]), f"train={spec.train}").load(spec.data_root)
+    test = split_from_mapping(dict(cfg["test"]), "test").load(spec.data_root)
+    settings = settings_of(cfg, spec.seed)
+    objective = Objective(list(train.values()), spec.objective)
+    lo, hi = bounds()
+    box = Box(lo, hi)
+    spec.job_dir.mkdir(parents=True, exist_ok=True)
+
+    def progress(state: State, row: dict[str, float]) -> None:
+        if status is not None:
+            status({**row, "budget": float(settings.max_evaluations)})
+
+    evaluator = make_evaluator(objective)
+    try:
+        result = optimise(
+            evaluator,
+            box,
+            efd_parameters().vector(),
+            settings,
+            checkpoint=spec.job_dir / "checkpoint.pkl",
+            progress=progress,
+        )
+    finally:
+        evaluator.close()
+    best = Parameters.from_vector(result.theta)
+    outcome = JobOutcome(
+        job_key=spec.key,
+        objective=spec.objective,
+        train=spec.train,
+        seed=spec.seed,
+        config=dict(cfg),
+        config_hash=spec.config_hash,
+        params=best,
+        f=result.f,
+        evaluations=result.evaluations,
+        seconds=result.seconds,
+        rejected=result.rejected,
+        stop_reason=result.stop_reason,
+        restarts=restart_table(result),
+        history=result.history,
+        test=test_metrics(best, test),
+    )
+    files = draw_plots(result.history, best, test, spec.key) if plots else {}
+    return outcome, files

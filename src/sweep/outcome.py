@@ -1,0 +1,126 @@
+"""The outcome of one identification job: the data contract between the sweep, tracking and report.
+
+A job is one (objective, training set, seed) triple with its composed configuration. Its outcome
+holds the best parameters, the optimiser's record (restarts, per-generation history) and the
+objectives J1, J2, J3 of the best parameters on the paper's test set, per subset:
+
+==========  =========================  ===================================
+subset      table column (paper)       metric name
+==========  =========================  ===================================
+``B-S``     Test-B-S                   ``test/{J}/B-S``
+``B-P``     Test-B-P                   ``test/{J}/B-P``
+``B``       Test-B-S + Test-B-P        ``test/{J}/B``
+``R``       Test-R                     ``test/{J}/R``
+``T``       Test-T                     ``test/{J}/T``
+``Z``       Test-Z                     ``test/{J}/Z``
+``total``   Total                      ``test/{J}/total``
+==========  =========================  ===================================
+
+The EFD reference values of a sweep are named ``efd/{J}/{subset}``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import PurePath
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from mmg.params import Parameters
+
+#: the objectives, in table order
+OBJECTIVE_NAMES = ("J1", "J2", "J3")
+#: the paper's training sets, in table order
+TRAIN_NAMES = ("R", "TR", "TZR")
+#: test subsets (metric suffixes); "B" is Test-B-S + Test-B-P
+SUBSETS = ("B-S", "B-P", "B", "R", "T", "Z", "total")
+#: subset -> the paper's column name (Tables 6-8)
+COLUMNS = {
+    "B-S": "Test-B-S",
+    "B-P": "Test-B-P",
+    "B": "Test-B-S + Test-B-P",
+    "R": "Test-R",
+    "T": "Test-T",
+    "Z": "Test-Z",
+    "total": "Total",
+}
+
+ScoreTable = dict[str, dict[str, float]]
+
+
+@dataclass
+class JobOutcome:
+    """Everything one finished job reports (plain data apart from ``params``)."""
+
+    job_key: str  # stable key, e.g. "objective=J2,seed=0,train=R" (see make_job_key)
+    objective: str  # J1 | J2 | J3
+    train: str  # R | TR | TZR
+    seed: int
+    config: dict[str, Any]  # the composed job config (JSON-able)
+    config_hash: str  # config_hash(config)
+    params: Parameters  # best parameters
+    f: float  # best objective value on the training set
+    evaluations: int
+    seconds: float
+    rejected: bool  # the paper's post-filter (sweep.cmaes.Box.rejected)
+    stop_reason: str
+    restarts: list[dict[str, Any]] = field(default_factory=list)  # sweep.cmaes.restart_table
+    history: list[dict[str, float]] = field(default_factory=list)  # one row per generation
+    test: ScoreTable = field(default_factory=dict)  # {J: {subset: value}}
+
+
+def _plain(value: Any) -> Any:
+    """JSON fallback for numpy scalars and paths; anything else is an error."""
+    if hasattr(value, "item") and callable(value.item):
+        return value.item()
+    if isinstance(value, PurePath):
+        return str(value)
+    raise TypeError(f"config value {value!r} of type {type(value).__name__} is not JSON-able")
+
+
+def canonical_json(config: Mapping[str, Any]) -> str:
+    """The config as compact JSON with sorted keys (the form that is hashed)."""
+    return json.dumps(
+        config, sort_keys=True, separators=(",", ":"), ensure_ascii=True, default=_plain
+    )
+
+
+def config_hash(config: Mapping[str, Any]) -> str:
+    """SHA-256 (hex) of the canonical JSON of ``config``; independent of key order."""
+    return hashlib.sha256(canonical_json(config).encode()).hexdigest()
+
+
+def make_job_key(**fields: Any) -> str:
+    """``make_job_key(objective="J2", train="R", seed=0)`` -> "objective=J2,seed=0,train=R"."""
+    return ",".join(f"{k}={fields[k]}" for k in sorted(fields))
+
+
+def metric_name(kind: str, objective: str, subset: str) -> str:
+    """``metric_name("test", "J2", "B")`` -> "test/J2/B"; kind "test" (a job) or "efd" (sweep)."""
+    if kind not in ("test", "efd") or objective not in OBJECTIVE_NAMES or subset not in SUBSETS:
+        raise ValueError(f"no metric {kind}/{objective}/{subset}")
+    return f"{kind}/{objective}/{subset}"
+
+
+def complete_subsets(values: Mapping[str, float]) -> dict[str, float]:
+    """Values per subset with "B" (B-S + B-P) and "total" filled in when absent."""
+    out = {k: float(v) for k, v in values.items()}
+    if "B" not in out and "B-S" in out and "B-P" in out:
+        out["B"] = out["B-S"] + out["B-P"]
+    parts = ("B-S", "B-P", "R", "T", "Z")
+    if "total" not in out and all(p in out for p in parts):
+        out["total"] = math.fsum(out[p] for p in parts)
+    return out
+
+
+def from_paper_layout(table: Mapping[str, Mapping[str, float]]) -> ScoreTable:
+    """{J: {column: value}} (``sweep.evaluate.paper_layout``) -> {J: {subset: value}}."""
+    inverse = {column: subset for subset, column in COLUMNS.items()}
+    return {
+        J: complete_subsets({inverse[c]: float(v) for c, v in row.items() if c in inverse})
+        for J, row in table.items()
+    }

@@ -1,0 +1,173 @@
+"""Ray: jobs as actors, population evaluation on worker actors. The only module importing ray.
+
+Resources never deadlock: a job's coordinator actor (:class:`JobActor`) requests no CPU and only
+steers CMA-ES; its ``workers_per_job`` evaluation workers (:class:`EvalWorker`) hold one CPU each
+and evaluate chunks of the population with the batched simulator (one Numba thread each). At most
+(cluster CPUs) // workers_per_job jobs run at once, so every running job's workers fit.
+
+A dead worker (a crash, a lost node) does not lose the generation: its chunk is evaluated in the
+coordinator and the worker is replaced.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numba
+import numpy as np
+import ray
+
+from sweep.job import JobSpec, run_job
+from sweep.objective import Objective
+from sweep.workers import safe_evaluate
+
+log = logging.getLogger(__name__)
+_remote: Any = ray.remote  # Ray's decorator overloads do not type actor classes
+
+
+class _EvalWorker:
+    """Holds one copy of the objective; evaluates chunks of a population (1 CPU)."""
+
+    def __init__(self, objective: Objective, threads: int = 1) -> None:
+        numba.set_num_threads(max(1, threads))
+        self.objective = objective
+
+    def evaluate(self, thetas: np.ndarray) -> np.ndarray:
+        return safe_evaluate(self.objective, thetas)
+
+
+EvalWorker: Any = _remote(num_cpus=1)(_EvalWorker)
+
+
+class RayEvaluator:
+    """Population evaluation on ``n`` :class:`EvalWorker` actors (the job's local workers)."""
+
+    def __init__(self, objective: Objective, n: int, cpus_per_worker: int = 1) -> None:
+        self.objective = objective
+        self.cpus = cpus_per_worker
+        self._ref = ray.put(objective)
+        self.workers = [self._start() for _ in range(max(1, n))]
+
+    def _start(self) -> Any:
+        return EvalWorker.options(num_cpus=self.cpus).remote(self._ref, self.cpus)
+
+    def __call__(self, thetas: np.ndarray) -> np.ndarray:
+        X = np.asarray(thetas, dtype=np.float64)
+        chunks = [c for c in np.array_split(X, min(len(self.workers), len(X))) if len(c)]
+        refs = [w.evaluate.remote(c) for w, c in zip(self.workers, chunks, strict=False)]
+        out: list[np.ndarray] = []
+        for i, (ref, chunk) in enumerate(zip(refs, chunks, strict=True)):
+            try:
+                out.append(np.asarray(ray.get(ref), dtype=np.float64))
+            except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError) as exc:
+                log.warning("evaluation worker failed (%s); evaluating its chunk here", exc)
+                out.append(safe_evaluate(self.objective, chunk))
+                ray.kill(self.workers[i], no_restart=True)
+                self.workers[i] = self._start()
+        return np.concatenate(out)
+
+    def close(self) -> None:
+        for w in self.workers:
+            ray.kill(w, no_restart=True)
+        self.workers = []
+
+    def __enter__(self) -> RayEvaluator:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class _JobActor:
+    """Runs one job (restart CMA-ES) and answers status queries while it runs (0 CPU)."""
+
+    def __init__(self) -> None:
+        self._status: dict[str, float] = {}
+
+    def run(self, spec: JobSpec, workers: int, plots: bool = True) -> Any:
+        return run_job(spec, lambda obj: RayEvaluator(obj, workers), self._set, plots)
+
+    def _set(self, row: dict[str, float]) -> None:
+        self._status = row
+
+    def status(self) -> dict[str, float]:
+        return dict(self._status)
+
+
+JobActor: Any = _remote(num_cpus=0, max_concurrency=2)(_JobActor)
+
+
+class RayExecutor:
+    """An :class:`sweep.service.Executor` on Ray (a local Ray, or a cluster by address)."""
+
+    def __init__(
+        self,
+        address: str | None = None,
+        num_cpus: int | None = None,
+        workers_per_job: int = 1,
+        plots: bool = True,
+        env: Mapping[str, str] | None = None,
+    ) -> None:
+        os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # local runs: no token file needed
+        env_vars = {k: v for k, v in os.environ.items() if k.startswith(("MMG_", "NUMBA_"))}
+        env_vars.update(env or {})
+        kwargs: dict[str, Any] = {
+            "include_dashboard": False,
+            "log_to_driver": True,
+            "runtime_env": {"env_vars": env_vars},
+        }
+        if address:
+            ray.init(address=address, **kwargs)
+        else:
+            ray.init(num_cpus=num_cpus, **kwargs)
+        self.workers_per_job = max(1, workers_per_job)
+        self.plots = plots
+        self._actors: dict[Any, Any] = {}
+
+    def capacity(self) -> int:
+        cpus = int(ray.cluster_resources().get("CPU", 1))
+        return max(1, cpus // self.workers_per_job)
+
+    def submit(self, spec: JobSpec) -> Any:
+        actor = JobActor.remote()
+        ref = actor.run.remote(spec, self.workers_per_job, self.plots)
+        self._actors[ref] = actor
+        return ref
+
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, Any]]:
+        if not handles:
+            return []
+        ready, _ = ray.wait(list(handles), num_returns=len(handles), timeout=timeout)
+        out: list[tuple[Any, Any]] = []
+        for ref in ready:
+            try:
+                result: Any = ray.get(ref)
+            except Exception as exc:  # a failed job is a value
+                result = exc.as_instanceof_cause() if hasattr(exc, "as_instanceof_cause") else exc
+            actor = self._actors.pop(ref, None)
+            if actor is not None:
+                ray.kill(actor, no_restart=True)
+            out.append((ref, result))
+        return out
+
+    def status(self, handle: Any) -> Mapping[str, float] | None:
+        actor = self._actors.get(handle)
+        if actor is None:
+            return None
+        try:
+            return dict(ray.get(actor.status.remote(), timeout=2.0))
+        except Exception:  # status is best effort
+            return None
+
+    def cancel(self, handles: Sequence[Any]) -> None:
+        for ref in handles:
+            actor = self._actors.pop(ref, None)
+            if actor is not None:
+                ray.kill(actor, no_restart=True)
+
+    def shutdown(self) -> None:
+        self.cancel(list(self._actors))
+        ray.shutdown()

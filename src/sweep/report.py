@@ -1,0 +1,405 @@
+"""Summary tables (the paper's Tables 6-8) and figures (Figs. 5-8) of a sweep.
+
+Library: :func:`summary_tables`, :func:`write_tables`, :func:`plot_convergence`,
+:func:`plot_trajectories`. Command line::
+
+    python -m sweep.report [--tracking-uri URI] [--experiment NAME] [--sweep NAME | --run-id ID]
+                           --out DIR [--no-log]
+
+regenerates the tables of a finished or partial sweep from MLflow (the newest sweep if neither
+``--sweep`` nor ``--run-id`` is given), prints the J2 table, writes J{1,2,3}.{csv,parquet,md,html}
+to DIR and logs them to the sweep's parent run under ``summary/`` (without changing its status).
+An unknown sweep or store exits with status 2 and a one-line message.
+
+Table layout, per objective J used for *evaluation*: rows "EFD", then the (objective, training set)
+cases J1-R, J1-TR, J1-TZR, J2-R, ..., J3-TZR that are present; for each paper column
+(:data:`sweep.outcome.COLUMNS`) the mean over seeds, the standard deviation (ddof=1; NaN for
+fewer than two seeds) and the rank of the mean among the cases (1 = lowest; EFD is not ranked),
+then ``n`` (seeds used) and ``rejected`` (seeds removed by the paper's post-filter, never
+averaged). Rank 1 is shown in bold, rank 2 underlined, as in the paper.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+from numpy.typing import NDArray
+
+from sweep.outcome import (
+    COLUMNS,
+    OBJECTIVE_NAMES,
+    SUBSETS,
+    TRAIN_NAMES,
+    JobOutcome,
+    ScoreTable,
+    complete_subsets,
+)
+
+__all__ = [
+    "COLUMNS",
+    "SUBSETS",
+    "JobOutcome",
+    "display_table",
+    "main",
+    "plot_convergence",
+    "plot_trajectories",
+    "summary_tables",
+    "write_tables",
+]
+
+FloatArray = NDArray[np.float64]
+EFD_ROW = "EFD"
+STATS = ("mean", "std", "rank")
+
+
+class ReportError(Exception):
+    """A user mistake (unknown store or sweep), reported as one line."""
+
+
+def column_name(column: str, stat: str) -> str:
+    """Flat column of a summary table: ``column_name("Test-R", "std")`` -> "Test-R std"."""
+    return f"{column} {stat}"
+
+
+def case_name(objective: str, train: str) -> str:
+    """Row label of an identified case, e.g. "J2-R"."""
+    return f"{objective}-{train}"
+
+
+def _record(outcome: JobOutcome | Mapping[str, Any]) -> dict[str, Any]:
+    """objective, train, seed, rejected and test {J: {subset: value}} of one outcome."""
+    data: dict[str, Any]
+    if isinstance(outcome, JobOutcome):
+        data = {
+            "objective": outcome.objective,
+            "train": outcome.train,
+            "seed": outcome.seed,
+            "rejected": outcome.rejected,
+            "test": outcome.test,
+        }
+    else:
+        data = dict(outcome)
+    test = data.get("test")
+    if not test:  # flat metrics "test/J/subset", at the top level or under "metrics"
+        flat = {**data, **data.get("metrics", {})}
+        test = {}
+        for key, value in flat.items():
+            parts = str(key).split("/")
+            if len(parts) == 3 and parts[0] == "test":
+                test.setdefault(parts[1], {})[parts[2]] = float(value)
+    rejected = data.get("rejected", False)
+    if isinstance(rejected, str):
+        rejected = rejected.strip().lower() in ("1", "true", "yes")
+    return {
+        "objective": str(data["objective"]),
+        "train": str(data["train"]),
+        "seed": data.get("seed"),
+        "rejected": bool(rejected),
+        "test": {J: complete_subsets(v) for J, v in test.items()},
+    }
+
+
+def _ordered_cases(records: Iterable[Mapping[str, Any]]) -> list[tuple[str, str]]:
+    """(objective, train) pairs present, in the paper's order; others after, sorted."""
+    present = {(r["objective"], r["train"]) for r in records}
+
+    def order(pair: tuple[str, str]) -> tuple[int, str, int, str]:
+        J, train = pair
+        j = OBJECTIVE_NAMES.index(J) if J in OBJECTIVE_NAMES else len(OBJECTIVE_NAMES)
+        t = TRAIN_NAMES.index(train) if train in TRAIN_NAMES else len(TRAIN_NAMES)
+        return (j, J, t, train)
+
+    return sorted(present, key=order)
+
+
+def summary_tables(
+    outcomes: Sequence[JobOutcome] | Sequence[Mapping[str, Any]], efd: ScoreTable
+) -> dict[str, pd.DataFrame]:
+    """{J: table} for J1, J2, J3 in the paper's layout (see the module docstring).
+
+    ``outcomes``: JobOutcome objects or records of :meth:`sweep.tracking.Tracker.job_outcomes`
+    (or any mapping with objective, train, rejected and test {J: {subset: value}} or flat
+    ``test/{J}/{subset}`` entries). ``efd``: {J: {subset: value}} of the EFD model.
+    """
+    records = [_record(o) for o in outcomes]
+    cases = _ordered_cases(records)
+    tables: dict[str, pd.DataFrame] = {}
+    for J in OBJECTIVE_NAMES:
+        rows: dict[str, dict[str, Any]] = {}
+        if J in efd:
+            ref = complete_subsets(efd[J])
+            rows[EFD_ROW] = {
+                **{column_name(COLUMNS[s], "mean"): ref.get(s, math.nan) for s in SUBSETS},
+                "n": pd.NA,
+                "rejected": pd.NA,
+            }
+        for objective, train in cases:
+            group = [r for r in records if (r["objective"], r["train"]) == (objective, train)]
+            kept = [r["test"][J] for r in group if not r["rejected"] and J in r["test"]]
+            row: dict[str, Any] = {}
+            for s in SUBSETS:
+                values = np.array([v[s] for v in kept if s in v], dtype=np.float64)
+                row[column_name(COLUMNS[s], "mean")] = values.mean() if values.size else math.nan
+                row[column_name(COLUMNS[s], "std")] = (
+                    values.std(ddof=1) if values.size >= 2 else math.nan
+                )
+            row["n"] = len(kept)
+            row["rejected"] = sum(r["rejected"] for r in group)
+            rows[case_name(objective, train)] = row
+        tables[J] = _finish_table(rows)
+    return tables
+
+
+def _finish_table(rows: dict[str, dict[str, Any]]) -> pd.DataFrame:
+    """Columns in order (mean, std, rank per paper column; n; rejected), ranks computed."""
+    order = [column_name(c, stat) for c in COLUMNS.values() for stat in STATS] + ["n", "rejected"]
+    table = pd.DataFrame.from_dict(rows, orient="index")
+    table = table.reindex(columns=order)
+    table.index = pd.Index(list(rows), name="Case")
+    identified = table.index != EFD_ROW
+    for c in COLUMNS.values():
+        for stat in ("mean", "std"):
+            table[column_name(c, stat)] = table[column_name(c, stat)].astype("float64")
+        ranks = table.loc[identified, column_name(c, "mean")].rank(method="min")
+        table[column_name(c, "rank")] = ranks.reindex(table.index).astype("Int64")
+    for count in ("n", "rejected"):
+        table[count] = table[count].astype("Int64")
+    return table
+
+
+def _cell(mean: float, std: float) -> str:
+    if not np.isfinite(mean):
+        return "-"
+    return f"{mean:.1f}" if not np.isfinite(std) else f"{mean:.1f} ({std:.1f})"
+
+
+MARKS = {
+    "markdown": ("**{}**", "<u>{}</u>"),
+    "html": ("<b>{}</b>", "<u>{}</u>"),
+    "text": ("{} [1]", "{} [2]"),
+}
+
+
+def display_table(table: pd.DataFrame, style: str = "markdown") -> pd.DataFrame:
+    """Cells "mean (std)" with the best case marked (bold / [1]) and the second (underlined /
+    [2]); ``style`` is "markdown", "html" or "text". Columns: the paper's, then n, rejected."""
+    best, second = MARKS[style]
+    out = pd.DataFrame(index=table.index, dtype=object)
+    for c in COLUMNS.values():
+        means = table[column_name(c, "mean")].to_numpy(dtype=np.float64, na_value=np.nan)
+        stds = table[column_name(c, "std")].to_numpy(dtype=np.float64, na_value=np.nan)
+        ranks = table[column_name(c, "rank")].to_numpy(dtype=np.float64, na_value=np.nan)
+        cells = []
+        for mean, std, rank in zip(means, stds, ranks, strict=True):
+            text = _cell(mean, std)
+            if rank in (1.0, 2.0):
+                text = (best if rank == 1.0 else second).format(text)
+            cells.append(text)
+        out[c] = cells
+    for count in ("n", "rejected"):
+        out[count] = ["" if pd.isna(v) else str(int(v)) for v in table[count]]
+    return out
+
+
+def format_table(table: pd.DataFrame, title: str = "") -> str:
+    """The table as text for a terminal ([1] best, [2] second best)."""
+    shown = display_table(table, "text")
+    if shown.empty:
+        return f"{title}\n(no results)" if title else "(no results)"
+    body = shown.to_markdown(tablefmt="simple", colalign=("left",) + ("right",) * shown.shape[1])
+    return f"{title}\n{body}" if title else body
+
+
+def write_tables(tables: Mapping[str, pd.DataFrame], out_dir: str | Path) -> dict[str, Path]:
+    """{J}.csv, {J}.parquet, {J}.md and {J}.html per table; returns {file name: path}."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    files: dict[str, Path] = {}
+    for J, table in tables.items():
+        paths = {ext: out / f"{J}.{ext}" for ext in ("csv", "parquet", "md", "html")}
+        table.to_csv(paths["csv"])
+        table.to_parquet(paths["parquet"])
+        md = display_table(table, "markdown")
+        align = ("left",) + ("right",) * md.shape[1]
+        caption = (
+            f"{J} on the test set: mean (standard deviation) over seeds; **best**, <u>second</u>."
+        )
+        paths["md"].write_text(f"{caption}\n\n{md.to_markdown(colalign=align)}\n")
+        html = display_table(table, "html").to_html(escape=False, border=0)
+        paths["html"].write_text(
+            f"<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>{J}</title></head>\n"
+            f"<body>\n<p>{J} on the test set: mean (standard deviation) over seeds; "
+            f"<b>best</b>, <u>second</u>.</p>\n{html}\n</body></html>\n"
+        )
+        files.update({p.name: p for p in paths.values()})
+    return files
+
+
+# ---------------------------------------------------------------- figures
+
+
+def plot_convergence(
+    history: Sequence[Mapping[str, float]], path: str | Path, title: str = ""
+) -> Path:
+    """The paper's Fig. 5: J of each generation's best and min J so far vs evaluations.
+
+    ``history``: rows with evaluations, best_f, best_so_far and restart (sweep.cmaes history).
+    Restarts are dashed vertical lines; the optimum is marked. Returns ``path``.
+    """
+    if not history:
+        raise ValueError("empty history: nothing to plot")
+    evals = np.array([row["evaluations"] for row in history], dtype=np.float64)
+    best = np.array([row["best_f"] for row in history], dtype=np.float64)
+    so_far = np.array([row["best_so_far"] for row in history], dtype=np.float64)
+    restart = np.array([row.get("restart", 0.0) for row in history], dtype=np.float64)
+    fig = Figure(figsize=(7.0, 4.0), layout="constrained")
+    ax = fig.add_subplot()
+    ax.plot(evals, best, lw=0.8, color="tab:blue", label="J of the generation's best")
+    ax.plot(evals, so_far, lw=1.6, color="tab:red", label="min J so far")
+    for k, i in enumerate(np.flatnonzero(np.diff(restart) != 0) + 1):
+        ax.axvline(evals[i - 1], color="0.5", lw=0.7, ls="--", label="restart" if k == 0 else None)
+    i_opt = int(np.flatnonzero(so_far == so_far[-1])[0])
+    ax.plot(evals[i_opt], so_far[i_opt], "o", color="tab:red", ms=5)
+    ax.annotate(
+        f"optimum {so_far[i_opt]:.4g} at {int(evals[i_opt])} evaluations",
+        (evals[i_opt], so_far[i_opt]),
+        textcoords="offset points",
+        xytext=(-4, 8) if evals[i_opt] > 0.5 * evals[-1] else (4, 8),
+        ha="right" if evals[i_opt] > 0.5 * evals[-1] else "left",
+        fontsize=8,
+    )
+    if np.all(best > 0):
+        ax.set_yscale("log")
+    ax.set_xlabel("function evaluations")
+    ax.set_ylabel("J")
+    if title:
+        ax.set_title(title)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    out = Path(path)
+    fig.savefig(out, dpi=120)
+    return out
+
+
+def plot_trajectories(
+    recorded_x: Any,
+    simulated: Mapping[str, Any],
+    path: str | Path,
+    title: str = "",
+    dt: float = 0.1,
+) -> Path:
+    """The paper's Figs. 6-8: the x0-y0 track (equal aspect, x0 up) over time series of u, v_m,
+    r and psi, recorded (black) against each simulated model.
+
+    ``recorded_x`` (N, 6) states (x0, u, y0, v_m, psi, r); ``simulated`` {label: (M, 6)} with
+    NaN after a divergence allowed; ``dt`` [s] the sample interval. Returns ``path``.
+    """
+    rec = np.asarray(recorded_x, dtype=np.float64)
+    sims = {label: np.asarray(x, dtype=np.float64) for label, x in simulated.items()}
+    for label, x in {"recorded_x": rec, **sims}.items():
+        if x.ndim != 2 or x.shape[1] != 6:
+            raise ValueError(f"{label}: expected states of shape (N, 6), got {x.shape}")
+    fig = Figure(figsize=(10.0, 10.0), layout="constrained")
+    grid = fig.add_gridspec(3, 2, height_ratios=(1.6, 1.0, 1.0))
+    track = fig.add_subplot(grid[0, :])
+    series = [fig.add_subplot(grid[1 + i // 2, i % 2]) for i in range(4)]
+    lines: list[tuple[str, FloatArray, dict[str, Any]]] = [
+        ("recorded", rec, {"color": "black", "lw": 1.4})
+    ]
+    lines += [(label, x, {"lw": 1.0}) for label, x in sims.items()]
+    panels = [  # (state index, scale, axis label)
+        (1, 1.0, "u [m/s]"),
+        (3, 1.0, "v_m [m/s]"),
+        (5, 180.0 / np.pi, "r [deg/s]"),
+        (4, 180.0 / np.pi, "psi [deg]"),
+    ]
+    for label, x, style in lines:
+        t = np.arange(x.shape[0]) * dt
+        (line,) = track.plot(x[:, 2], x[:, 0], label=label, **style)
+        track.plot(x[0, 2], x[0, 0], "o", color=line.get_color(), ms=4)
+        for ax, (j, scale, _) in zip(series, panels, strict=True):
+            ax.plot(t, x[:, j] * scale, color=line.get_color(), lw=style["lw"])
+    track.set_aspect("equal", adjustable="datalim")
+    track.set_xlabel("y0 [m]")
+    track.set_ylabel("x0 [m]")
+    track.legend(fontsize=8)
+    track.grid(alpha=0.3)
+    for ax, (_, _, ylabel) in zip(series, panels, strict=True):
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    out = Path(path)
+    fig.savefig(out, dpi=110)
+    return out
+
+
+# ---------------------------------------------------------------- command line
+
+
+def run(argv: Sequence[str] | None = None) -> dict[str, pd.DataFrame]:
+    """Parse arguments, read the sweep, print, write and log; returns the tables."""
+    from sweep.tracking import MlflowTracker, default_tracking_uri, sqlite_path
+
+    ap = argparse.ArgumentParser(prog="python -m sweep.report", description=__doc__.splitlines()[0])
+    ap.add_argument("--tracking-uri", help="MLflow tracking URI (default sqlite:///./mlflow.db)")
+    ap.add_argument("--experiment", default="mmg-sweep", help="MLflow experiment name")
+    which = ap.add_mutually_exclusive_group()
+    which.add_argument("--sweep", help="sweep name (default: the newest sweep)")
+    which.add_argument("--run-id", help="the sweep's parent run id")
+    ap.add_argument("--out", required=True, help="directory for the table files")
+    ap.add_argument("--no-log", action="store_true", help="do not log the files to MLflow")
+    args = ap.parse_args(argv)
+
+    uri = args.tracking_uri or default_tracking_uri()
+    db = sqlite_path(uri)
+    if db is not None and not db.is_file():
+        raise ReportError(f"no MLflow store at {db} (tracking URI {uri})")
+    if args.sweep is not None and ("'" in args.sweep or "\\" in args.sweep):
+        raise ReportError(f"sweep names contain no quotes or backslashes: {args.sweep!r}")
+    tracker = MlflowTracker(uri, args.experiment)
+    if args.run_id:
+        parent = args.run_id
+        name = tracker.sweep_name(parent)
+    else:
+        found = tracker.find_sweep(args.sweep)
+        if found is None:
+            what = f"sweep {args.sweep!r}" if args.sweep else "no sweep"
+            raise ReportError(f"{what} not found in experiment {args.experiment!r} at {uri}")
+        parent, name = found, args.sweep or tracker.sweep_name(found)
+    outcomes = tracker.job_outcomes(parent)
+    tables = summary_tables(outcomes, tracker.efd_reference(parent))
+    print(format_table(tables["J2"], f"J2 on the test set, sweep {name} ({len(outcomes)} jobs)"))
+    files = write_tables(tables, args.out)
+    if not args.no_log:
+        tracker.finish_sweep(parent, tables, files, terminate=False)
+    print(
+        f"wrote {len(files)} files to {args.out}"
+        + ("" if args.no_log else f"; logged to run {parent}")
+    )
+    return tables
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point: exit status 0, or 2 with a one-line message for an unknown store or sweep."""
+    from sweep.tracking import TrackingError
+
+    try:
+        run(argv)
+    except (ReportError, TrackingError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

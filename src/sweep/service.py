@@ -1,0 +1,252 @@
+"""The sweep: run many jobs with bounded concurrency, skip finished ones, survive failures.
+
+:func:`run_sweep` is the orchestration, independent of Ray, MLflow and Hydra: it talks to an
+:class:`Executor` (where jobs run: :class:`LocalExecutor` here, ``sweep.raycluster.RayExecutor``
+for Ray) and a tracker (``sweep.tracking``: MLflow, or an in-memory one for tests).
+
+- One parent run per sweep (reused when the same sweep name runs again); one child run per job.
+- Before anything runs, each job is looked up by its key: a finished job with the same config
+  hash is skipped; one whose config changed is refused (``ConfigChangedError``) unless allowed.
+- Jobs resume from their checkpoints (the job directory is stable: ``multirun/<sweep>/<job>``).
+- A failing job is recorded with its error and the others go on; the summary counts it.
+- Progress: jobs done / running / failed / pending, an ETA from the evaluations done so far, and
+  per running job its restart, population size, evaluations and best f.
+- Ctrl-C cancels the running jobs (their checkpoints stay) and re-raises.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import traceback
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol, TextIO
+
+from mmg import efd_parameters
+from sweep.datasets import split_from_mapping
+from sweep.job import JobSpec, job_key, run_job, test_metrics
+from sweep.outcome import JobOutcome
+from sweep.workers import InProcess
+
+
+class Executor(Protocol):
+    """Where jobs run. Handles are opaque; ``wait`` returns (handle, outcome or exception)."""
+
+    def submit(self, spec: JobSpec) -> Any: ...
+
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, Any]]: ...
+
+    def status(self, handle: Any) -> Mapping[str, float] | None: ...
+
+    def cancel(self, handles: Sequence[Any]) -> None: ...
+
+    def capacity(self) -> int: ...
+
+
+class LocalExecutor:
+    """Runs each job in this process when submitted (sequential; for tests and single runs)."""
+
+    def __init__(self, threads: int | None = None, plots: bool = True) -> None:
+        self.threads = threads
+        self.plots = plots
+        self._done: dict[int, Any] = {}
+        self._status: dict[int, dict[str, float]] = {}
+        self._next = 0
+
+    def submit(self, spec: JobSpec) -> int:
+        handle = self._next
+        self._next += 1
+
+        def status(row: dict[str, float]) -> None:
+            self._status[handle] = row
+
+        try:
+            self._done[handle] = run_job(
+                spec, lambda obj: InProcess(obj, self.threads), status, self.plots
+            )
+        except Exception as exc:  # a failed job is a value
+            exc.add_note(traceback.format_exc())
+            self._done[handle] = exc
+        return handle
+
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, Any]]:
+        return [(h, self._done.pop(h)) for h in handles if h in self._done]
+
+    def status(self, handle: Any) -> Mapping[str, float] | None:
+        return self._status.get(handle)
+
+    def cancel(self, handles: Sequence[Any]) -> None:
+        """Jobs run synchronously: nothing is left to cancel."""
+
+    def capacity(self) -> int:
+        return 1
+
+
+@dataclass
+class SweepSummary:
+    """What a sweep did."""
+
+    parent_id: str
+    finished: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    failed: dict[str, str] = field(default_factory=dict)
+    files: dict[str, Path] = field(default_factory=dict)
+    seconds: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        return not self.failed
+
+
+def spec_from_config(cfg: Mapping[str, Any], job_dir: Path) -> JobSpec:
+    """A JobSpec from a composed (resolved, plain) sweep config of one job."""
+    objective = str(cfg["objective"]["name"])
+    train = str(cfg["train"]["key"])
+    seed = int(cfg["seed"])
+    config = {
+        "objective": objective,
+        "train": dict(cfg["train"]),
+        "test": dict(cfg["test"]),
+        "budget": dict(cfg["budget"]),
+        "cmaes": dict(cfg["cmaes"]),
+        "seed": seed,
+    }
+    root = cfg.get("data", {}).get("root")
+    return JobSpec(
+        key=job_key(objective, train, seed),
+        objective=objective,
+        train=train,
+        seed=seed,
+        config=config,
+        job_dir=Path(job_dir),
+        data_root=str(root) if root else None,
+    )
+
+
+def efd_reference(
+    test_cfg: Mapping[str, Any], data_root: str | None
+) -> dict[str, dict[str, float]]:
+    """J1, J2, J3 of the EFD model on the test set (the reference row of the tables)."""
+    test = split_from_mapping(dict(test_cfg), "test").load(data_root)
+    return test_metrics(efd_parameters(), test)
+
+
+class Progress:
+    """A live display on a terminal; one line every ``every`` seconds otherwise (logs, CI)."""
+
+    def __init__(self, stream: TextIO = sys.stderr, every: float = 2.0, log_every: float = 15.0):
+        self.stream = stream
+        self.every = every if stream.isatty() else log_every
+        self.tty = stream.isatty()
+        self._last = 0.0
+        self._lines = 0
+
+    def show(self, text: str, force: bool = False) -> None:
+        now = time.perf_counter()
+        if not force and now - self._last < self.every:
+            return
+        self._last = now
+        if self.tty and self._lines:
+            self.stream.write(f"\x1b[{self._lines}F\x1b[J")  # back up and clear the last block
+        self.stream.write(text + "\n")
+        self.stream.flush()
+        self._lines = text.count("\n") + 1 if self.tty else 0
+
+
+def _eta(done_evals: float, total_evals: float, elapsed: float) -> str:
+    if done_evals <= 0 or elapsed <= 0:
+        return "ETA --"
+    seconds = (total_evals - done_evals) / (done_evals / elapsed)
+    return f"ETA {int(seconds // 60)}m{int(seconds % 60):02d}s"
+
+
+def run_sweep(
+    name: str,
+    specs: Sequence[JobSpec],
+    executor: Executor,
+    tracker: Any,
+    efd: Mapping[str, Mapping[str, float]],
+    out_dir: Path,
+    sweep_config: Mapping[str, Any] | None = None,
+    max_concurrent: int | None = None,
+    progress: Progress | None = None,
+    on_outcome: Callable[[JobOutcome], None] | None = None,
+) -> SweepSummary:
+    """Run the jobs; log each to the tracker; write and log the summary tables at the end."""
+    from sweep import report
+
+    t0 = time.perf_counter()
+    efd_table = {k: dict(v) for k, v in efd.items()}
+    parent = tracker.start_sweep(name, dict(sweep_config or {}), efd_table)
+    summary = SweepSummary(parent_id=parent)
+    todo: list[JobSpec] = []
+    for spec in specs:  # refuse changed configs before anything runs
+        if tracker.find_finished(spec.key, spec.config_hash, parent):
+            summary.skipped.append(spec.key)
+        else:
+            todo.append(spec)
+    budget = {s.key: float(s.config["budget"]["max_evaluations"]) for s in specs}
+    total_evals = sum(budget[s.key] for s in todo)
+    done_evals = 0.0
+    limit = max(1, max_concurrent or executor.capacity())
+    running: dict[Any, JobSpec] = {}
+    progress = progress or Progress()
+    try:
+        while todo or running:
+            while todo and len(running) < limit:
+                spec = todo.pop(0)
+                running[executor.submit(spec)] = spec
+            for handle, result in executor.wait(list(running), timeout=0.5):
+                spec = running.pop(handle)
+                done_evals += budget[spec.key]
+                if isinstance(result, BaseException):
+                    error = "".join(traceback.format_exception(result))
+                    tracker.log_failure(
+                        parent,
+                        spec.key,
+                        {"objective": spec.objective, "train": spec.train, "seed": str(spec.seed)},
+                        dict(spec.config),
+                        error,
+                    )
+                    summary.failed[spec.key] = f"{type(result).__name__}: {result}"
+                else:
+                    outcome, files = result
+                    plots = spec.job_dir / "plots"
+                    plots.mkdir(parents=True, exist_ok=True)
+                    for fname, data in files.items():
+                        (plots / fname).write_bytes(data)
+                    tracker.log_job(parent, outcome, plots)
+                    summary.finished.append(spec.key)
+                    if on_outcome is not None:
+                        on_outcome(outcome)
+            live = sum(float((executor.status(h) or {}).get("evaluations", 0.0)) for h in running)
+            lines = [
+                f"jobs: {len(summary.finished)} done, {len(running)} running, "
+                f"{len(summary.failed)} failed, {len(todo)} pending, "
+                f"{len(summary.skipped)} skipped | "
+                f"{_eta(done_evals + live, total_evals, time.perf_counter() - t0)}"
+            ]
+            for h, spec in running.items():
+                st = executor.status(h) or {}
+                if st:
+                    lines.append(
+                        f"  {spec.key}: restart {int(st.get('restart', 0))} "
+                        f"pop {int(st.get('popsize', 0))} "
+                        f"evals {int(st.get('evaluations', 0))}/{int(budget[spec.key])} "
+                        f"best {st.get('best_so_far', float('nan')):.1f}"
+                    )
+                else:
+                    lines.append(f"  {spec.key}: starting")
+            progress.show("\n".join(lines), force=not running and not todo)
+    except KeyboardInterrupt:
+        executor.cancel(list(running))
+        raise
+    outcomes = tracker.job_outcomes(parent)
+    if outcomes:
+        tables = report.summary_tables(outcomes, efd_table)
+        summary.files = report.write_tables(tables, out_dir / "summary")
+        tracker.finish_sweep(parent, tables, summary.files)
+    summary.seconds = time.perf_counter() - t0
+    return summary

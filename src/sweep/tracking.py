@@ -1,0 +1,798 @@
+"""Experiment tracking: the only module of the project that imports mlflow.
+
+A sweep is one MLflow *parent run* (tag ``sweep=true``, run name = sweep name) holding the EFD
+reference metrics ``efd/{J}/{subset}`` and the sweep config; every job is a *child run* (tag
+``mlflow.parentRunId``) with tags objective, train, seed, job_key, config_hash, the test metrics
+``test/{J}/{subset}``, best_f, evaluations, seconds, rejected (0/1), restarts, the per-generation
+history as stepped metrics ``history/...`` and the artifacts best_params.json, best_params.csv,
+history.csv, restarts.json, config.json and plots/. A job that raised is a child run with status
+FAILED, tag ``error`` and artifact error.txt.
+
+Resume: :meth:`Tracker.start_sweep` reuses a non-deleted parent run of the same name, and
+:meth:`Tracker.find_finished` finds a job's FINISHED child run by its job_key. A finished run of
+the same job_key whose config_hash differs raises :class:`ConfigChangedError`, unless the tracker
+was created with ``allow_config_change=True``: then the job counts as not done and runs again;
+the report uses the newest finished run per job_key.
+
+Two implementations meet the same contract: :class:`MlflowTracker` (any tracking URI; use SQLite,
+``sqlite:///path/mlflow.db``, never the file store) and :class:`NullTracker` (in memory, for tests
+of the sweep logic). :class:`MlflowTracker` pickles without its client, so it can be sent to Ray
+workers.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import json
+import os
+import tempfile
+import threading
+import time
+import uuid
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import pandas as pd
+from mlflow import MlflowClient
+from mlflow.entities import Metric, Param, Run, ViewType
+from mlflow.exceptions import MlflowException
+
+from sweep.outcome import (
+    OBJECTIVE_NAMES,
+    SUBSETS,
+    JobOutcome,
+    ScoreTable,
+    config_hash,
+    metric_name,
+)
+
+#: longest error text stored in the ``error`` tag (MLflow allows 8000 characters)
+MAX_ERROR_TAG = 5000
+#: longest parameter value MLflow accepts
+MAX_PARAM_VALUE = 6000
+PARENT_TAG = "mlflow.parentRunId"
+#: per-generation history columns logged as stepped metrics ``history/{column}``
+HISTORY_METRICS = ("best_so_far", "best_f", "median_f", "popsize", "sigma", "evaluations")
+
+
+class ConfigChangedError(RuntimeError):
+    """A finished run of the same job exists but was made with another configuration."""
+
+    def __init__(self, job_key: str, old_hash: str, new_hash: str, run_id: str) -> None:
+        super().__init__(
+            f"job {job_key}: finished run {run_id} was made with config hash {old_hash}, "
+            f"the job's config now hashes to {new_hash}; revert the config, use another sweep "
+            f"name, or allow the change (allow_config_change=True) to run the job again"
+        )
+        self.job_key = job_key
+        self.old_hash = old_hash
+        self.new_hash = new_hash
+        self.run_id = run_id
+
+
+class TrackingError(RuntimeError):
+    """The tracking store cannot do what was asked (unknown run, deleted experiment, bad URI)."""
+
+
+@runtime_checkable
+class Tracker(Protocol):
+    """What the sweep needs from experiment tracking (see the module docstring)."""
+
+    def start_sweep(self, name: str, config: dict[str, Any], efd: ScoreTable) -> str:
+        """Create (or resume) the sweep's parent run; returns its id."""
+        ...
+
+    def find_finished(
+        self, job_key: str, config_hash: str, parent_id: str | None = None
+    ) -> str | None:
+        """Id of the FINISHED child run of ``job_key`` (newest), or None.
+
+        Searches the children of ``parent_id``, else of the sweep this tracker started, else
+        the whole experiment. Raises ConfigChangedError on a finished run with another hash.
+        """
+        ...
+
+    def log_job(self, parent_id: str, outcome: JobOutcome, artifacts_dir: Path | None) -> str:
+        """Record a finished job as a child run (status FINISHED); returns its id."""
+        ...
+
+    def log_failure(
+        self,
+        parent_id: str,
+        job_key: str,
+        tags: dict[str, Any],
+        config: dict[str, Any],
+        error: str,
+    ) -> str:
+        """Record a failed job as a child run (status FAILED); returns its id."""
+        ...
+
+    def finish_sweep(
+        self,
+        parent_id: str,
+        tables: Mapping[str, pd.DataFrame],
+        files: Mapping[str, Path],
+        terminate: bool = True,
+    ) -> None:
+        """Attach the summary tables and files under ``summary/``; mark the sweep FINISHED."""
+        ...
+
+    def job_outcomes(self, parent_id: str) -> list[dict[str, Any]]:
+        """The FINISHED child runs (newest per job_key) as plain records (see outcome_record)."""
+        ...
+
+    def efd_reference(self, parent_id: str) -> ScoreTable:
+        """The sweep's EFD reference values {J: {subset: value}}."""
+        ...
+
+
+# ---------------------------------------------------------------- shared, backend-free helpers
+
+
+def default_tracking_uri(cwd: str | os.PathLike[str] | None = None) -> str:
+    """``sqlite:///<cwd>/mlflow.db`` (MLflow's own default), with an absolute path."""
+    return f"sqlite:///{os.path.abspath(cwd if cwd is not None else os.getcwd())}/mlflow.db"
+
+
+def sqlite_path(uri: str) -> Path | None:
+    """The database file of a ``sqlite:///`` URI (None for other URIs and in-memory SQLite)."""
+    if not uri.startswith("sqlite:///"):
+        return None
+    path = uri[len("sqlite:///") :].split("?", 1)[0]
+    return Path(path) if path and path != ":memory:" else None
+
+
+def flatten_config(config: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
+    """Nested config -> {"a.b.c": "value"} (lists as JSON), values cut to MLflow's limit."""
+    out: dict[str, str] = {}
+    for key, value in config.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping) and value:
+            out.update(flatten_config(value, name + "."))
+            continue
+        text = value if isinstance(value, str) else json.dumps(value, default=str)
+        if len(text) > MAX_PARAM_VALUE:
+            text = text[: MAX_PARAM_VALUE - 3] + "..."
+        out[name] = text
+    return out
+
+
+def efd_metrics(efd: ScoreTable) -> dict[str, float]:
+    """{"efd/J1/B-S": value, ...} for every objective and subset present."""
+    return {
+        metric_name("efd", J, s): float(efd[J][s])
+        for J in OBJECTIVE_NAMES
+        if J in efd
+        for s in SUBSETS
+        if s in efd[J]
+    }
+
+
+def scores_from_metrics(metrics: Mapping[str, float], kind: str) -> ScoreTable:
+    """Inverse of the metric naming: {J: {subset: value}} from ``{kind}/{J}/{subset}`` metrics."""
+    out: ScoreTable = {}
+    for J in OBJECTIVE_NAMES:
+        names = {s: f"{kind}/{J}/{s}" for s in SUBSETS}
+        row = {s: float(metrics[n]) for s, n in names.items() if n in metrics}
+        if row:
+            out[J] = row
+    return out
+
+
+def outcome_tags(outcome: JobOutcome, parent_id: str) -> dict[str, str]:
+    """The child run's tags."""
+    return {
+        "objective": outcome.objective,
+        "train": outcome.train,
+        "seed": str(outcome.seed),
+        "job_key": outcome.job_key,
+        "config_hash": outcome.config_hash,
+        "stop_reason": outcome.stop_reason,
+        "rejected": "true" if outcome.rejected else "false",
+        PARENT_TAG: parent_id,
+    }
+
+
+def outcome_metrics(outcome: JobOutcome) -> dict[str, float]:
+    """The child run's scalar metrics: test/{J}/{subset}, best_f, evaluations, seconds, ..."""
+    metrics = {
+        metric_name("test", J, s): float(outcome.test[J][s])
+        for J in OBJECTIVE_NAMES
+        if J in outcome.test
+        for s in SUBSETS
+        if s in outcome.test[J]
+    }
+    metrics.update(
+        best_f=float(outcome.f),
+        evaluations=float(outcome.evaluations),
+        seconds=float(outcome.seconds),
+        rejected=1.0 if outcome.rejected else 0.0,
+        restarts=float(len(outcome.restarts)),
+    )
+    return metrics
+
+
+def history_metrics(history: Sequence[Mapping[str, float]]) -> list[tuple[str, float, int]]:
+    """(``history/{column}``, value, step) per generation; step = generation index from 0."""
+    return [
+        (f"history/{col}", float(row[col]), step)
+        for step, row in enumerate(history)
+        for col in HISTORY_METRICS
+        if col in row
+    ]
+
+
+def write_job_artifacts(outcome: JobOutcome, out: Path) -> list[Path]:
+    """best_params.json, best_params.csv, history.csv, restarts.json, config.json in ``out``."""
+    meta: dict[str, Any] = {
+        "objective": outcome.objective,
+        "train": outcome.train,
+        "seed": outcome.seed,
+        "job_key": outcome.job_key,
+        "config_hash": outcome.config_hash,
+        "f": outcome.f,
+        "evaluations": outcome.evaluations,
+    }
+    if "commit" in outcome.config:
+        meta["commit"] = outcome.config["commit"]
+    paths = [out / n for n in ("best_params.json", "best_params.csv", "history.csv")]
+    outcome.params.save_json(paths[0], **meta)
+    values = outcome.params.to_dict()
+    with paths[1].open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["name", "value"])
+        writer.writerows((k, repr(float(v))) for k, v in values["theta"].items())
+        for effect, params in values["effects"].items():
+            writer.writerows((f"{effect}.{k}", repr(float(v))) for k, v in params.items())
+    pd.DataFrame(outcome.history).to_csv(paths[2], index=False)
+    for name, data in (("restarts.json", outcome.restarts), ("config.json", outcome.config)):
+        path = out / name
+        path.write_text(json.dumps(data, indent=2, sort_keys=True, default=str) + "\n")
+        paths.append(path)
+    return paths
+
+
+def outcome_record(
+    run_id: str, tags: Mapping[str, str], metrics: Mapping[str, float]
+) -> dict[str, Any]:
+    """A finished job as the report reads it.
+
+    Keys: run_id, job_key, objective, train, seed (int), config_hash, stop_reason, f,
+    evaluations (int), seconds, rejected (bool), test ({J: {subset: value}}), metrics (all).
+    """
+    return {
+        "run_id": run_id,
+        "job_key": tags.get("job_key", ""),
+        "objective": tags.get("objective", ""),
+        "train": tags.get("train", ""),
+        "seed": int(tags.get("seed", "0")),
+        "config_hash": tags.get("config_hash", ""),
+        "stop_reason": tags.get("stop_reason", ""),
+        "f": float(metrics.get("best_f", float("nan"))),
+        "evaluations": int(metrics.get("evaluations", 0)),
+        "seconds": float(metrics.get("seconds", float("nan"))),
+        "rejected": bool(metrics.get("rejected", 0.0)),
+        "test": scores_from_metrics(metrics, "test"),
+        "metrics": dict(metrics),
+    }
+
+
+@dataclass(frozen=True)
+class _Finished:
+    run_id: str
+    config_hash: str
+    start_time: int
+
+
+def choose_finished(
+    job_key: str, config_hash: str, runs: Sequence[_Finished], allow_change: bool
+) -> str | None:
+    """The newest finished run with ``config_hash``; ConfigChangedError if only others exist."""
+    newest = sorted(runs, key=lambda r: r.start_time, reverse=True)
+    for run in newest:
+        if run.config_hash == config_hash:
+            return run.run_id
+    if newest and not allow_change:
+        raise ConfigChangedError(job_key, newest[0].config_hash, config_hash, newest[0].run_id)
+    return None
+
+
+def newest_per_key(records: Sequence[tuple[int, dict[str, Any]]]) -> list[dict[str, Any]]:
+    """Keep the newest (start_time, record) per job_key; ordered by job_key."""
+    best: dict[str, tuple[int, dict[str, Any]]] = {}
+    for start, rec in records:
+        key = rec["job_key"]
+        if key not in best or start > best[key][0]:
+            best[key] = (start, rec)
+    return [best[k][1] for k in sorted(best)]
+
+
+def _check_quote(kind: str, value: str) -> None:
+    if "'" in value or "\\" in value:
+        raise ValueError(f"{kind} {value!r} must not contain quotes or backslashes")
+
+
+def _table_frame(table: pd.DataFrame) -> pd.DataFrame:
+    """A summary table with its row labels as the first column (for a JSON table artifact)."""
+    frame = table.reset_index() if table.index.name or table.index.nlevels > 1 else table.copy()
+    frame.columns = [str(c) for c in frame.columns]
+    for col in frame.columns:  # pandas 3 "str" columns as object: what MLflow's log_table expects
+        if pd.api.types.is_string_dtype(frame[col].dtype):
+            frame[col] = frame[col].astype(object)
+    return frame
+
+
+def _now_ms() -> int:
+    return int(time.time() * 1000)
+
+
+# ---------------------------------------------------------------- MLflow
+
+
+class MlflowTracker:
+    """Tracker on an MLflow tracking store (SQLite: ``sqlite:///path/mlflow.db``).
+
+    For a SQLite URI, a new experiment stores its artifacts in ``<db dir>/mlartifacts/<name>``.
+    The client is made on first use; a pickled tracker carries only the URI and its settings.
+    """
+
+    def __init__(
+        self, uri: str, experiment: str = "mmg-sweep", allow_config_change: bool = False
+    ) -> None:
+        self.uri = uri
+        self.experiment = experiment
+        self.allow_config_change = allow_config_change
+        self._client: MlflowClient | None = None
+        self._experiment_id: str | None = None
+        self._sweep_id: str | None = None
+        self._run_experiments: dict[str, str] = {}
+
+    def __getstate__(self) -> dict[str, Any]:
+        keep = ("uri", "experiment", "allow_config_change", "_experiment_id", "_sweep_id")
+        return {k: self.__dict__[k] for k in keep}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._client = None
+        self._run_experiments = {}
+
+    def __repr__(self) -> str:
+        return f"MlflowTracker({self.uri!r}, experiment={self.experiment!r})"
+
+    @property
+    def client(self) -> MlflowClient:
+        """The MLflow client (made on first use)."""
+        if self._client is None:
+            try:
+                self._client = MlflowClient(tracking_uri=self.uri)
+            except MlflowException as exc:
+                raise TrackingError(f"{self.uri}: {exc.message}") from exc
+        return self._client
+
+    @contextlib.contextmanager
+    def _mlflow_errors(self) -> Iterator[None]:
+        try:
+            yield
+        except MlflowException as exc:
+            raise TrackingError(f"{self.uri}: {exc.message}") from exc
+
+    # -- experiment and runs
+
+    def experiment_id(self, create: bool = False) -> str | None:
+        """Id of the tracker's experiment (made if ``create``; None if absent otherwise)."""
+        if self._experiment_id is not None:
+            return self._experiment_id
+        with self._mlflow_errors():
+            exp = self.client.get_experiment_by_name(self.experiment)
+            if exp is None and create:
+                # another process may make it meanwhile: then read it back
+                with contextlib.suppress(MlflowException):
+                    self.client.create_experiment(
+                        self.experiment, artifact_location=self._artifact_location()
+                    )
+                exp = self.client.get_experiment_by_name(self.experiment)
+        if exp is None:
+            return None
+        if exp.lifecycle_stage != "active":
+            raise TrackingError(
+                f"experiment {self.experiment!r} in {self.uri} is deleted: restore it "
+                f"(mlflow experiments restore) or remove it for good (mlflow gc)"
+            )
+        self._experiment_id = str(exp.experiment_id)
+        return self._experiment_id
+
+    def _artifact_location(self) -> str | None:
+        db = sqlite_path(self.uri)
+        if db is None:
+            return None
+        return Path(os.path.abspath(db)).parent.joinpath("mlartifacts", self.experiment).as_uri()
+
+    def _run(self, run_id: str) -> Run:
+        with self._mlflow_errors():
+            return self.client.get_run(run_id)
+
+    def _experiment_of(self, run_id: str) -> str:
+        if run_id not in self._run_experiments:
+            self._run_experiments[run_id] = str(self._run(run_id).info.experiment_id)
+        return self._run_experiments[run_id]
+
+    def _search(self, experiment_id: str, filter_string: str, order: str = "") -> list[Run]:
+        runs: list[Run] = []
+        token: str | None = None
+        with self._mlflow_errors():
+            while True:
+                page = self.client.search_runs(
+                    [experiment_id],
+                    filter_string,
+                    run_view_type=ViewType.ACTIVE_ONLY,
+                    max_results=1000,
+                    order_by=[order] if order else None,
+                    page_token=token,
+                )
+                runs.extend(page)
+                token = page.token
+                if not token:
+                    return runs
+
+    def find_sweep(self, name: str | None = None) -> str | None:
+        """Id of the newest non-deleted sweep (parent run) called ``name`` (any name if None)."""
+        exp = self.experiment_id(create=False)
+        if exp is None:
+            return None
+        query = "tags.sweep = 'true'"
+        if name is not None:
+            _check_quote("sweep name", name)
+            query += f" and tags.sweep_name = '{name}'"
+        runs = self._search(exp, query, "attributes.start_time DESC")
+        return runs[0].info.run_id if runs else None
+
+    def sweep_name(self, run_id: str) -> str:
+        """The name of sweep ``run_id``; TrackingError if there is no such sweep."""
+        try:
+            run = self._run(run_id)
+        except TrackingError as exc:
+            raise TrackingError(f"no run {run_id} in {self.uri}") from exc
+        if run.data.tags.get("sweep") != "true" or run.info.lifecycle_stage != "active":
+            raise TrackingError(f"run {run_id} in {self.uri} is not a sweep (no tag sweep=true)")
+        return run.data.tags.get("sweep_name", run.info.run_name or run_id)
+
+    # -- the Tracker contract
+
+    def start_sweep(self, name: str, config: dict[str, Any], efd: ScoreTable) -> str:
+        """Create the sweep's parent run, or resume the existing one of the same name."""
+        _check_quote("sweep name", name)
+        exp = self.experiment_id(create=True)
+        assert exp is not None
+        h = config_hash(config)
+        params = flatten_config(config)
+        metrics = efd_metrics(efd)
+        run_id = self.find_sweep(name)
+        with self._mlflow_errors():
+            if run_id is None:
+                tags = {"sweep": "true", "sweep_name": name, "config_hash": h}
+                run_id = self.client.create_run(exp, tags=tags, run_name=name).info.run_id
+                known_params: dict[str, str] = {}
+                known_metrics: dict[str, float] = {}
+            else:
+                run = self.client.get_run(run_id)
+                self.client.update_run(run_id, status="RUNNING")
+                self.client.set_tag(run_id, "config_hash", h)
+                resumed = int(run.data.tags.get("resumed", "0")) + 1
+                self.client.set_tag(run_id, "resumed", str(resumed))
+                known_params = run.data.params
+                known_metrics = run.data.metrics
+            now = _now_ms()
+            self.client.log_batch(
+                run_id,
+                metrics=[
+                    Metric(k, v, now, 0) for k, v in metrics.items() if known_metrics.get(k) != v
+                ],
+                params=[Param(k, v) for k, v in params.items() if k not in known_params],
+            )
+            with tempfile.TemporaryDirectory() as tmp:
+                path = Path(tmp) / "config.json"
+                path.write_text(json.dumps(config, indent=2, sort_keys=True, default=str) + "\n")
+                self.client.log_artifact(run_id, str(path))
+        self._sweep_id = run_id
+        self._run_experiments[run_id] = exp
+        return run_id
+
+    def find_finished(
+        self, job_key: str, config_hash: str, parent_id: str | None = None
+    ) -> str | None:
+        """Id of the newest FINISHED child run of ``job_key``, or None (see Tracker)."""
+        _check_quote("job key", job_key)
+        parent = parent_id or self._sweep_id
+        exp = self._experiment_of(parent) if parent else self.experiment_id(create=False)
+        if exp is None:
+            return None
+        query = f"tags.job_key = '{job_key}' and attributes.status = 'FINISHED'"
+        if parent:
+            query += f" and tags.{PARENT_TAG} = '{parent}'"
+        runs = [
+            _Finished(r.info.run_id, r.data.tags.get("config_hash", ""), r.info.start_time or 0)
+            for r in self._search(exp, query)
+        ]
+        return choose_finished(job_key, config_hash, runs, self.allow_config_change)
+
+    def log_job(self, parent_id: str, outcome: JobOutcome, artifacts_dir: Path | None) -> str:
+        """Child run of a finished job: tags, params, metrics, history, artifacts; FINISHED."""
+        exp = self._experiment_of(parent_id)
+        name = f"{outcome.objective}-{outcome.train}-seed{outcome.seed}"
+        with self._mlflow_errors():
+            run_id = self.client.create_run(
+                exp, tags=outcome_tags(outcome, parent_id), run_name=name
+            ).info.run_id
+        try:
+            now = _now_ms()
+            self.client.log_batch(
+                run_id,
+                metrics=[Metric(k, v, now, 0) for k, v in outcome_metrics(outcome).items()],
+                params=[Param(k, v) for k, v in flatten_config(outcome.config).items()],
+            )
+            self.client.log_batch(
+                run_id,
+                metrics=[Metric(k, v, now, s) for k, v, s in history_metrics(outcome.history)],
+            )
+            with tempfile.TemporaryDirectory() as tmp:
+                write_job_artifacts(outcome, Path(tmp))
+                self.client.log_artifacts(run_id, tmp)
+            if artifacts_dir is not None and Path(artifacts_dir).is_dir():
+                self.client.log_artifacts(run_id, str(artifacts_dir), artifact_path="plots")
+        except BaseException:
+            self.client.set_terminated(run_id, "FAILED")
+            raise
+        self.client.set_terminated(run_id, "FINISHED")
+        return run_id
+
+    def log_failure(
+        self,
+        parent_id: str,
+        job_key: str,
+        tags: dict[str, Any],
+        config: dict[str, Any],
+        error: str,
+    ) -> str:
+        """Child run with status FAILED, tag ``error`` (cut to 5000 characters), error.txt."""
+        exp = self._experiment_of(parent_id)
+        all_tags = {str(k): str(v) for k, v in tags.items()}
+        all_tags.update(
+            job_key=job_key,
+            config_hash=config_hash(config),
+            error=error[:MAX_ERROR_TAG],
+            **{PARENT_TAG: parent_id},
+        )
+        with self._mlflow_errors():
+            run_id = self.client.create_run(exp, tags=all_tags, run_name=job_key).info.run_id
+            try:
+                self.client.log_batch(
+                    run_id, params=[Param(k, v) for k, v in flatten_config(config).items()]
+                )
+                with tempfile.TemporaryDirectory() as tmp:
+                    Path(tmp, "error.txt").write_text(error)
+                    Path(tmp, "config.json").write_text(
+                        json.dumps(config, indent=2, sort_keys=True, default=str) + "\n"
+                    )
+                    self.client.log_artifacts(run_id, tmp)
+            finally:
+                self.client.set_terminated(run_id, "FAILED")
+        return run_id
+
+    def finish_sweep(
+        self,
+        parent_id: str,
+        tables: Mapping[str, pd.DataFrame],
+        files: Mapping[str, Path],
+        terminate: bool = True,
+    ) -> None:
+        """Tables as ``summary/{name}.json`` (MLflow tables, replaced when logged again), files
+        under ``summary/``; the parent run is marked FINISHED unless ``terminate`` is False."""
+        with self._mlflow_errors():
+            for name, table in tables.items():
+                self._log_table(parent_id, _table_frame(table), f"summary/{name}.json")
+            for path in files.values():
+                self.client.log_artifact(parent_id, str(path), artifact_path="summary")
+            if terminate:
+                self.client.set_terminated(parent_id, "FINISHED")
+
+    def _log_table(self, run_id: str, frame: pd.DataFrame, artifact_file: str) -> None:
+        folder, name = artifact_file.rsplit("/", 1)
+        present = {a.path for a in self.client.list_artifacts(run_id, folder)}
+        if artifact_file not in present:
+            self.client.log_table(run_id, frame, artifact_file)
+            return
+        # log_table would append to the existing table: write it in the same format instead
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / name
+            frame.to_json(path, orient="split", index=False, date_format="iso")
+            self.client.log_artifact(run_id, str(path), artifact_path=folder)
+
+    def job_outcomes(self, parent_id: str) -> list[dict[str, Any]]:
+        """FINISHED child runs of ``parent_id`` (newest per job_key) as outcome records."""
+        exp = self._experiment_of(parent_id)
+        query = f"tags.{PARENT_TAG} = '{parent_id}' and attributes.status = 'FINISHED'"
+        return newest_per_key(
+            [
+                (r.info.start_time or 0, outcome_record(r.info.run_id, r.data.tags, r.data.metrics))
+                for r in self._search(exp, query)
+                if "job_key" in r.data.tags
+            ]
+        )
+
+    def efd_reference(self, parent_id: str) -> ScoreTable:
+        """The EFD metrics of the sweep's parent run as {J: {subset: value}}."""
+        return scores_from_metrics(self._run(parent_id).data.metrics, "efd")
+
+
+# ---------------------------------------------------------------- in memory
+
+
+@dataclass
+class NullRun:
+    """A run kept by :class:`NullTracker`."""
+
+    run_id: str
+    name: str
+    start_time: int
+    tags: dict[str, str]
+    params: dict[str, str] = field(default_factory=dict)
+    metrics: dict[str, float] = field(default_factory=dict)
+    history: dict[str, list[tuple[int, float]]] = field(default_factory=dict)
+    artifacts: dict[str, Any] = field(default_factory=dict)  # path -> bytes or DataFrame
+    status: str = "RUNNING"
+
+
+class NullTracker:
+    """The Tracker contract in memory (no MLflow): for tests of the sweep logic.
+
+    ``runs`` maps run ids to :class:`NullRun`; artifacts are kept as bytes (files) or DataFrames
+    (tables) under the same paths as in MLflow.
+    """
+
+    def __init__(self, allow_config_change: bool = False) -> None:
+        self.allow_config_change = allow_config_change
+        self.runs: dict[str, NullRun] = {}
+        self._sweep_id: str | None = None
+        self._lock = threading.RLock()
+
+    def _new_run(self, name: str, tags: dict[str, str]) -> NullRun:
+        # strictly increasing start times, also when ``runs`` is shared with another tracker
+        start = max((r.start_time for r in self.runs.values()), default=0) + 1
+        run = NullRun(uuid.uuid4().hex, name, start, dict(tags))
+        self.runs[run.run_id] = run
+        return run
+
+    def _get(self, run_id: str) -> NullRun:
+        if run_id not in self.runs:
+            raise TrackingError(f"no run {run_id}")
+        return self.runs[run_id]
+
+    def _children(self, parent_id: str | None, status: str = "FINISHED") -> list[NullRun]:
+        return [
+            r
+            for r in self.runs.values()
+            if r.status == status
+            and "job_key" in r.tags
+            and (parent_id is None or r.tags.get(PARENT_TAG) == parent_id)
+        ]
+
+    def find_sweep(self, name: str | None = None) -> str | None:
+        """Id of the newest sweep called ``name`` (any name if None)."""
+        with self._lock:
+            sweeps = [
+                r
+                for r in self.runs.values()
+                if r.tags.get("sweep") == "true" and name in (None, r.tags.get("sweep_name"))
+            ]
+            return max(sweeps, key=lambda r: r.start_time).run_id if sweeps else None
+
+    def start_sweep(self, name: str, config: dict[str, Any], efd: ScoreTable) -> str:
+        """Create the parent run, or resume the existing one of the same name."""
+        with self._lock:
+            run_id = self.find_sweep(name)
+            if run_id is None:
+                run = self._new_run(name, {"sweep": "true", "sweep_name": name})
+            else:
+                run = self.runs[run_id]
+                run.status = "RUNNING"
+                run.tags["resumed"] = str(int(run.tags.get("resumed", "0")) + 1)
+            run.tags["config_hash"] = config_hash(config)
+            for k, v in flatten_config(config).items():
+                run.params.setdefault(k, v)
+            run.metrics.update(efd_metrics(efd))
+            run.artifacts["config.json"] = json.dumps(config, default=str).encode()
+            self._sweep_id = run.run_id
+            return run.run_id
+
+    def find_finished(
+        self, job_key: str, config_hash: str, parent_id: str | None = None
+    ) -> str | None:
+        """Id of the newest FINISHED child run of ``job_key``, or None (see Tracker)."""
+        with self._lock:
+            runs = [
+                _Finished(r.run_id, r.tags.get("config_hash", ""), r.start_time)
+                for r in self._children(parent_id or self._sweep_id)
+                if r.tags["job_key"] == job_key
+            ]
+        return choose_finished(job_key, config_hash, runs, self.allow_config_change)
+
+    def log_job(self, parent_id: str, outcome: JobOutcome, artifacts_dir: Path | None) -> str:
+        """Keep a finished job's tags, params, metrics, history and artifacts."""
+        with self._lock:
+            self._get(parent_id)
+            name = f"{outcome.objective}-{outcome.train}-seed{outcome.seed}"
+            run = self._new_run(name, outcome_tags(outcome, parent_id))
+            run.params.update(flatten_config(outcome.config))
+            run.metrics.update(outcome_metrics(outcome))
+            for key, value, step in history_metrics(outcome.history):
+                run.history.setdefault(key, []).append((step, value))
+                run.metrics[key] = value
+            with tempfile.TemporaryDirectory() as tmp:
+                for path in write_job_artifacts(outcome, Path(tmp)):
+                    run.artifacts[path.name] = path.read_bytes()
+            if artifacts_dir is not None and Path(artifacts_dir).is_dir():
+                for path in sorted(Path(artifacts_dir).rglob("*")):
+                    if path.is_file():
+                        rel = path.relative_to(artifacts_dir).as_posix()
+                        run.artifacts[f"plots/{rel}"] = path.read_bytes()
+            run.status = "FINISHED"
+            return run.run_id
+
+    def log_failure(
+        self,
+        parent_id: str,
+        job_key: str,
+        tags: dict[str, Any],
+        config: dict[str, Any],
+        error: str,
+    ) -> str:
+        """Keep a failed job (status FAILED, tag ``error``, artifact error.txt)."""
+        with self._lock:
+            self._get(parent_id)
+            all_tags = {str(k): str(v) for k, v in tags.items()}
+            all_tags.update(
+                job_key=job_key,
+                config_hash=config_hash(config),
+                error=error[:MAX_ERROR_TAG],
+                **{PARENT_TAG: parent_id},
+            )
+            run = self._new_run(job_key, all_tags)
+            run.params.update(flatten_config(config))
+            run.artifacts["error.txt"] = error.encode()
+            run.status = "FAILED"
+            return run.run_id
+
+    def finish_sweep(
+        self,
+        parent_id: str,
+        tables: Mapping[str, pd.DataFrame],
+        files: Mapping[str, Path],
+        terminate: bool = True,
+    ) -> None:
+        """Keep the tables (``summary/{name}.json``) and files (``summary/{file name}``)."""
+        with self._lock:
+            run = self._get(parent_id)
+            for name, table in tables.items():
+                run.artifacts[f"summary/{name}.json"] = _table_frame(table)
+            for path in files.values():
+                run.artifacts[f"summary/{Path(path).name}"] = Path(path).read_bytes()
+            if terminate:
+                run.status = "FINISHED"
+
+    def job_outcomes(self, parent_id: str) -> list[dict[str, Any]]:
+        """FINISHED child runs of ``parent_id`` (newest per job_key) as outcome records."""
+        with self._lock:
+            return newest_per_key(
+                [
+                    (r.start_time, outcome_record(r.run_id, r.tags, r.metrics))
+                    for r in self._children(parent_id)
+                ]
+            )
+
+    def efd_reference(self, parent_id: str) -> ScoreTable:
+        """The EFD reference values of the sweep."""
+        with self._lock:
+            return scores_from_metrics(self._get(parent_id).metrics, "efd")

@@ -1,7 +1,7 @@
 # Common commands; see README.md.
 PY ?= python
 
-.PHONY: install test test-all lint format typecheck check bench data
+.PHONY: install test test-all lint format typecheck check bench data sweep smoke ui
 
 install:  ## install the project and its development tools
 	$(PY) -m pip install -e ".[dev]"
@@ -30,3 +30,13 @@ bench:  ## simulator throughput (traj-steps/s) for B = 20, 540, 19440
 
 data:  ## download the FRT-DS-ESSO recordings into $$MMG_DATA_DIR (or the user cache)
 	$(PY) -m sweep.download
+
+sweep:  ## the paper's grid: 3 objectives x 3 training sets x 3 seeds (default budget: short)
+	$(PY) -m sweep -m objective=J1,J2,J3 train=R,TR,TZR seed=0,1,2
+
+smoke:  ## a two-job sweep at budget=smoke
+	$(PY) -m sweep -m objective=J1,J2 train=R seed=0 budget=smoke sweep.name=smoke
+
+ui:  ## the MLflow UI on 127.0.0.1:5000 for the sweep's store (./mlflow.db)
+	MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false mlflow ui \
+		--backend-store-uri sqlite:///$(CURDIR)/mlflow.db --host 127.0.0.1 --port 5000 --workers 1

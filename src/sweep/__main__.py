@@ -11,6 +11,7 @@ The exit status is non-zero if any job failed.
 
 from __future__ import annotations
 
+import signal
 import sys
 from pathlib import Path
 from typing import Any
@@ -53,13 +54,29 @@ def main(cfg: DictConfig) -> Any:
     return summary
 
 
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
 def run() -> int:
     from hydra_plugins.mmg_sweep_launcher import mmg_ray_launcher
 
+    # Ctrl-C and SIGTERM (docker stop, a CI timeout) stop the sweep cleanly: running jobs are
+    # cancelled, Ray is shut down, checkpoints stay. (A shell without job control starts
+    # background commands with SIGINT ignored; a sweep still honours it.)
+    signal.signal(signal.SIGINT, _interrupt)
+    signal.signal(signal.SIGTERM, _interrupt)
     try:
         main()
     except SystemExit as exc:
         return int(exc.code or 0)
+    except KeyboardInterrupt as exc:
+        print(
+            f"\ninterrupted ({exc or 'SIGINT'}): running jobs cancelled, their checkpoints kept; "
+            "run the same command again to resume",
+            file=sys.stderr,
+        )
+        return 130
     summary = mmg_ray_launcher.LAST_SUMMARY
     if summary is not None and not summary.ok:
         print(f"{len(summary.failed)} job(s) failed:", file=sys.stderr)

@@ -1,0 +1,142 @@
+"""The CI smoke sweep: `python -m sweep -m ...` on the real data, through Hydra, Ray and MLflow.
+
+Two jobs at budget=smoke (200 evaluations each). Checks that MLflow holds the parent run, one
+child per job with every test-subset metric, the summary tables, and that a second run of the
+same command skips the finished jobs.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from sweep.outcome import SUBSETS
+
+COMMAND = [
+    sys.executable, "-m", "sweep", "-m", "objective=J1,J2", "train=R", "seed=0",
+    "budget=smoke", "sweep.name=ci-smoke", "ray.num_cpus=2",
+]  # fmt: skip
+
+
+def _run(cwd: Path, frt_dir: Path) -> subprocess.CompletedProcess[str]:
+    env = dict(os.environ, MMG_DATA_DIR=str(frt_dir), RAY_AUTH_MODE="disabled")
+    return subprocess.run(COMMAND, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory, frt_dir):
+    cwd = tmp_path_factory.mktemp("sweep")
+    first = _run(cwd, frt_dir)
+    assert first.returncode == 0, first.stderr[-3000:]
+    return cwd, first
+
+
+def test_mlflow_holds_parent_children_metrics_and_tables(smoke):
+    import mlflow
+
+    cwd, _ = smoke
+    client = mlflow.MlflowClient(f"sqlite:///{cwd}/mlflow.db")
+    exp = client.get_experiment_by_name("mmg-sweep")
+    assert exp is not None
+    runs = client.search_runs([exp.experiment_id])
+    parents = [r for r in runs if r.data.tags.get("sweep") == "true"]
+    assert len(parents) == 1
+    parent = parents[0]
+    for J in ("J1", "J2", "J3"):
+        for subset in SUBSETS:
+            assert f"efd/{J}/{subset}" in parent.data.metrics
+    children = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id]
+    assert sorted(r.data.tags["job_key"] for r in children) == [
+        "objective=J1,seed=0,train=R",
+        "objective=J2,seed=0,train=R",
+    ]
+    for child in children:
+        assert child.info.status == "FINISHED"
+        assert {child.data.tags[k] for k in ("objective", "train", "seed")} <= {
+            "J1",
+            "J2",
+            "R",
+            "0",
+        }
+        for J in ("J1", "J2", "J3"):
+            for subset in SUBSETS:
+                assert f"test/{J}/{subset}" in child.data.metrics
+        names = {a.path for a in client.list_artifacts(child.info.run_id)}
+        assert {"best_params.json", "history.csv"} <= names
+    summary = {a.path for a in client.list_artifacts(parent.info.run_id, "summary")}
+    for J in ("J1", "J2", "J3"):
+        for ext in ("csv", "md", "html", "parquet"):
+            assert f"summary/{J}.{ext}" in summary
+    table = (cwd / "multirun/ci-smoke/summary/J2.md").read_text()
+    assert "EFD" in table and "J1-R" in table and "J2-R" in table
+
+
+def test_best_parameters_are_loadable_by_evaluate(smoke, frt_dir):
+    import mlflow
+
+    from mmg import Parameters
+
+    cwd, _ = smoke
+    client = mlflow.MlflowClient(f"sqlite:///{cwd}/mlflow.db")
+    exp = client.get_experiment_by_name("mmg-sweep")
+    assert exp is not None
+    child = client.search_runs([exp.experiment_id], "tags.job_key = 'objective=J2,seed=0,train=R'")[
+        0
+    ]
+    path = client.download_artifacts(child.info.run_id, "best_params.json", str(cwd))
+    p = Parameters.load_json(path)
+    from sweep.evaluate import main
+
+    assert main(["--params", path, "--recordings", str(frt_dir / "data/berthing")]) == 0
+    assert p.vector().shape == (57,)
+
+
+def test_second_run_skips_the_finished_jobs(smoke, frt_dir):
+    import mlflow
+
+    cwd, _ = smoke
+    second = _run(cwd, frt_dir)
+    assert second.returncode == 0, second.stderr[-3000:]
+    assert "0 finished, 2 skipped, 0 failed" in second.stderr + second.stdout
+    client = mlflow.MlflowClient(f"sqlite:///{cwd}/mlflow.db")
+    exp = client.get_experiment_by_name("mmg-sweep")
+    assert exp is not None
+    assert len(client.search_runs([exp.experiment_id])) == 3  # no new child runs
+
+
+def test_ctrl_c_stops_cleanly_keeps_the_checkpoint_and_a_rerun_finishes(tmp_path, frt_dir):
+    """SIGINT mid-job: exit 130, no process of the sweep left behind, the checkpoint kept."""
+    import signal
+    import time
+
+    command = [
+        sys.executable, "-m", "sweep", "-m", "objective=J1", "train=R", "seed=1",
+        "budget=smoke", "budget.max_evaluations=4000", "sweep.name=ctrl-c", "ray.num_cpus=2",
+    ]  # fmt: skip
+    env = dict(os.environ, MMG_DATA_DIR=str(frt_dir), RAY_AUTH_MODE="disabled")
+    proc = subprocess.Popen(
+        command, cwd=tmp_path, env=env, start_new_session=True,
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    checkpoints = tmp_path / "multirun/ctrl-c"
+    deadline = time.monotonic() + 300
+    while not list(checkpoints.glob("*/checkpoint.pkl")):
+        assert proc.poll() is None, proc.communicate()[0][-3000:]
+        assert time.monotonic() < deadline, "no checkpoint appeared"
+        time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 130, out[-3000:]
+    assert "checkpoints kept" in out
+    assert list(checkpoints.glob("*/checkpoint.pkl"))
+    time.sleep(2)
+    with pytest.raises(ProcessLookupError):  # Ray's processes went with the sweep
+        os.killpg(proc.pid, 0)
+    rerun = subprocess.run(command, cwd=tmp_path, env=env, capture_output=True, text=True,
+                           timeout=600)  # fmt: skip
+    assert rerun.returncode == 0, rerun.stderr[-3000:]
+    assert "1 finished, 0 skipped, 0 failed" in rerun.stderr + rerun.stdout

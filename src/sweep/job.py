@@ -160,6 +160,7 @@ def run_job(
         )
     finally:
         evaluator.close()
+    sim_seconds = float(getattr(evaluator, "sim_seconds", 0.0))
     best = Parameters.from_vector(result.theta)
     outcome = JobOutcome(
         job_key=spec.key,
@@ -177,6 +178,7 @@ def run_job(
         restarts=restart_table(result),
         history=result.history,
         test=test_metrics(best, test),
+        sim_seconds=sim_seconds,
     )
     files = draw_plots(result.history, best, test, spec.key) if plots else {}
     return outcome, files

@@ -30,6 +30,7 @@ J needs instead of storing trajectories.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -207,6 +208,7 @@ class Objective:
         self.effects = effects
         self.ship = ship
         self.data = SegmentSet(recordings, t_f, dict(floors or DEFAULT_FLOORS), labels)
+        self.seconds = 0.0  # time spent simulating (the kernel and the moments-to-J algebra)
 
     @property
     def n_segments(self) -> int:
@@ -226,10 +228,13 @@ class Objective:
         p: Any = thetas
         if not isinstance(thetas, Parameters):
             p = np.atleast_2d(np.asarray(thetas, dtype=np.float64))
+        t0 = time.perf_counter()
         mom, bad = segment_moments(
             self.data.segments, p, self.data.dt, effects=self.effects, ship=self.ship
         )
-        return self.data.channel_costs(mom, bad), bad >= 0
+        cost = self.data.channel_costs(mom, bad)
+        self.seconds += time.perf_counter() - t0
+        return cost, bad >= 0
 
     def evaluate(self, thetas: Any, name: str | None = None) -> FloatArray:
         """Objective values (C,) of C candidates (``name`` overrides the objective)."""

@@ -71,6 +71,7 @@ class JobOutcome:
     restarts: list[dict[str, Any]] = field(default_factory=list)  # sweep.cmaes.restart_table
     history: list[dict[str, float]] = field(default_factory=list)  # one row per generation
     test: ScoreTable = field(default_factory=dict)  # {J: {subset: value}}
+    sim_seconds: float = 0.0  # time spent evaluating the objective (simulator), all workers
 
 
 def _plain(value: Any) -> Any:

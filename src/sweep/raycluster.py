@@ -38,6 +38,9 @@ class _EvalWorker:
     def evaluate(self, thetas: np.ndarray) -> np.ndarray:
         return safe_evaluate(self.objective, thetas)
 
+    def seconds(self) -> float:
+        return self.objective.seconds
+
 
 EvalWorker: Any = _remote(num_cpus=1)(_EvalWorker)
 
@@ -50,6 +53,7 @@ class RayEvaluator:
         self.cpus = cpus_per_worker
         self._ref = ray.put(objective)
         self.workers = [self._start() for _ in range(max(1, n))]
+        self.sim_seconds = 0.0  # collected from the workers when they are closed
 
     def _start(self) -> Any:
         return EvalWorker.options(num_cpus=self.cpus).remote(self._ref, self.cpus)
@@ -70,6 +74,10 @@ class RayEvaluator:
         return np.concatenate(out)
 
     def close(self) -> None:
+        try:
+            self.sim_seconds += float(sum(ray.get([w.seconds.remote() for w in self.workers])))
+        except Exception:  # timing is best effort; a dead worker took its count with it
+            log.warning("could not collect simulator time from the workers")
         for w in self.workers:
             ray.kill(w, no_restart=True)
         self.workers = []

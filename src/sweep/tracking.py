@@ -211,6 +211,7 @@ def outcome_metrics(outcome: JobOutcome) -> dict[str, float]:
         seconds=float(outcome.seconds),
         rejected=1.0 if outcome.rejected else 0.0,
         restarts=float(len(outcome.restarts)),
+        sim_seconds=float(outcome.sim_seconds),
     )
     return metrics
 

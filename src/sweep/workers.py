@@ -70,6 +70,11 @@ class InProcess:
     def __call__(self, thetas: FloatArray) -> FloatArray:
         return safe_evaluate(self.objective, np.asarray(thetas, dtype=np.float64))
 
+    @property
+    def sim_seconds(self) -> float:
+        """Time spent in the objective (simulator) so far."""
+        return self.objective.seconds
+
     def close(self) -> None:
         """Nothing to release."""
 

@@ -10,7 +10,7 @@ import pytest
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 
 
-def data_dir() -> Path:
+def recordings_root() -> Path:
     """The FRT-DS-ESSO recordings: $MMG_DATA_DIR, else ../shared/data/frt-ds-esso."""
     env = os.environ.get("MMG_DATA_DIR")
     return Path(env) if env else SHARED / "data" / "frt-ds-esso"
@@ -24,8 +24,12 @@ def shared_dir() -> Path:
 
 
 @pytest.fixture(scope="session")
-def frt_dir() -> Path:
-    d = data_dir()
+def data_dir() -> Path:
+    """The recordings' root directory (fails, never skips, when they are missing)."""
+    d = recordings_root()
     if not (d / "data").is_dir():
-        pytest.fail(f"recordings not found under {d}: set MMG_DATA_DIR")
+        pytest.fail(
+            f"FRT-DS-ESSO recordings not found in {d}: set MMG_DATA_DIR or run "
+            "`python -m sweep.download --root <dir>`"
+        )
     return d

@@ -109,10 +109,10 @@ def test_non_finite_values_do_not_break_a_generation():
 
 
 @pytest.fixture(scope="module")
-def small_objective(frt_dir):
+def small_objective(data_dir):
     from sweep.recordings import read_recording
 
-    rec = read_recording(frt_dir / "data/berthing/berthing_12-Nov-2020_13_21_03.csv")
+    rec = read_recording(data_dir / "data/berthing/berthing_12-Nov-2020_13_21_03.csv")
     short = Recording(rec.name, None, rec.t[:301], rec.x[:301], rec.u[:301], rec.w[:301])
     return Objective([short], "J2")
 
@@ -146,10 +146,10 @@ class _Exploding(Objective):
         return super().evaluate(thetas, name)
 
 
-def test_a_candidate_that_raises_gets_the_maximum_penalty(frt_dir):
+def test_a_candidate_that_raises_gets_the_maximum_penalty(data_dir):
     from sweep.recordings import read_recording
 
-    rec = read_recording(frt_dir / "data/berthing/berthing_12-Nov-2020_13_21_03.csv")
+    rec = read_recording(data_dir / "data/berthing/berthing_12-Nov-2020_13_21_03.csv")
     obj = _Exploding([rec], "J1")
     theta = np.tile(efd_parameters().vector(), (3, 1))
     theta[1, 4] = 0.123

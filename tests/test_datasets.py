@@ -5,7 +5,6 @@ The recordings are read from $MMG_DATA_DIR, else ../shared/data/frt-ds-esso besi
 
 from __future__ import annotations
 
-import os
 import warnings
 from pathlib import Path
 
@@ -26,11 +25,6 @@ from sweep.datasets import (
 )
 from sweep.download import CHECKSUMS
 from sweep.recordings import DT, Recording, RecordingWarning
-
-DATA_DIR = Path(
-    os.environ.get("MMG_DATA_DIR")
-    or Path(__file__).resolve().parents[2] / "shared" / "data" / "frt-ds-esso"
-)
 
 R = "data/random/random_06-Aug-2020_16_24_25_{}.csv"
 TRAIN = {
@@ -60,16 +54,6 @@ TEST = {
     "Test-B-S": B_STARBOARD,
     "Test-B-P": B_PORT,
 }
-
-
-@pytest.fixture(scope="module")
-def data_dir() -> Path:
-    if not (DATA_DIR / "data").is_dir():
-        pytest.fail(
-            f"FRT-DS-ESSO recordings not found in {DATA_DIR}: set MMG_DATA_DIR or run "
-            "`python -m sweep.download --root <dir>`"
-        )
-    return DATA_DIR
 
 
 def _load(split: Split, root: Path) -> dict[str, Recording]:

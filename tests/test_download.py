@@ -25,23 +25,9 @@ import pytest
 from sweep import download as dl
 from sweep.download import CHECKSUMS, DownloadError, download, main
 
-DATA_DIR = Path(
-    os.environ.get("MMG_DATA_DIR")
-    or Path(__file__).resolve().parents[2] / "shared" / "data" / "frt-ds-esso"
-)
 PREFIX = "FRT-DS-ESSO-e694dfd0123456789abcdef0123456789abcdef0"
 CORRUPTED = "data/zigzag/zigzag_31-Jul-2020_14_10_05.csv"
 UNRELATED = "data/random/random_03-Aug-2020_11_04_37.csv"
-
-
-@pytest.fixture(scope="module")
-def data_dir() -> Path:
-    if not (DATA_DIR / "data").is_dir():
-        pytest.fail(
-            f"FRT-DS-ESSO recordings not found in {DATA_DIR}: set MMG_DATA_DIR or run "
-            "`python -m sweep.download --root <dir>`"
-        )
-    return DATA_DIR
 
 
 def _archive(data_dir: Path, corrupt: str | None = None) -> bytes:

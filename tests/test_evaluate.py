@@ -13,8 +13,8 @@ from mmg import efd_parameters
 from sweep.evaluate import TEST_COLUMNS, main
 
 
-def test_efd_on_the_real_test_set(frt_dir, tmp_path, monkeypatch, capsys):
-    monkeypatch.setenv("MMG_DATA_DIR", str(frt_dir))
+def test_efd_on_the_real_test_set(data_dir, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("MMG_DATA_DIR", str(data_dir))
     out = tmp_path / "efd.json"
     assert main(["--params", "efd", "--set", "test", "--json", str(out)]) == 0
     table = json.loads(out.read_text())
@@ -33,12 +33,12 @@ def test_efd_on_the_real_test_set(frt_dir, tmp_path, monkeypatch, capsys):
     assert "Test-B-S + Test-B-P" in printed and "5498.6" in printed
 
 
-def test_parameters_file_and_recordings_directory(frt_dir, tmp_path):
+def test_parameters_file_and_recordings_directory(data_dir, tmp_path):
     p = efd_parameters().replace(a_H=0.2)
     p.save_json(tmp_path / "p.json")
     out = tmp_path / "j.json"
     args = ["--params", str(tmp_path / "p.json"), "--json", str(out)]
-    rc = main([*args, "--recordings", str(frt_dir / "data/berthing")])
+    rc = main([*args, "--recordings", str(data_dir / "data/berthing")])
     assert rc == 0
     table = json.loads(out.read_text())
     assert set(table["J1"]) == {
@@ -48,16 +48,16 @@ def test_parameters_file_and_recordings_directory(frt_dir, tmp_path):
     }
 
 
-def test_bad_parameter_file_exits_2_with_its_name(tmp_path, capsys, frt_dir):
+def test_bad_parameter_file_exits_2_with_its_name(tmp_path, capsys, data_dir):
     bad = tmp_path / "bad.json"
     bad.write_text('{"theta": {"m_x": "heavy"}}')
-    rc = main(["--params", str(bad), "--recordings", str(frt_dir / "data/berthing")])
+    rc = main(["--params", str(bad), "--recordings", str(data_dir / "data/berthing")])
     err = capsys.readouterr().err
     assert rc == 2 and str(bad) in err and "missing parameter" in err
 
 
-def test_malformed_recording_exits_2_naming_file_column_and_row(tmp_path, capsys, frt_dir):
-    src = frt_dir / "data/berthing/berthing_12-Nov-2020_13_21_03.csv"
+def test_malformed_recording_exits_2_naming_file_column_and_row(tmp_path, capsys, data_dir):
+    src = data_dir / "data/berthing/berthing_12-Nov-2020_13_21_03.csv"
     lines = src.read_text().splitlines()[:400]
     cells = lines[200].split(",")
     cells[7] = "fast"  # n_prop [rps]
@@ -76,8 +76,8 @@ def test_missing_data_root_is_explained(tmp_path, monkeypatch, capsys):
     assert "python -m sweep.download" in capsys.readouterr().err
 
 
-def test_command_line_entry_point_has_no_traceback(tmp_path, frt_dir):
-    shutil.copy(frt_dir / "data/berthing/berthing_12-Nov-2020_13_21_03.csv", tmp_path / "a.csv")
+def test_command_line_entry_point_has_no_traceback(tmp_path, data_dir):
+    shutil.copy(data_dir / "data/berthing/berthing_12-Nov-2020_13_21_03.csv", tmp_path / "a.csv")
     bad = tmp_path / "nonexistent.json"
     proc = subprocess.run(
         [

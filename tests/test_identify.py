@@ -15,8 +15,8 @@ from sweep.recordings import Recording, read_recording
 
 
 @pytest.fixture(scope="module")
-def berthing(frt_dir):
-    return read_recording(frt_dir / "data/berthing/berthing_12-Nov-2020_13_21_03.csv")
+def berthing(data_dir):
+    return read_recording(data_dir / "data/berthing/berthing_12-Nov-2020_13_21_03.csv")
 
 
 def test_identification_recovers_a_planted_change(berthing):
@@ -36,8 +36,8 @@ def test_identification_recovers_a_planted_change(berthing):
     assert Objective([rec], "J2").evaluate(best)[0] == pytest.approx(result.f, rel=1e-9)
 
 
-def test_command_writes_outputs_and_resumes(frt_dir, tmp_path, capsys):
-    rec_path = frt_dir / "data/berthing/berthing_12-Nov-2020_13_21_03.csv"
+def test_command_writes_outputs_and_resumes(data_dir, tmp_path, capsys):
+    rec_path = data_dir / "data/berthing/berthing_12-Nov-2020_13_21_03.csv"
     out = tmp_path / "job"
     args = ["--train", str(rec_path), "--objective", "J1", "--budget", "200", "--out", str(out)]
     assert main(args) == 0

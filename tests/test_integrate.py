@@ -123,9 +123,9 @@ def test_limiter_clips_to_the_algorithm_1_bounds():
     assert step.max() > 1e6  # and the limiter, not the physics, set the scale
 
 
-def test_recorded_turning_test_is_followed_for_100_seconds(frt_dir):
+def test_recorded_turning_test_is_followed_for_100_seconds(data_dir):
     """EFD model, 100 s of the recorded Test-T run (t = 300-400 s, steady 35 deg turn)."""
-    df = pd.read_csv(frt_dir / "data/turning/turn_14-Sep-2020_14_50_41.csv")
+    df = pd.read_csv(data_dir / "data/turning/turn_14-Sep-2020_14_50_41.csv")
     cols = ["x_position_mid [m]", "u_velo [m/s]", "y_position_mid [m]", "vm_velo [m/s]"]
     cols += ["psi_hat [rad]", "r_angvelo [rad/s]"]
     x = df[cols].to_numpy()

@@ -19,8 +19,8 @@ from sweep.recordings import Recording
 
 
 @pytest.fixture(scope="module")
-def test_set(frt_dir):
-    return load_split("paper").load(frt_dir)
+def test_set(data_dir):
+    return load_split("paper").load(data_dir)
 
 
 def _synthetic(rec: Recording, theta, n: int | None = None) -> Recording:
@@ -37,8 +37,8 @@ def test_subsequences_are_contiguous_100_s_windows(test_set):
     assert [s.start for s in segs] == [0, 1000, 2000, 3000, 4000, 5000, 6000, 7000]
 
 
-def test_train_r_is_2694_6_seconds_of_subsequences(frt_dir):
-    train = load_split("R").load(frt_dir)
+def test_train_r_is_2694_6_seconds_of_subsequences(data_dir):
+    train = load_split("R").load(data_dir)
     obj = Objective(list(train.values()))
     assert obj.data.durations.sum() == pytest.approx(2694.6, abs=1e-6)
 

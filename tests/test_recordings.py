@@ -7,7 +7,6 @@ Malformed files are written into tmp_path only.
 from __future__ import annotations
 
 import csv
-import os
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -28,10 +27,6 @@ from sweep.recordings import (
     write_parquet,
 )
 
-DATA_DIR = Path(
-    os.environ.get("MMG_DATA_DIR")
-    or Path(__file__).resolve().parents[2] / "shared" / "data" / "frt-ds-esso"
-)
 RANDOM_1 = "data/random/random_06-Aug-2020_16_24_25_1.csv"
 RANDOM_4 = "data/random/random_06-Aug-2020_16_24_25_4.csv"
 TURN_TEST = "data/turning/turn_14-Sep-2020_14_50_41.csv"
@@ -40,16 +35,6 @@ ZIGZAG_TRAILING = "data/zigzag/zigzag_31-Jul-2020_13_50_28.csv"
 ZIGZAG = "data/zigzag/zigzag_31-Jul-2020_13_22_52.csv"
 
 Rows = list[list[str]]
-
-
-@pytest.fixture(scope="module")
-def data_dir() -> Path:
-    if not (DATA_DIR / "data").is_dir():
-        pytest.fail(
-            f"FRT-DS-ESSO recordings not found in {DATA_DIR}: set MMG_DATA_DIR or run "
-            "`python -m sweep.download --root <dir>`"
-        )
-    return DATA_DIR
 
 
 def _head(data_dir: Path, rel: str, n: int = 300) -> tuple[list[str], Rows]:

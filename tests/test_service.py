@@ -35,15 +35,15 @@ def _cfg(objective: str, seed: int, budget: int, train: str = "R") -> dict:
 
 
 @pytest.fixture(scope="module")
-def efd(frt_dir):
-    return efd_reference(yaml.safe_load((CONF_DIR / "test/paper.yaml").read_text()), str(frt_dir))
+def efd(data_dir):
+    return efd_reference(yaml.safe_load((CONF_DIR / "test/paper.yaml").read_text()), str(data_dir))
 
 
-def _specs(tmp: Path, frt_dir, budget=40, objectives=("J1", "J2")) -> list[JobSpec]:
+def _specs(tmp: Path, data_dir, budget=40, objectives=("J1", "J2")) -> list[JobSpec]:
     out = []
     for J in objectives:
         cfg = _cfg(J, 0, budget)
-        cfg["data"]["root"] = str(frt_dir)
+        cfg["data"]["root"] = str(data_dir)
         out.append(spec_from_config(cfg, tmp / f"objective={J},seed=0,train=R"))
     return out
 
@@ -55,9 +55,9 @@ def _run(specs, tracker, efd, tmp, executor=None):
     )  # fmt: skip
 
 
-def test_sweep_logs_jobs_summarises_and_skips_them_on_a_rerun(tmp_path, frt_dir, efd):
+def test_sweep_logs_jobs_summarises_and_skips_them_on_a_rerun(tmp_path, data_dir, efd):
     tracker = NullTracker()
-    specs = _specs(tmp_path, frt_dir)
+    specs = _specs(tmp_path, data_dir)
     first = _run(specs, tracker, efd, tmp_path)
     assert first.ok and sorted(first.finished) == sorted(s.key for s in specs)
     records = tracker.job_outcomes(first.parent_id)
@@ -74,10 +74,10 @@ def test_sweep_logs_jobs_summarises_and_skips_them_on_a_rerun(tmp_path, frt_dir,
     assert again.parent_id == first.parent_id  # the same parent run, resumed
 
 
-def test_changed_config_is_refused_before_anything_runs(tmp_path, frt_dir, efd):
+def test_changed_config_is_refused_before_anything_runs(tmp_path, data_dir, efd):
     tracker = NullTracker()
-    _run(_specs(tmp_path, frt_dir, objectives=("J1",)), tracker, efd, tmp_path)
-    changed = _specs(tmp_path / "b", frt_dir, budget=60, objectives=("J1",))
+    _run(_specs(tmp_path, data_dir, objectives=("J1",)), tracker, efd, tmp_path)
+    changed = _specs(tmp_path / "b", data_dir, budget=60, objectives=("J1",))
     with pytest.raises(ConfigChangedError):
         _run(changed, tracker, efd, tmp_path)
     allowed = NullTracker(allow_config_change=True)
@@ -85,9 +85,9 @@ def test_changed_config_is_refused_before_anything_runs(tmp_path, frt_dir, efd):
     assert _run(changed, allowed, efd, tmp_path).finished == [changed[0].key]
 
 
-def test_a_failing_job_is_recorded_and_the_others_finish(tmp_path, frt_dir, efd):
+def test_a_failing_job_is_recorded_and_the_others_finish(tmp_path, data_dir, efd):
     tracker = NullTracker()
-    good, bad = _specs(tmp_path, frt_dir)
+    good, bad = _specs(tmp_path, data_dir)
     broken_cfg = dict(bad.config)
     broken_cfg["train"] = {"key": "R", "name": "Train-R", "files": ["data/random/missing.csv"]}
     bad = JobSpec(bad.key, bad.objective, bad.train, bad.seed, broken_cfg, bad.job_dir,
@@ -99,11 +99,11 @@ def test_a_failing_job_is_recorded_and_the_others_finish(tmp_path, frt_dir, efd)
     assert len(failed) == 1 and "missing.csv" in failed[0].tags["error"]
 
 
-def test_an_interrupted_job_resumes_from_its_checkpoint(tmp_path, frt_dir, efd):
-    spec = _specs(tmp_path / "a", frt_dir, budget=100, objectives=("J2",))[0]
-    fresh = _specs(tmp_path / "b", frt_dir, budget=100, objectives=("J2",))[0]
+def test_an_interrupted_job_resumes_from_its_checkpoint(tmp_path, data_dir, efd):
+    spec = _specs(tmp_path / "a", data_dir, budget=100, objectives=("J2",))[0]
+    fresh = _specs(tmp_path / "b", data_dir, budget=100, objectives=("J2",))[0]
     # interrupt: two generations into the job, as a killed process would leave it
-    train = load_split("R").load(frt_dir)
+    train = load_split("R").load(data_dir)
     obj = Objective(list(train.values()), "J2")
     lo, hi = bounds()
     spec.job_dir.mkdir(parents=True)

@@ -22,15 +22,15 @@ COMMAND = [
 ]  # fmt: skip
 
 
-def _run(cwd: Path, frt_dir: Path) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ, MMG_DATA_DIR=str(frt_dir), RAY_AUTH_MODE="disabled")
+def _run(cwd: Path, data_dir: Path) -> subprocess.CompletedProcess[str]:
+    env = dict(os.environ, MMG_DATA_DIR=str(data_dir), RAY_AUTH_MODE="disabled")
     return subprocess.run(COMMAND, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
 
 
 @pytest.fixture(scope="module")
-def smoke(tmp_path_factory, frt_dir):
+def smoke(tmp_path_factory, data_dir):
     cwd = tmp_path_factory.mktemp("sweep")
-    first = _run(cwd, frt_dir)
+    first = _run(cwd, data_dir)
     assert first.returncode == 0, first.stderr[-3000:]
     return cwd, first
 
@@ -75,7 +75,7 @@ def test_mlflow_holds_parent_children_metrics_and_tables(smoke):
     assert "EFD" in table and "J1-R" in table and "J2-R" in table
 
 
-def test_best_parameters_are_loadable_by_evaluate(smoke, frt_dir):
+def test_best_parameters_are_loadable_by_evaluate(smoke, data_dir):
     import mlflow
 
     from mmg import Parameters
@@ -91,15 +91,15 @@ def test_best_parameters_are_loadable_by_evaluate(smoke, frt_dir):
     p = Parameters.load_json(path)
     from sweep.evaluate import main
 
-    assert main(["--params", path, "--recordings", str(frt_dir / "data/berthing")]) == 0
+    assert main(["--params", path, "--recordings", str(data_dir / "data/berthing")]) == 0
     assert p.vector().shape == (57,)
 
 
-def test_second_run_skips_the_finished_jobs(smoke, frt_dir):
+def test_second_run_skips_the_finished_jobs(smoke, data_dir):
     import mlflow
 
     cwd, _ = smoke
-    second = _run(cwd, frt_dir)
+    second = _run(cwd, data_dir)
     assert second.returncode == 0, second.stderr[-3000:]
     assert "0 finished, 2 skipped, 0 failed" in second.stderr + second.stdout
     client = mlflow.MlflowClient(f"sqlite:///{cwd}/mlflow.db")
@@ -108,7 +108,7 @@ def test_second_run_skips_the_finished_jobs(smoke, frt_dir):
     assert len(client.search_runs([exp.experiment_id])) == 3  # no new child runs
 
 
-def test_ctrl_c_stops_cleanly_keeps_the_checkpoint_and_a_rerun_finishes(tmp_path, frt_dir):
+def test_ctrl_c_stops_cleanly_keeps_the_checkpoint_and_a_rerun_finishes(tmp_path, data_dir):
     """SIGINT mid-job: exit 130, no process of the sweep left behind, the checkpoint kept."""
     import signal
     import time
@@ -117,7 +117,7 @@ def test_ctrl_c_stops_cleanly_keeps_the_checkpoint_and_a_rerun_finishes(tmp_path
         sys.executable, "-m", "sweep", "-m", "objective=J1", "train=R", "seed=1",
         "budget=smoke", "budget.max_evaluations=4000", "sweep.name=ctrl-c", "ray.num_cpus=2",
     ]  # fmt: skip
-    env = dict(os.environ, MMG_DATA_DIR=str(frt_dir), RAY_AUTH_MODE="disabled")
+    env = dict(os.environ, MMG_DATA_DIR=str(data_dir), RAY_AUTH_MODE="disabled")
     proc = subprocess.Popen(
         command, cwd=tmp_path, env=env, start_new_session=True,
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,

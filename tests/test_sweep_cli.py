@@ -56,6 +56,8 @@ def test_mlflow_holds_parent_children_metrics_and_tables(smoke):
     ]
     for child in children:
         assert child.info.status == "FINISHED"
+        assert len(child.data.tags["git_commit"]) == 40  # the source the job ran
+        assert child.data.tags["mmg_sweep_version"] == "0.1.0"
         assert {child.data.tags[k] for k in ("objective", "train", "seed")} <= {
             "J1",
             "J2",

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import time
 from collections.abc import Sequence
@@ -29,6 +28,7 @@ from mmg.params import ParameterError, Parameters, bounds, efd_parameters
 from sweep.cmaes import Box, Result, Settings, State, optimise, restart_table
 from sweep.datasets import DataNotFoundError, SplitError, load_split
 from sweep.objective import Objective
+from sweep.outcome import source_version
 from sweep.recordings import Recording, RecordingError, read_recordings
 from sweep.workers import make_evaluator
 
@@ -59,17 +59,7 @@ def identify(
 
 def git_commit() -> str:
     """The source tree's commit (``unknown`` outside a checkout)."""
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "HEAD"],
-            cwd=Path(__file__).resolve().parent,
-            capture_output=True,
-            text=True,
-            timeout=5,
-        )
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    return out.stdout.strip() or "unknown"
+    return source_version()["commit"]
 
 
 def _printer(stream: Any = sys.stderr, every: float = 2.0) -> Any:

@@ -21,12 +21,15 @@ The EFD reference values of a sweep are named ``efd/{J}/{subset}``.
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import importlib.metadata
 import json
 import math
+import subprocess
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from pathlib import PurePath
+from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -81,6 +84,28 @@ def _plain(value: Any) -> Any:
     if isinstance(value, PurePath):
         return str(value)
     raise TypeError(f"config value {value!r} of type {type(value).__name__} is not JSON-able")
+
+
+@functools.cache
+def source_version() -> dict[str, str]:
+    """The installed package version and the git commit of the source tree ("unknown" outside
+    a checkout): recorded with every job, kept out of the config hash."""
+    try:
+        version = importlib.metadata.version("mmg-sweep")
+    except importlib.metadata.PackageNotFoundError:
+        version = "unknown"
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=Path(__file__).resolve().parent,
+            capture_output=True,
+            text=True,
+            timeout=5,
+        )
+        commit = out.stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        commit = "unknown"
+    return {"version": version, "commit": commit}
 
 
 def canonical_json(config: Mapping[str, Any]) -> str:

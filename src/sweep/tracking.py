@@ -47,6 +47,7 @@ from sweep.outcome import (
     ScoreTable,
     config_hash,
     metric_name,
+    source_version,
 )
 
 #: longest error text stored in the ``error`` tag (MLflow allows 8000 characters)
@@ -192,6 +193,8 @@ def outcome_tags(outcome: JobOutcome, parent_id: str) -> dict[str, str]:
         "config_hash": outcome.config_hash,
         "stop_reason": outcome.stop_reason,
         "rejected": "true" if outcome.rejected else "false",
+        "mmg_sweep_version": source_version()["version"],
+        "git_commit": source_version()["commit"],
         PARENT_TAG: parent_id,
     }
 
@@ -237,8 +240,8 @@ def write_job_artifacts(outcome: JobOutcome, out: Path) -> list[Path]:
         "f": outcome.f,
         "evaluations": outcome.evaluations,
     }
-    if "commit" in outcome.config:
-        meta["commit"] = outcome.config["commit"]
+    meta["commit"] = source_version()["commit"]
+    meta["version"] = source_version()["version"]
     paths = [out / n for n in ("best_params.json", "best_params.csv", "history.csv")]
     outcome.params.save_json(paths[0], **meta)
     values = outcome.params.to_dict()

@@ -1,0 +1,1 @@
+"""Missing-physics discovery: locate the mismatch, rank candidate effects, re-identify, report."""

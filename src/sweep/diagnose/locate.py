@@ -1,0 +1,161 @@
+"""Locate a model-data mismatch: residuals per run, window and regime.
+
+The objectives standardise each 100-s subsequence, so this module does the same: for every
+subsequence the simulation (started from the recorded state, driven by the recorded controls and
+wind) is compared with the recording sample by sample, residuals are divided by the recording's
+own standard deviation in that subsequence (with the objective's floors), and each sample carries
+the regime it was in:
+
+- ``beta_deg``: drift angle atan2(-v_m, u) [deg], folded to [0, 180];
+- ``quadrant``: propeller quadrant 1 (u >= 0, n >= 0), 2 (u < 0, n >= 0), 3 (u >= 0, n < 0),
+  4 (u < 0, n < 0);
+- ``delta_deg``: |rudder angle| [deg];
+- ``gamma_A_deg``: apparent wind direction from the bow [deg], folded to [0, 180];
+- ``U``: speed over ground [m/s]; ``n_p`` [rev/s]; ``x0``, ``y0`` [m] position.
+
+:func:`locate` bins each regime variable and measures how much of the residual energy the bins
+explain (the between-bin share of the sum of squares, eta^2, and the worst bin's mean square
+relative to the average), per channel group (velocities = J1's channels, track = J3's). A high
+eta^2 for one variable says where the mismatch concentrates; runs and windows are ranked too.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from mmg import Effect, Parameters, simulate_batch
+from sweep.objective import DEFAULT_FLOORS, observables, split_recording
+from sweep.recordings import Recording
+
+CHANNELS = ("x0", "u", "y0", "v_m", "sin_psi", "cos_psi", "r")
+GROUPS = {"velocity": ("u", "v_m", "r"), "track": ("x0", "y0", "sin_psi", "cos_psi")}
+#: regime variables and their bin edges
+BINS: dict[str, np.ndarray] = {
+    "beta_deg": np.array([0, 5, 10, 20, 45, 90, 135, 180.0001]),
+    "quadrant": np.array([0.5, 1.5, 2.5, 3.5, 4.5]),
+    "delta_deg": np.array([0, 5, 10, 20, 30, 45]),
+    "gamma_A_deg": np.array([0, 30, 60, 90, 120, 150, 180.0001]),
+    "U": np.array([0, 0.05, 0.1, 0.2, 0.3, 1.0]),
+    "n_p": np.array([-25, -10, -0.5, 0.5, 5, 10, 25]),
+}
+
+
+def residual_frame(
+    params: Parameters,
+    recordings: Sequence[Recording],
+    effects: tuple[Effect, ...] = (),
+    floors: Mapping[str, float] = DEFAULT_FLOORS,
+) -> pd.DataFrame:
+    """One row per sample: run, window, time, regime variables, standardised residuals.
+
+    Residual columns ``res_<channel>`` are (simulated - recorded) / sigma_recorded of the window.
+    """
+    frames = []
+    floor = np.array([floors[c] for c in CHANNELS])
+    for rec in recordings:
+        for w, seg in enumerate(split_recording(rec)):
+            sl = slice(seg.start, seg.start + seg.n_steps + 1)
+            x = np.asarray(rec.x[sl])
+            u = np.asarray(rec.u[sl])
+            wind = np.asarray(rec.w[sl])
+            sim = simulate_batch(x[None, 0], u[None, :-1], wind[None, :-1], params, effects=effects)
+            z_rec = observables(x)
+            z_sim = observables(sim.states[0])
+            sigma = np.maximum(z_rec.std(axis=0), floor)
+            res = (z_sim - z_rec) / sigma
+            if sim.diverged[0]:
+                res[:] = np.nan
+            U = np.hypot(x[:, 1], x[:, 3])
+            uA = wind[:, 0] * np.cos(wind[:, 1] - x[:, 4]) + x[:, 1]
+            vA = wind[:, 0] * np.sin(wind[:, 1] - x[:, 4]) + x[:, 3]
+            quadrant = np.where(
+                u[:, 1] >= 0, np.where(x[:, 1] >= 0, 1, 2), np.where(x[:, 1] >= 0, 3, 4)
+            )
+            data = {
+                "run": rec.name,
+                "window": w,
+                "t": np.asarray(rec.t[sl]),
+                "beta_deg": np.abs(np.degrees(np.arctan2(-x[:, 3], x[:, 1]))),
+                "quadrant": quadrant,
+                "delta_deg": np.abs(np.degrees(u[:, 0])),
+                "gamma_A_deg": np.abs(np.degrees(np.arctan2(vA, uA))),
+                "U": U,
+                "n_p": u[:, 1],
+                "x0": x[:, 0],
+                "y0": x[:, 2],
+            }
+            for j, c in enumerate(CHANNELS):
+                data[f"res_{c}"] = res[:, j]
+            frames.append(pd.DataFrame(data))
+    return pd.concat(frames, ignore_index=True)
+
+
+@dataclass(frozen=True)
+class RegimeScore:
+    """How strongly the residual energy of a channel group depends on one regime variable."""
+
+    variable: str
+    group: str
+    eta2: float  # between-bin share of the residual sum of squares, 0..1
+    worst_bin: str  # label of the bin with the largest mean square
+    worst_ratio: float  # its mean square / the overall mean square
+    samples: int
+
+
+def _energy(frame: pd.DataFrame, group: str) -> pd.Series:
+    cols = [f"res_{c}" for c in GROUPS[group]]
+    return (frame[cols] ** 2).sum(axis=1)
+
+
+def locate(frame: pd.DataFrame, min_share: float = 0.02) -> list[RegimeScore]:
+    """Score every (regime variable, channel group), most concentrated first.
+
+    Bins holding less than ``min_share`` of the samples are pooled out (no verdict from a handful
+    of samples).
+    """
+    clean = frame.dropna(subset=[f"res_{c}" for c in CHANNELS])
+    scores: list[RegimeScore] = []
+    for group in GROUPS:
+        e = _energy(clean, group)
+        total_mean = float(e.mean())
+        for var, edges in BINS.items():
+            labels = pd.cut(clean[var], list(edges), right=False)
+            counts = labels.value_counts()
+            keep = counts[counts >= min_share * len(clean)].index
+            mask = labels.isin(keep)
+            if mask.sum() < 10 or len(keep) < 2:
+                continue
+            ek, lk = e[mask], labels[mask]
+            means = ek.groupby(lk, observed=True).mean()
+            sizes = ek.groupby(lk, observed=True).size()
+            grand = float(ek.mean())
+            between = float((sizes * (means - grand) ** 2).sum())
+            total = float(((ek - grand) ** 2).sum())
+            worst = means.idxmax()
+            scores.append(
+                RegimeScore(
+                    variable=var,
+                    group=group,
+                    eta2=between / total if total > 0 else 0.0,
+                    worst_bin=str(worst),
+                    worst_ratio=float(means.max() / total_mean) if total_mean > 0 else 0.0,
+                    samples=int(mask.sum()),
+                )
+            )
+    return sorted(scores, key=lambda s: s.eta2, reverse=True)
+
+
+def rank_windows(frame: pd.DataFrame, group: str = "velocity", top: int = 10) -> pd.DataFrame:
+    """The windows (run, window) with the largest mean residual energy of a channel group."""
+    e = _energy(frame, group)
+    table = (
+        frame.assign(energy=e)
+        .groupby(["run", "window"], observed=True)
+        .agg(t0=("t", "min"), energy=("energy", "mean"), samples=("t", "size"))
+        .sort_values("energy", ascending=False)
+    )
+    return table.head(top).reset_index()

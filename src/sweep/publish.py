@@ -163,6 +163,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--out", default="docs")
     ap.add_argument("--params-out", default="results/best_params.json")
     ap.add_argument("--discussion", default=None, help="Markdown file included as the discussion")
+    ap.add_argument(
+        "--commit", default=None, help="source commit of the sweep, if its runs did not record it"
+    )
     args = ap.parse_args(argv)
 
     tracker = MlflowTracker(args.tracking_uri or default_tracking_uri(), args.experiment)
@@ -203,7 +206,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         budget=budget,
         sweep=args.sweep,
         job_key=best["job_key"],
-        commit=meta.get("commit", run.data.tags.get("commit", "unknown")),
+        commit=args.commit or run.data.tags.get("git_commit") or meta.get("commit", "unknown"),
         test=best["test"],
     )
 

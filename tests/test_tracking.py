@@ -20,6 +20,7 @@ from sweep.outcome import (
     config_hash,
     from_paper_layout,
     make_job_key,
+    source_version,
 )
 from sweep.tracking import (
     ConfigChangedError,
@@ -318,7 +319,9 @@ def test_child_artifacts(logged: dict[str, Any], tmp_path: Path) -> None:
     params = Parameters.load_json(path)
     assert np.array_equal(params.vector(), outcome.params.vector())
     meta = json.loads(Path(path).read_text())["metadata"]
-    assert meta["job_key"] == outcome.job_key and meta["commit"] == "abc123"
+    assert meta["job_key"] == outcome.job_key
+    assert meta["commit"] == source_version()["commit"]  # the source tree, not the config
+    assert meta["version"] == source_version()["version"]
     assert meta["config_hash"] == outcome.config_hash and meta["f"] == outcome.f
     csv_path = tracker.client.download_artifacts(run_id, "best_params.csv", str(tmp_path))
     table = pd.read_csv(csv_path)

@@ -31,12 +31,12 @@ def cross_flow_integrals(v_m: float, b: float, L: float) -> tuple[float, float]:
         I_0 = sgn * (v_m * v_m * L + b * b * L * L * L / 12.0)  # int s^2 dx
         I_1 = abs(v_m) * b * L * L * L / 6.0  # sign(v_m) int s^2 x dx
     else:
-        s1 = v_m - b * half
-        s2 = v_m + b * half
-        I_0 = (s2 * s2 * abs(s2) - s1 * s1 * abs(s1)) / (3.0 * b)
-        F2 = s2 * s2 * s2 * abs(s2) / 4.0 - v_m * s2 * s2 * abs(s2) / 3.0
+        s1 = v_m - b * half  # s at the stern, x = -L/2
+        s2 = v_m + b * half  # s at the bow, x = L/2
+        I_0 = (s2 * s2 * abs(s2) - s1 * s1 * abs(s1)) / (3.0 * b)  # Eq. (4), reference closed form
+        F2 = s2 * s2 * s2 * abs(s2) / 4.0 - v_m * s2 * s2 * abs(s2) / 3.0  # antiderivative of I_1
         F1 = s1 * s1 * s1 * abs(s1) / 4.0 - v_m * s1 * s1 * abs(s1) / 3.0
-        I_1 = (F2 - F1) / (b * b)
+        I_1 = (F2 - F1) / (b * b)  # Eq. (4), reference closed form
     return I_0, I_1
 
 
@@ -47,7 +47,7 @@ def hull_forces(u: float, v_m: float, r: float, th: Theta, sh: Ship) -> tuple[fl
     u, v_m [m/s] surge and sway velocity at midship, r [rad/s] yaw rate (paper Eq. (4)).
     """
     L = sh.L_pp
-    U = math.sqrt(u * u + v_m * v_m)
+    U = math.sqrt(u * u + v_m * v_m)  # speed over the water [m/s]
     beta = atan2(v_m, u)  # drift angle; only |beta| / pi enters X_H
     half_rho_Ld = 0.5 * sh.rho * L * sh.d
     X_0 = sh.X_0F + (th.X_0A - sh.X_0F) * abs(beta) / math.pi  # Eq. (4), X_H resistance term

@@ -34,13 +34,13 @@ def wake_factor(u: float, v_m: float, r: float, th: Theta, sh: Ship) -> float:
     if u <= 0.0:
         return 1.0
     U = math.sqrt(u * u + v_m * v_m)
-    if U < U_MIN:
+    if U < U_MIN:  # reference "Guards at zero speed"
         v_nd = 1.0e-7
         r_nd = 1.0e-7
     else:
-        v_nd = v_m / U
-        r_nd = r * sh.L_pp / U
-    beta_P = v_nd + th.x_P * r_nd
+        v_nd = v_m / U  # v'
+        r_nd = r * sh.L_pp / U  # r'
+    beta_P = v_nd + th.x_P * r_nd  # v' + x'_P r', Eq. (6)
     one_minus_w = 1.0 - th.w_P0 + th.tau * abs(beta_P) + th.C_P * beta_P * beta_P  # Eq. (6)
     if one_minus_w > 1.0:
         one_minus_w = 1.0

@@ -30,3 +30,34 @@ def test_the_true_model_leaves_no_residual_and_a_wrong_one_is_located(data_dir):
     top = rank_windows(wrong, "velocity", top=3)
     assert list(top["energy"]) == sorted(top["energy"], reverse=True)
     assert top["energy"].iloc[0] > 0.01
+
+
+def test_equation_residuals_locate_a_planted_propeller_walk(data_dir):
+    """Side force of the propeller going ahead, planted and hidden in noise: located at n_p > 0."""
+    from mmg import Parameters, get_effect
+    from sweep.diagnose.locate import equation_residuals, locate_bias
+
+    walk = get_effect("propeller_walk")
+    planted = Parameters(
+        efd_parameters().theta, effects=(("propeller_walk", (("C_Yw", 4e-4), ("C_Nw", -2e-4))),)
+    )
+    test = load_split("paper").load(data_dir)
+    rng = np.random.default_rng(0)
+    noise = np.array([0.01, 0.002, 0.01, 0.002, 0.002, 0.0005])  # like the recordings' jitter
+    recs = []
+    for label in ("Test-B-S", "Test-B-P", "Test-Z", "Test-R"):
+        rec = test[label]
+        traj = simulate(
+            rec.x[None, 0], rec.u[None, :-1], rec.w[None, :-1], planted, effects=(walk,)
+        )
+        x = traj[0] + rng.normal(size=traj[0].shape) * noise
+        recs.append(Recording(label, None, rec.t, x, rec.u, rec.w))
+    scores = locate_bias(equation_residuals(efd_parameters(), recs))
+    top = scores[0]
+    assert top.variable in ("n_p", "quadrant") and top.channel in ("v_dot", "r_dot")
+    assert top.bin in ("[0.5, 5.0)", "[5.0, 10.0)", "[10.0, 25.0)", "[0.5, 1.5)")
+    assert abs(top.t) > 4
+    # without the planted effect, no bin stands out as strongly
+    clean = [Recording(r.name, None, r.t, r.x, r.u, r.w) for r in recs]
+    honest = locate_bias(equation_residuals(planted, clean, effects=(walk,)))
+    assert abs(honest[0].t) < abs(top.t) / 2

@@ -159,3 +159,93 @@ def rank_windows(frame: pd.DataFrame, group: str = "velocity", top: int = 10) ->
         .sort_values("energy", ascending=False)
     )
     return table.head(top).reset_index()
+
+
+ACCELERATIONS = ("u_dot", "v_dot", "r_dot")
+
+
+def equation_residuals(
+    params: Parameters,
+    recordings: Sequence[Recording],
+    effects: tuple[Effect, ...] = (),
+    smooth_s: float = 1.0,
+) -> pd.DataFrame:
+    """One row per sample: regime variables and equation residuals (recorded - model).
+
+    The recorded accelerations (central differences of the recorded u, v_m, r) are compared with
+    the model's at the recorded state, controls and wind (paper Eq. (1)-(3)); unlike trajectory
+    residuals these do not accumulate along a window, so a missing force shows up in the regime
+    where it acts. Both are averaged over ``smooth_s`` seconds against differentiation noise.
+    Columns ``eq_u_dot``, ``eq_v_dot`` [m/s^2], ``eq_r_dot`` [rad/s^2].
+    """
+    from mmg import derivatives
+
+    frames = []
+    for rec in recordings:
+        x = np.asarray(rec.x)
+        u = np.asarray(rec.u)
+        w = np.asarray(rec.w)
+        acc_rec = np.gradient(x[:, [1, 3, 5]], rec.dt, axis=0)
+        acc_mod = derivatives(x, u, w, params, effects)[:, [1, 3, 5]]
+        width = max(1, round(smooth_s / rec.dt))
+        kernel = np.ones(width) / width
+        res = np.stack(
+            [np.convolve(acc_rec[:, j] - acc_mod[:, j], kernel, mode="same") for j in range(3)],
+            axis=1,
+        )
+        uA = w[:, 0] * np.cos(w[:, 1] - x[:, 4]) + x[:, 1]
+        vA = w[:, 0] * np.sin(w[:, 1] - x[:, 4]) + x[:, 3]
+        data = {
+            "run": rec.name,
+            "t": np.asarray(rec.t),
+            "beta_deg": np.abs(np.degrees(np.arctan2(-x[:, 3], x[:, 1]))),
+            "quadrant": np.where(
+                u[:, 1] >= 0, np.where(x[:, 1] >= 0, 1, 2), np.where(x[:, 1] >= 0, 3, 4)
+            ),
+            "delta_deg": np.abs(np.degrees(u[:, 0])),
+            "gamma_A_deg": np.abs(np.degrees(np.arctan2(vA, uA))),
+            "U": np.hypot(x[:, 1], x[:, 3]),
+            "n_p": u[:, 1],
+        }
+        for j, name in enumerate(ACCELERATIONS):
+            data[f"eq_{name}"] = res[:, j]
+        frames.append(pd.DataFrame(data))
+    return pd.concat(frames, ignore_index=True)
+
+
+@dataclass(frozen=True)
+class BiasScore:
+    """A regime bin in which an equation residual has a mean far from zero."""
+
+    variable: str
+    channel: str
+    bin: str
+    mean: float  # mean residual in the bin [m/s^2 or rad/s^2]
+    t: float  # mean / standard error (samples 1 s apart treated as independent)
+    samples: int
+
+
+def locate_bias(frame: pd.DataFrame, min_share: float = 0.02) -> list[BiasScore]:
+    """Rank (regime bin, acceleration) pairs by how far the mean residual is from zero.
+
+    A missing force acts in a regime: inside it the equation residual has a non-zero mean,
+    elsewhere it averages out. Standard errors count one independent sample per second (the
+    residuals are smoothed and the recordings filtered), so |t| > 4 is a strong signal.
+    """
+    scores: list[BiasScore] = []
+    per_second = max(1, round(1.0 / float(np.median(np.diff(frame["t"][:100])))))
+    for var, edges in BINS.items():
+        labels = pd.cut(frame[var], list(edges), right=False)
+        for channel in ACCELERATIONS:
+            col = frame[f"eq_{channel}"]
+            grouped = col.groupby(labels, observed=True)
+            for label, values in grouped:
+                n = len(values)
+                if n < min_share * len(frame) or n < 2 * per_second:
+                    continue
+                se = float(values.std()) / np.sqrt(n / per_second)
+                mean = float(values.mean())
+                scores.append(
+                    BiasScore(var, channel, str(label), mean, mean / se if se > 0 else 0.0, n)
+                )
+    return sorted(scores, key=lambda s: abs(s.t), reverse=True)

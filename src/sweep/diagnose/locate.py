@@ -44,6 +44,24 @@ BINS: dict[str, np.ndarray] = {
 }
 
 
+def regimes(x: np.ndarray, u: np.ndarray, w: np.ndarray) -> dict[str, np.ndarray]:
+    """The regime variables of samples: states x (N, 6), controls u (N, 2), wind w (N, 2)."""
+    uA = w[:, 0] * np.cos(w[:, 1] - x[:, 4]) + x[:, 1]  # apparent wind, see mmg.wind
+    vA = w[:, 0] * np.sin(w[:, 1] - x[:, 4]) + x[:, 3]
+    ahead = u[:, 1] >= 0
+    forward = x[:, 1] >= 0
+    return {
+        "beta_deg": np.abs(np.degrees(np.arctan2(-x[:, 3], x[:, 1]))),
+        "quadrant": np.where(ahead, np.where(forward, 1, 2), np.where(forward, 3, 4)),
+        "delta_deg": np.abs(np.degrees(u[:, 0])),
+        "gamma_A_deg": np.abs(np.degrees(np.arctan2(vA, uA))),
+        "U": np.hypot(x[:, 1], x[:, 3]),
+        "n_p": u[:, 1],
+        "x0": x[:, 0],
+        "y0": x[:, 2],
+    }
+
+
 def residual_frame(
     params: Parameters,
     recordings: Sequence[Recording],
@@ -69,25 +87,8 @@ def residual_frame(
             res = (z_sim - z_rec) / sigma
             if sim.diverged[0]:
                 res[:] = np.nan
-            U = np.hypot(x[:, 1], x[:, 3])
-            uA = wind[:, 0] * np.cos(wind[:, 1] - x[:, 4]) + x[:, 1]
-            vA = wind[:, 0] * np.sin(wind[:, 1] - x[:, 4]) + x[:, 3]
-            quadrant = np.where(
-                u[:, 1] >= 0, np.where(x[:, 1] >= 0, 1, 2), np.where(x[:, 1] >= 0, 3, 4)
-            )
-            data = {
-                "run": rec.name,
-                "window": w,
-                "t": np.asarray(rec.t[sl]),
-                "beta_deg": np.abs(np.degrees(np.arctan2(-x[:, 3], x[:, 1]))),
-                "quadrant": quadrant,
-                "delta_deg": np.abs(np.degrees(u[:, 0])),
-                "gamma_A_deg": np.abs(np.degrees(np.arctan2(vA, uA))),
-                "U": U,
-                "n_p": u[:, 1],
-                "x0": x[:, 0],
-                "y0": x[:, 2],
-            }
+            data = {"run": rec.name, "window": w, "t": np.asarray(rec.t[sl])}
+            data.update(regimes(x, u, wind))
             for j, c in enumerate(CHANNELS):
                 data[f"res_{c}"] = res[:, j]
             frames.append(pd.DataFrame(data))
@@ -193,20 +194,8 @@ def equation_residuals(
             [np.convolve(acc_rec[:, j] - acc_mod[:, j], kernel, mode="same") for j in range(3)],
             axis=1,
         )
-        uA = w[:, 0] * np.cos(w[:, 1] - x[:, 4]) + x[:, 1]
-        vA = w[:, 0] * np.sin(w[:, 1] - x[:, 4]) + x[:, 3]
-        data = {
-            "run": rec.name,
-            "t": np.asarray(rec.t),
-            "beta_deg": np.abs(np.degrees(np.arctan2(-x[:, 3], x[:, 1]))),
-            "quadrant": np.where(
-                u[:, 1] >= 0, np.where(x[:, 1] >= 0, 1, 2), np.where(x[:, 1] >= 0, 3, 4)
-            ),
-            "delta_deg": np.abs(np.degrees(u[:, 0])),
-            "gamma_A_deg": np.abs(np.degrees(np.arctan2(vA, uA))),
-            "U": np.hypot(x[:, 1], x[:, 3]),
-            "n_p": u[:, 1],
-        }
+        data = {"run": rec.name, "t": np.asarray(rec.t)}
+        data.update(regimes(x, u, w))
         for j, name in enumerate(ACCELERATIONS):
             data[f"eq_{name}"] = res[:, j]
         frames.append(pd.DataFrame(data))

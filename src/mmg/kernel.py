@@ -129,6 +129,19 @@ def rk4_step(X, Ks, Tr, delta, n_p, U_T, gamma_T, P, sh, k, dt, t_f, lim_lin, li
         bad[i] = k if ((not ok) and bad[i] < 0) else bad[i]
 
 
+@numba.njit(inline="always", **JIT_OPTIONS)
+def gather_inputs(cur, u_seq, w_seq, rows, last, k, W):
+    """Inputs of step k for W lanes into cur (4, W): delta, n_p, U_T, gamma_T of rows[i], held
+    (zero-order hold); past its own end (last[i]) a lane repeats its last input."""
+    for i in range(W):
+        b = rows[i]
+        kk = min(k, last[i])
+        cur[0, i] = u_seq[b, kk, 0]
+        cur[1, i] = u_seq[b, kk, 1]
+        cur[2, i] = w_seq[b, kk, 0]
+        cur[3, i] = w_seq[b, kk, 1]
+
+
 @numba.njit(parallel=True, cache=True, **JIT_OPTIONS)
 def simulate_lanes(
     x0, u_seq, w_seq, P, n_steps, lane_ids, sh, dt, lim_lin, lim_ang, W, n_threads, out, bad
@@ -173,13 +186,7 @@ def simulate_lanes(
                 for j in range(NP):
                     Pc[j, i] = P[j, b]
             for k in range(kmax):
-                for i in range(w):
-                    b = ids[i]
-                    kk = min(k, last[i])  # past its end a lane repeats its last input
-                    cur[0, i] = u_seq[b, kk, 0]
-                    cur[1, i] = u_seq[b, kk, 1]
-                    cur[2, i] = w_seq[b, kk, 0]
-                    cur[3, i] = w_seq[b, kk, 1]
+                gather_inputs(cur, u_seq, w_seq, ids, last, k, w)
                 rk4_step(
                     X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
                     Pc, sh, k, dt, t_f, lim_lin, lim_ang, fb, w,
@@ -224,6 +231,7 @@ def moments_lanes(
         t_f = np.empty(W)
         fb = np.empty(W, dtype=np.int64)
         seg = np.empty(W, dtype=np.int64)
+        last = np.empty(W, dtype=np.int64)
         acc = np.empty((7, 5, W))
         for c in range(t, n_chunks, n_threads):
             lo = c * W
@@ -232,6 +240,7 @@ def moments_lanes(
             for i in range(w):
                 s = lane_seg[lo + i]
                 seg[i] = s
+                last[i] = max(seg_steps[s] - 1, 0)
                 kmax = max(kmax, seg_steps[s])
                 t_f[i] = seg_steps[s] * dt
                 fb[i] = -1
@@ -268,13 +277,7 @@ def moments_lanes(
                         acc[q, 4, i] += wt * z * seg_ref[s, kk, q]
                 if k == kmax:
                     break
-                for i in range(w):
-                    s = seg[i]
-                    kk = min(k, max(seg_steps[s] - 1, 0))
-                    cur[0, i] = seg_u[s, kk, 0]
-                    cur[1, i] = seg_u[s, kk, 1]
-                    cur[2, i] = seg_w[s, kk, 0]
-                    cur[3, i] = seg_w[s, kk, 1]
+                gather_inputs(cur, seg_u, seg_w, seg, last, k, w)
                 rk4_step(
                     X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
                     Pc, sh, k, dt, t_f, lim_lin, lim_ang, fb, w,

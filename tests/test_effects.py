@@ -10,7 +10,18 @@ from mmg import ESSO_OSAKA, Parameters, catalog, derivatives, efd_parameters, ge
 
 def test_catalog_lists_effects_with_parameters():
     cat = catalog()
-    assert {"current", "propeller_walk"} <= set(cat)
+    assert {
+        "current",
+        "propeller_walk",
+        "a_h_drift",
+        "rudder_stall",
+        "actuator_lag",
+        "heading_bias",
+        "rudder_offset",
+    } <= set(cat)
+    for eff in cat.values():
+        lo, hi = eff.bounds
+        assert all(a <= n <= b for a, n, b in zip(lo, eff.neutral(), hi, strict=True)), eff.name
     assert get_effect("current").param_names == ("V_c", "beta_c")
     with pytest.raises(KeyError, match="known effects"):
         get_effect("warp_drive")
@@ -18,7 +29,7 @@ def test_catalog_lists_effects_with_parameters():
 
 def test_neutral_effect_changes_nothing():
     p = efd_parameters()
-    effects = (get_effect("current"), get_effect("propeller_walk"))
+    effects = tuple(catalog().values())
     x = np.array([[1.0, 0.25, -2.0, 0.03, 0.4, 0.01]])
     u = np.tile([0.2, 9.0], (1, 200, 1))
     w = np.tile([2.0, 1.0], (1, 200, 1))
@@ -61,3 +72,124 @@ def test_propeller_walk_adds_its_side_force():
     # the extra force raises v_m_dot, and through x_G couples into r_dot
     assert b[3] - a[3] > 0.5 * Y / (m + p0.theta.m_y * 0.5 * sh.rho * sh.L_pp**2 * sh.d)
     assert b[3] - a[3] < 1.5 * Y / m
+
+
+def _with(name: str, **values: float) -> Parameters:
+    p = efd_parameters()
+    return Parameters(p.theta, p.ship, effects=((name, tuple(values.items())),))
+
+
+def _forces_with_a_H(x: np.ndarray, delta: float, n_p: float, a_H: float) -> np.ndarray:
+    from mmg.model import hydrodynamic_forces
+
+    p = efd_parameters()
+    th = p.theta._replace(a_H=a_H)
+    F = hydrodynamic_forces(x[1], x[3], x[5], np.sin(delta), np.cos(delta), n_p, th, p.ship)
+    return np.array(F[6:9])
+
+
+def test_a_h_drift_is_a_drift_dependent_a_H():
+    """The hook's extra force equals the rudder force with a_H + k sin^2(beta) minus the paper's."""
+    from mmg.catalog.a_h_drift import AHDriftParams, a_h_drift_force
+
+    p = efd_parameters()
+    x = np.array([0.0, 0.2, 0.0, -0.12, 0.0, 0.01])  # drift angle 31 deg
+    delta, n_p, k = 0.4, 8.0, -0.8
+    sin2 = 0.12**2 / (0.2**2 + 0.12**2)
+    want = _forces_with_a_H(x, delta, n_p, p.theta.a_H + k * sin2) - _forces_with_a_H(
+        x, delta, n_p, p.theta.a_H
+    )
+    got = a_h_drift_force(
+        x[1], x[3], x[5], 0.0, delta, n_p, 0.0, 0.0, AHDriftParams(k), p.theta, p.ship
+    )
+    np.testing.assert_allclose(got[1:], want[1:], rtol=1e-9)
+    assert got[0] == 0.0 and abs(want[0]) < 1e-12
+
+
+def test_rudder_stall_caps_the_normal_force_beyond_the_stall_angle():
+    from mmg.catalog.rudder_stall import RudderStallParams, rudder_stall_force
+
+    p = efd_parameters()
+    x = np.array([0.0, 0.3, 0.0, 0.0, 0.0, 0.0])
+    e = RudderStallParams(alpha_s=np.radians(20.0), k_s=1.0)
+    small = rudder_stall_force(
+        x[1], x[3], x[5], 0.0, np.radians(10.0), 8.0, 0, 0, e, p.theta, p.ship
+    )
+    assert small == (0.0, 0.0, 0.0)
+    # with k_s = 1 the normal force at 35 deg equals the paper's at the stall angle of attack
+    a35 = _forces_with_a_H(x, np.radians(35.0), 8.0, p.theta.a_H)
+    extra = rudder_stall_force(
+        x[1], x[3], x[5], 0.0, np.radians(35.0), 8.0, 0, 0, e, p.theta, p.ship
+    )
+    from mmg.model import hydrodynamic_forces
+
+    # alpha_R = delta here (v_R = 0 with v_m = r = 0): F_N scales with sin(alpha_R)
+    ratio = np.sin(np.radians(20.0)) / np.sin(np.radians(35.0))
+    np.testing.assert_allclose(a35[1] + extra[1], ratio * a35[1], rtol=1e-9)
+    np.testing.assert_allclose(a35[2] + extra[2], ratio * a35[2], rtol=1e-9)
+    assert hydrodynamic_forces is not None
+
+
+def test_actuator_lag_is_a_first_order_lag_of_the_logged_rudder():
+    """With the ship held still in an empty world, the lagged rudder shows in X_R over time:
+    compare simulations with the logged step and with the analytic lagged input."""
+    eff = get_effect("actuator_lag")
+    ship = ESSO_OSAKA._replace(rho_A=0.0)
+    p0 = Parameters(efd_parameters().theta, ship)
+    T = 1.5
+    p1 = Parameters(p0.theta, ship, effects=(("actuator_lag", (("T_delta", T), ("T_n", 0.0))),))
+    K = 100
+    x = np.array([[0.0, 0.3, 0.0, 0.0, 0.0, 0.0]])
+    log = np.zeros((1, K, 2))
+    log[0, :, 0] = 0.5
+    log[0, :, 1] = 8.0
+    log[0, 0, 0] = 0.0  # the logged rudder steps from 0 to 0.5 rad after the first step
+    lagged = log.copy()
+    a = 1.0 - np.exp(-0.1 / T)
+    d = 0.0
+    for k in range(K):
+        d = d + a * (log[0, k, 0] - d) if k else log[0, 0, 0]
+        lagged[0, k, 0] = d
+    w = np.zeros((1, K, 2))
+    with_effect = simulate(x, log, w, p1, effects=(eff,))
+    by_hand = simulate(x, lagged, w, p0)
+    np.testing.assert_allclose(with_effect, by_hand, rtol=1e-12, atol=1e-12)
+    assert np.abs(simulate(x, log, w, p0) - by_hand).max() > 1e-3
+
+
+def test_rudder_offset_shifts_the_logged_rudder():
+    eff = get_effect("rudder_offset")
+    p0 = efd_parameters()
+    p1 = _with("rudder_offset", delta_0=0.03)
+    x = np.array([[0.0, 0.3, 0.0, 0.0, 0.2, 0.0]])
+    u = np.tile([0.1, 8.0], (1, 300, 1))
+    w = np.tile([1.0, 0.5], (1, 300, 1))
+    shifted = u.copy()
+    shifted[..., 0] += 0.03
+    np.testing.assert_allclose(
+        simulate(x, u, w, p1, effects=(eff,)), simulate(x, shifted, w, p0), rtol=1e-12, atol=1e-12
+    )
+
+
+def test_heading_bias_reports_the_logged_heading_and_velocities():
+    """The simulation starts from the true state behind the log and returns logged quantities."""
+    eff = get_effect("heading_bias")
+    b_psi, b_v = 0.05, 0.03
+    p1 = _with("heading_bias", b_psi=b_psi, b_v=b_v)
+    p0 = efd_parameters()
+    logged0 = np.array([1.0, 0.3, 2.0, 0.01, 0.7, 0.004])
+    true0 = logged0.copy()
+    true0[4] -= b_psi
+    true0[1] = logged0[1] * np.cos(b_v) - logged0[3] * np.sin(b_v)
+    true0[3] = logged0[1] * np.sin(b_v) + logged0[3] * np.cos(b_v)
+    u = np.tile([0.2, 8.0], (1, 200, 1))
+    w = np.tile([2.0, 0.5], (1, 200, 1))
+    got = simulate(logged0[None], u, w, p1, effects=(eff,))[0]
+    truth = simulate(true0[None], u, w, p0)[0]
+    np.testing.assert_allclose(got[0], logged0, rtol=1e-12)
+    np.testing.assert_allclose(got[1:, 4], truth[1:, 4] + b_psi, rtol=1e-12)
+    np.testing.assert_allclose(got[1:, [0, 2, 5]], truth[1:, [0, 2, 5]], rtol=1e-12)
+    u_log = truth[1:, 1] * np.cos(b_v) + truth[1:, 3] * np.sin(b_v)
+    v_log = -truth[1:, 1] * np.sin(b_v) + truth[1:, 3] * np.cos(b_v)
+    np.testing.assert_allclose(got[1:, 1], u_log, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(got[1:, 3], v_log, rtol=1e-12, atol=1e-15)

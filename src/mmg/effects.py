@@ -10,7 +10,17 @@ it by name):
   The hydrodynamic sub-models then see the velocity through the water (u - u_c, v_m - v_c), the
   wind still sees the velocity over ground, and the equations of motion are written for the
   velocity through the water of a uniform steady current (u_c, v_c rotate with the heading:
-  d u_c / dt = r v_c, d v_c / dt = -r u_c). The state keeps the velocity over ground, as recorded.
+  d u_c / dt = r v_c, d v_c / dt = -r u_c). The state keeps the velocity over ground, as recorded;
+- ``inputs(delta_log, n_log, delta_prev, n_prev, dt, e) -> (delta, n_p)``: the controls that act on
+  the ship, from the logged ones at this step and the acting ones of the previous step (actuator
+  lag, offsets of the log). The kernel applies it once per time step (zero-order hold); at the
+  first step of a simulation delta_prev, n_prev are the logged values. With several input effects
+  the hooks are chained in order, and ``*_prev`` is the output of the whole chain;
+- ``observe(e) -> (b_psi, b_v)`` [rad]: how the measurement differs from the true state: the
+  logged heading is psi + b_psi, and the logged body velocities are the true ones rotated by
+  -b_v (u_log = u cos b_v + v_m sin b_v, v_log = -u sin b_v + v_m cos b_v: a velocity over
+  ground resolved along a heading that is off by b_v). Simulations start from the true state
+  implied by the logged one and report the logged quantities.
 
 ``e`` is the effect's own parameter NamedTuple. Values that make the effect vanish are the
 ``neutral`` values of its parameters.
@@ -45,13 +55,27 @@ class Effect:
     param_type: type  # NamedTuple class of the parameters, fields = names of ``params``
     force: Callable[..., Any] | None = None
     current: Callable[..., Any] | None = None
+    inputs: Callable[..., Any] | None = None
+    observe: Callable[..., Any] | None = None
 
     def __post_init__(self) -> None:
         fields = getattr(self.param_type, "_fields", None)
         if fields != tuple(p.name for p in self.params):
             raise ValueError(f"effect {self.name}: param_type fields differ from params")
-        if self.force is None and self.current is None:
-            raise ValueError(f"effect {self.name}: needs a force or a current hook")
+        if not self.hooks:
+            raise ValueError(f"effect {self.name}: needs a force, current, inputs or observe hook")
+
+    @property
+    def hooks(self) -> tuple[Callable[..., Any], ...]:
+        """The hook functions the effect defines."""
+        return tuple(
+            f for f in (self.force, self.current, self.inputs, self.observe) if f is not None
+        )
+
+    @property
+    def bounds(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """(lower, upper) of the search interval of each parameter."""
+        return tuple(p.lower for p in self.params), tuple(p.upper for p in self.params)
 
     @property
     def param_names(self) -> tuple[str, ...]:

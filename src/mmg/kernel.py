@@ -142,6 +142,37 @@ def gather_inputs(cur, u_seq, w_seq, rows, last, k, W):
         cur[3, i] = w_seq[b, kk, 1]
 
 
+@numba.njit(inline="always", **JIT_OPTIONS)
+def transform_inputs(cur, prev, Pc, k, W, dt):
+    """Effects on the controls (``inputs`` hooks): cur[0:2] (delta, n_p) of W lanes in place;
+    prev (2, W) the acting controls of the previous step (set to the logged ones at k = 0)."""
+{inputs_body}
+
+
+@numba.njit(inline="always", **JIT_OPTIONS)
+def observation_offsets(Pc, i):
+    """(b_psi, b_v) of lane i (``observe`` hooks): logged heading = psi + b_psi; logged body
+    velocities = true ones rotated by -b_v."""
+{observe_body}
+
+
+@numba.njit(inline="always", **JIT_OPTIONS)
+def start_state(X, x0, s, Pc, ob, i):
+    """X[:, i] = the true state implied by the logged state x0[s]; ob (3, W) receives b_psi,
+    cos b_v, sin b_v of lane i."""
+    b_psi, b_v = observation_offsets(Pc, i)
+    sb, cb = sincos(b_v)
+    ob[0, i] = b_psi
+    ob[1, i] = cb
+    ob[2, i] = sb
+    X[0, i] = x0[s, 0]
+    X[1, i] = x0[s, 1] * cb - x0[s, 3] * sb
+    X[2, i] = x0[s, 2]
+    X[3, i] = x0[s, 1] * sb + x0[s, 3] * cb
+    X[4, i] = x0[s, 4] - b_psi
+    X[5, i] = x0[s, 5]
+
+
 @numba.njit(parallel=True, cache=True, **JIT_OPTIONS)
 def simulate_lanes(
     x0, u_seq, w_seq, P, n_steps, lane_ids, sh, dt, lim_lin, lim_ang, W, n_threads, out, bad
@@ -163,6 +194,8 @@ def simulate_lanes(
         X = np.empty((6, W))  # work buffers, once per thread
         Pc = np.empty((NP, W))
         cur = np.empty((4, W))  # delta, n_p, U_T, gamma_T of the current step
+        prev = np.empty((2, W))
+        ob = np.empty((3, W))
         Ks = np.empty((4, 6, W))
         Tr = np.empty((4, W))
         t_f = np.empty(W)
@@ -180,21 +213,29 @@ def simulate_lanes(
                 last[i] = max(n_steps[b] - 1, 0)
                 t_f[i] = n_steps[b] * dt
                 fb[i] = -1
-                for j in range(6):
-                    X[j, i] = x0[b, j]
-                    out[b, 0, j] = x0[b, j]
                 for j in range(NP):
                     Pc[j, i] = P[j, b]
+                for j in range(6):
+                    out[b, 0, j] = x0[b, j]
+                start_state(X, x0, b, Pc, ob, i)
             for k in range(kmax):
                 gather_inputs(cur, u_seq, w_seq, ids, last, k, w)
+                transform_inputs(cur, prev, Pc, k, w, dt)
                 rk4_step(
                     X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
                     Pc, sh, k, dt, t_f, lim_lin, lim_ang, fb, w,
                 )
                 for i in range(w):
                     if k < n_steps[ids[i]]:
-                        for j in range(6):
-                            out[ids[i], k + 1, j] = X[j, i]
+                        b = ids[i]
+                        cb = ob[1, i]
+                        sb = ob[2, i]
+                        out[b, k + 1, 0] = X[0, i]
+                        out[b, k + 1, 1] = X[1, i] * cb + X[3, i] * sb
+                        out[b, k + 1, 2] = X[2, i]
+                        out[b, k + 1, 3] = X[3, i] * cb - X[1, i] * sb
+                        out[b, k + 1, 4] = X[4, i] + ob[0, i]
+                        out[b, k + 1, 5] = X[5, i]
             for i in range(w):
                 b = ids[i]
                 n = n_steps[b]
@@ -226,6 +267,8 @@ def moments_lanes(
         X = np.empty((6, W))
         Pc = np.empty((NP, W))
         cur = np.empty((4, W))
+        prev = np.empty((2, W))
+        ob = np.empty((3, W))
         Ks = np.empty((4, 6, W))
         Tr = np.empty((4, W))
         t_f = np.empty(W)
@@ -244,10 +287,9 @@ def moments_lanes(
                 kmax = max(kmax, seg_steps[s])
                 t_f[i] = seg_steps[s] * dt
                 fb[i] = -1
-                for j in range(6):
-                    X[j, i] = seg_x0[s, j]
                 for j in range(NP):
                     Pc[j, i] = P[j, lane_cand[lo + i]]
+                start_state(X, seg_x0, s, Pc, ob, i)
                 for q in range(7):
                     for m in range(5):
                         acc[q, m, i] = 0.0
@@ -259,9 +301,15 @@ def moments_lanes(
                     on = 1.0 if k <= n else 0.0
                     wt = on * (0.5 if (k == 0 or k == n) else 1.0)
                     kk = min(k, n)
-                    sp, cp = sincos(X[4, i])
+                    sp, cp = sincos(X[4, i] + ob[0, i])  # the logged heading
+                    u_o = X[1, i] * ob[1, i] + X[3, i] * ob[2, i]  # the logged velocities
+                    v_o = X[3, i] * ob[1, i] - X[1, i] * ob[2, i]
                     for q in range(7):
-                        if q == 4:
+                        if q == 1:
+                            z = u_o
+                        elif q == 3:
+                            z = v_o
+                        elif q == 4:
                             z = sp
                         elif q == 5:
                             z = cp
@@ -278,6 +326,7 @@ def moments_lanes(
                 if k == kmax:
                     break
                 gather_inputs(cur, seg_u, seg_w, seg, last, k, w)
+                transform_inputs(cur, prev, Pc, k, w, dt)
                 rk4_step(
                     X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
                     Pc, sh, k, dt, t_f, lim_lin, lim_ang, fb, w,
@@ -363,13 +412,30 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
     effect_params: list[str] = []
     current_lines: list[str] = []
     force_lines: list[str] = []
+    input_lines: list[str] = []
+    observe_lines: list[str] = []
     offset = N_THETA
     for q, eff in enumerate(effects):
         ptype = eff.param_type
         imports.append(f"from {ptype.__module__} import {ptype.__name__}")
         args = ", ".join(f"P[{offset + j}, i]" for j in range(len(eff.params)))
         effect_params.append(f"    e{q} = {ptype.__name__}({args})  # effect {eff.name}\n")
+        pc_args = args.replace("P[", "Pc[")
         offset += len(eff.params)
+        if eff.inputs is not None:
+            fn = eff.inputs
+            imports.append(f"from {fn.__module__} import {fn.__name__}")
+            input_lines.append(
+                f"        d, n = {fn.__name__}(d, n, prev[0, i], prev[1, i], dt, "
+                f"{ptype.__name__}({pc_args}))  # {eff.name}\n"
+            )
+        if eff.observe is not None:
+            fn = eff.observe
+            imports.append(f"from {fn.__module__} import {fn.__name__}")
+            observe_lines.append(
+                f"    db_psi, db_v = {fn.__name__}({ptype.__name__}({pc_args}))  # {eff.name}\n"
+                "    b_psi += db_psi\n    b_v += db_v\n"
+            )
         if eff.current is not None:
             fn = eff.current
             imports.append(f"from {fn.__module__} import {fn.__name__}")
@@ -394,8 +460,30 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
             current_lines="".join(current_lines),
             force_lines="".join(force_lines),
         )
+    if input_lines:
+        inputs_body = (
+            "    for i in range(W):\n"
+            "        if k == 0:\n"
+            "            prev[0, i] = cur[0, i]\n"
+            "            prev[1, i] = cur[1, i]\n"
+            "        d = cur[0, i]\n"
+            "        n = cur[1, i]\n"
+            + "".join(input_lines)
+            + "        cur[0, i] = d\n        cur[1, i] = n\n"
+            "        prev[0, i] = d\n        prev[1, i] = n"
+        )
+    else:
+        inputs_body = "    return"
+    observe_body = (
+        "    b_psi = 0.0\n    b_v = 0.0\n" + "".join(observe_lines) + "    return b_psi, b_v"
+    )
     return _TEMPLATE.format(
-        key="{key}", imports="\n".join(sorted(set(imports))), n_params=offset, rhs_body=body
+        key="{key}",
+        imports="\n".join(sorted(set(imports))),
+        n_params=offset,
+        rhs_body=body,
+        inputs_body=inputs_body,
+        observe_body=observe_body,
     )
 
 
@@ -406,7 +494,7 @@ def _fingerprint(source: str, effects: tuple[Effect, ...], rhs_override: object 
     here = Path(__file__).parent
     files = [here / f for f in _SOURCES]
     files += [_module_file(e.param_type) for e in effects]
-    files += [_module_file(f) for e in effects for f in (e.force, e.current) if f is not None]
+    files += [_module_file(f) for e in effects for f in e.hooks]
     if rhs_override is not None:
         files.append(_module_file(rhs_override))
     for f in sorted(set(files)):

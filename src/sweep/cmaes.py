@@ -77,6 +77,8 @@ class Settings:
     bound_handling: BoundHandling = "penalty"
     tolfun: float = 1e-11
     tolx: float = 1e-11
+    #: per-coordinate multipliers of sigma0 (pycma's CMA_stds); None: all 1
+    stds: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.bound_handling not in ("penalty", "transform", "none"):
@@ -174,6 +176,10 @@ def _new_strategy(state: State, y0: FloatArray) -> cma.CMAEvolutionStrategy:
         "tolx": s.tolx,
         "maxfevals": math.inf,  # the job's budget is enforced here, across restarts
     }
+    if s.stds is not None:
+        if len(s.stds) != y0.size:
+            raise ValueError(f"settings.stds has {len(s.stds)} entries for {y0.size} coordinates")
+        opts["CMA_stds"] = list(s.stds)
     if s.bound_handling == "penalty":
         opts.update(BoundaryHandler=cma.BoundPenalty, bounds=[0.0, 1.0])
     elif s.bound_handling == "transform":

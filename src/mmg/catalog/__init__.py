@@ -1,5 +1,21 @@
 """Catalog of candidate extra physics (see :mod:`mmg.effects`). Each module registers one effect."""
 
-from mmg.catalog import current, propeller_walk
+from mmg.catalog import (
+    a_h_drift,
+    actuator_lag,
+    current,
+    heading_bias,
+    propeller_walk,
+    rudder_offset,
+    rudder_stall,
+)
 
-__all__ = ["current", "propeller_walk"]
+__all__ = [
+    "a_h_drift",
+    "actuator_lag",
+    "current",
+    "heading_bias",
+    "propeller_walk",
+    "rudder_offset",
+    "rudder_stall",
+]

@@ -25,6 +25,7 @@ import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
+from mmg.effects import Effect, get_effect
 from mmg.params import ParameterError, Parameters, efd_parameters
 from sweep.datasets import DataNotFoundError, SplitError, load_split
 from sweep.objective import OBJECTIVES, Objective
@@ -58,11 +59,19 @@ def load_parameters(spec: str) -> Parameters:
     return Parameters.load_json(path)
 
 
+def effects_of(params: Parameters) -> tuple[Effect, ...]:
+    """The catalog effects a parameter set carries (``effects`` of its JSON), in its order."""
+    try:
+        return tuple(get_effect(name) for name, _ in params.effects)
+    except KeyError as exc:
+        raise UserError(str(exc.args[0])) from None
+
+
 def evaluate_table(
     params: Parameters, recordings: Sequence[Recording], labels: Sequence[str]
 ) -> Table:
-    """{J: {label: value}} plus "Total", for one parameter set."""
-    obj = Objective(recordings, labels=labels)
+    """{J: {label: value}} plus "Total", for one parameter set (with the effects it carries)."""
+    obj = Objective(recordings, labels=labels, effects=effects_of(params), ship=params.ship)
     raw = obj.table(params)
     table: Table = {}
     for J in OBJECTIVES:

@@ -630,6 +630,38 @@ class MlflowTracker:
         """The EFD metrics of the sweep's parent run as {J: {subset: value}}."""
         return scores_from_metrics(self._run(parent_id).data.metrics, "efd")
 
+    def log_diagnosis(
+        self,
+        name: str,
+        params: Mapping[str, Any],
+        metrics: Mapping[str, float],
+        tags: Mapping[str, str],
+        artifacts_dir: Path,
+    ) -> str:
+        """One FINISHED run (tag ``diagnosis=true``) holding a diagnosis: its settings as
+        params, scores as metrics, the verdict as a tag and the report files as artifacts."""
+        exp = self.experiment_id(create=True)
+        assert exp is not None
+        all_tags = {"diagnosis": "true", **source_tags(), **tags}
+        with self._mlflow_errors():
+            run = self.client.create_run(exp, run_name=name, tags=all_tags)
+            rid = run.info.run_id
+            now = _now_ms()
+            self.client.log_batch(
+                rid,
+                metrics=[Metric(k, float(v), now, 0) for k, v in metrics.items()],
+                params=[Param(k, str(v)[:MAX_PARAM_VALUE]) for k, v in params.items()],
+            )
+            self.client.log_artifacts(rid, str(artifacts_dir))
+            self.client.set_terminated(rid, "FINISHED")
+        return str(rid)
+
+
+def source_tags() -> dict[str, str]:
+    """git commit and package version of the running source."""
+    v = source_version()
+    return {"git_commit": v["commit"], "mmg_sweep_version": v["version"]}
+
 
 # ---------------------------------------------------------------- in memory
 

@@ -1,0 +1,269 @@
+"""Planted-effect benchmark of the diagnosis: can it name a concealed effect, blind?
+
+Every case simulates 100-s windows of the real runs (their first states, controls and wind) with a
+"true" ship (EFD parameters perturbed by exp(N(0, 0.15)) each) and one planted effect, in the
+catalog's form or in another one (see :mod:`sweep.diagnose.planted`), at a realistic magnitude,
+or none; adds white measurement noise at the levels of the real recordings; writes the windows as
+CSV files, and runs :func:`sweep.diagnose.run.diagnose` on the files only (blind), starting from
+the EFD parameters. Printed per case: planted form, verdict, held-out improvement of the top
+candidates, recovered effect parameters; then per family the top-1 rate, the false-positive rate
+on the no-effect cases, parameter errors, and the test-set J2 before / after / of the true model.
+
+    python benchmarks/diagnose_planted.py [--cases all|quick|N,M,...] [--repeats R]
+        [--base-budget 6000] [--candidate-budget 1500] [--final-budget 3000] [--out DIR]
+
+Results (one JSON per case) go to ``--out`` (default ``benchmarks/out/diagnose``); a case already
+there is not run again, so an interrupted benchmark resumes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+import warnings
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mmg import efd_parameters
+from sweep.datasets import data_root
+from sweep.diagnose.planted import (
+    PlantedSpec,
+    generate,
+    noise_levels,
+    perturbed_ship,
+    pick_windows,
+    true_model,
+    write_case,
+)
+from sweep.diagnose.run import DiagnoseSettings, diagnose
+from sweep.objective import Objective
+from sweep.recordings import Recording, read_recordings
+
+KINDS = ("random", "turning", "zigzag", "berthing")
+TRAIN = {"random": 5, "turning": 3, "zigzag": 2, "berthing": 2}
+TEST = {"random": 2, "turning": 1, "zigzag": 1}
+
+#: (form, values) of the planted effects: catalog forms and other forms, two magnitudes each
+SPECS: list[PlantedSpec] = [
+    PlantedSpec("none"),
+    PlantedSpec("current", {"V_c": 0.015, "beta_c": 2.0}),
+    PlantedSpec("current", {"V_c": 0.025, "beta_c": -1.0}),
+    PlantedSpec("propeller_walk", {"C_Yw": 2e-4, "C_Nw": -1e-4}),
+    PlantedSpec("walk_advance", {"C_Yw": 3e-4, "C_Nw": -1.5e-4, "J_0": 0.6}),
+    PlantedSpec("rudder_stall", {"alpha_s": 0.35, "k_s": 0.8}),
+    PlantedSpec("stall_tanh", {"alpha_s": 0.4}),
+    PlantedSpec("a_h_drift", {"k_aH": -0.8}),
+    PlantedSpec("a_h_piecewise", {"beta_0": math.radians(45.0)}),
+    PlantedSpec("actuator_lag", {"T_delta": 1.5, "T_n": 0.0}),
+    PlantedSpec("delay", {"tau": 1.0}),
+    PlantedSpec("rudder_offset", {"delta_0": 0.035}),
+    PlantedSpec("rudder_offset", {"delta_0": -0.026}),
+    PlantedSpec("heading_bias", {"b_psi": 0.05, "b_v": 0.05}),
+    PlantedSpec("heading_only", {"b_psi": 0.04}),
+    PlantedSpec("none"),
+    PlantedSpec("none"),
+    PlantedSpec("none"),
+]
+#: parameters whose recovery is scored, per planted form (same form: same parameter)
+RECOVERED = {
+    "current": ("V_c",),
+    "propeller_walk": ("C_Nw",),
+    "rudder_stall": ("k_s",),
+    "a_h_drift": ("k_aH",),
+    "actuator_lag": ("T_delta",),
+    "rudder_offset": ("delta_0",),
+    "heading_bias": ("b_psi",),
+    "heading_only": ("b_psi",),
+    "delay": ("T_delta",),  # a dead time tau is matched by a lag T ~ tau
+}
+
+
+def load_runs(root: Path) -> dict[str, list[Recording]]:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return {k: read_recordings(root / "data" / k) for k in KINDS}
+
+
+def planted_value(spec: PlantedSpec, name: str) -> float:
+    if spec.form == "delay":
+        return spec.values["tau"]
+    return spec.values[name]
+
+
+def run_case(
+    index: int,
+    spec: PlantedSpec,
+    repeat: int,
+    runs: dict[str, list[Recording]],
+    noise: dict[str, float],
+    settings: DiagnoseSettings,
+    out: Path,
+) -> dict[str, Any]:
+    seed = 1000 * repeat + index
+    rng = np.random.default_rng(seed)
+    ship = perturbed_ship(rng, 0.15)
+    wins = pick_windows(runs, {k: TRAIN[k] + TEST.get(k, 0) for k in KINDS}, rng)
+    recs, diverged = generate(wins, ship, spec, noise, rng)
+    # the first TEST[k] windows of each kind are the test set
+    test: list[Recording] = []
+    train: list[Recording] = []
+    i = 0
+    for k in KINDS:
+        n = TRAIN[k] + TEST.get(k, 0)
+        test += recs[i : i + TEST.get(k, 0)]
+        train += recs[i + TEST.get(k, 0) : i + n]
+        i += n
+    case_dir = out / f"case-{index:02d}-{repeat}"
+    write_case(case_dir, train, test, spec, ship)
+    blind_train = read_recordings(case_dir / "train")
+    blind_test = read_recordings(case_dir / "test")
+    t0 = time.perf_counter()
+    d = diagnose(efd_parameters(), blind_train, blind_test, case_dir / "diagnosis", settings)
+    seconds = time.perf_counter() - t0
+    truth = true_model(ship, spec)
+    J_true = (
+        float(Objective(blind_test, "J2", effects=truth[1]).evaluate(truth[0])[0])
+        if truth is not None
+        else math.nan
+    )
+    errors: dict[str, float] = {}
+    if d.verdict == spec.family and spec.form in RECOVERED:
+        chosen = d.chosen
+        assert chosen is not None
+        fitted = chosen.params
+        after = dict(next(v for n, v in d.after.params.effects if n == d.verdict))
+        for name in RECOVERED[spec.form]:
+            true_v = planted_value(spec, name)
+            errors[name] = abs(after[name] - true_v) / abs(true_v)
+            errors[name + "_candidate_fit"] = abs(fitted[name] - true_v) / abs(true_v)
+    return {
+        "index": index,
+        "repeat": repeat,
+        "form": spec.form,
+        "values": spec.values,
+        "family": spec.family,
+        "verdict": d.verdict,
+        "correct": d.verdict == spec.family,
+        "diverged_truth": diverged,
+        "candidates": [asdict(c) for c in d.candidates],
+        "after_effect_params": {n: dict(v) for n, v in d.after.params.effects},
+        "param_errors": errors,
+        "J2_test_before": d.test_before["J2"]["Total"],
+        "J2_test_after": d.test_after["J2"]["Total"],
+        "J2_test_true": J_true,
+        "J2_base_fit": d.base.f,
+        "seconds": seconds,
+    }
+
+
+def summarise(results: list[dict[str, Any]]) -> str:
+    lines = []
+    fams: dict[str, list[dict[str, Any]]] = {}
+    for r in results:
+        fams.setdefault(r["family"], []).append(r)
+    lines.append(
+        f"{'family':16s} {'cases':>5s} {'top-1':>6s}  {'param err (median, max)':>24s}  "
+        f"{'J2 test before -> after (true)':>32s}"
+    )
+    for fam, rs in sorted(fams.items()):
+        ok = sum(r["correct"] for r in rs)
+        errs = [v for r in rs for k, v in r["param_errors"].items() if "candidate" not in k]
+        err_txt = f"{100 * np.median(errs):.0f} %, {100 * max(errs):.0f} %" if errs else "-"
+        before = np.median([r["J2_test_before"] for r in rs])
+        after = np.median([r["J2_test_after"] for r in rs])
+        true = (
+            np.nanmedian([r["J2_test_true"] for r in rs])
+            if any(np.isfinite(r["J2_test_true"]) for r in rs)
+            else math.nan
+        )
+        label = "FP rate" if fam == "none" else "top-1"
+        rate = (len(rs) - ok) / len(rs) if fam == "none" else ok / len(rs)
+        lines.append(
+            f"{fam:16s} {len(rs):5d} {100 * rate:5.0f}%  {err_txt:>24s}  "
+            f"{before:10.1f} -> {after:8.1f} ({true:6.1f})   [{label}]"
+        )
+    eff = [r for r in results if r["family"] != "none"]
+    none = [r for r in results if r["family"] == "none"]
+    if eff:
+        lines.append(
+            f"overall top-1 on planted effects: {sum(r['correct'] for r in eff)}/{len(eff)}"
+        )
+    if none:
+        fp = sum(not r["correct"] for r in none)
+        lines.append(f"false positives on no-effect cases: {fp}/{len(none)}")
+    errs = [v for r in results for k, v in r["param_errors"].items() if "candidate" not in k]
+    if errs:
+        within = sum(e <= 0.2 for e in errs)
+        lines.append(f"recovered parameters within 20 %: {within}/{len(errs)}")
+    best_none = [max(c["improvement"] for c in r["candidates"]) for r in none]
+    if best_none:
+        lines.append(
+            "largest held-out improvement of any candidate on no-effect cases: "
+            + ", ".join(f"{100 * b:.1f} %" for b in best_none)
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cases", default="all", help="all, quick or comma-separated indices")
+    ap.add_argument("--repeats", type=int, default=1, help="cases are repeated with new ships")
+    ap.add_argument("--base-budget", type=int, default=DiagnoseSettings.base_budget)
+    ap.add_argument("--candidate-budget", type=int, default=DiagnoseSettings.candidate_budget)
+    ap.add_argument("--final-budget", type=int, default=DiagnoseSettings.final_budget)
+    ap.add_argument("--out", default="benchmarks/out/diagnose")
+    ap.add_argument("--data-root", default=None)
+    args = ap.parse_args(argv)
+    root = data_root(args.data_root)
+    runs = load_runs(root)
+    noise = noise_levels([r for v in runs.values() for r in v])
+    print(
+        "noise levels of the real recordings: "
+        + ", ".join(f"{k} {v:.2g}" for k, v in noise.items())
+    )
+    if args.cases == "all":
+        indices = list(range(len(SPECS)))
+    elif args.cases == "quick":
+        indices = [0, 3, 5]
+    else:
+        indices = [int(c) for c in args.cases.split(",")]
+    settings = DiagnoseSettings(
+        base_budget=args.base_budget,
+        candidate_budget=args.candidate_budget,
+        final_budget=args.final_budget,
+    )
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    results = []
+    for repeat in range(args.repeats):
+        for index in indices:
+            path = out / f"result-{index:02d}-{repeat}.json"
+            if path.exists():
+                results.append(json.loads(path.read_text()))
+                continue
+            r = run_case(index, SPECS[index], repeat, runs, noise, settings, out)
+            path.write_text(json.dumps(r, indent=2, default=float) + "\n")
+            results.append(r)
+            top = ", ".join(
+                f"{c['effect']} {100 * c['improvement']:+.1f}%" for c in r["candidates"][:3]
+            )
+            print(
+                f"case {index:2d}.{repeat} planted {r['form']:15s} -> {r['verdict']:15s} "
+                f"{'OK ' if r['correct'] else 'BAD'} [{top}] errors {r['param_errors']} "
+                f"J2 test {r['J2_test_before']:.1f} -> {r['J2_test_after']:.1f} "
+                f"(true {r['J2_test_true']:.1f}) {r['seconds']:.0f} s",
+                flush=True,
+            )
+    print()
+    print(summarise(results))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,135 @@
+"""Find the physics a model leaves out: ``python -m sweep.diagnose``.
+
+    python -m sweep.diagnose --params {efd|PATH.json} --train PATH [PATH ...] --test PATH [PATH ...]
+                             --out DIR [--budget N] [--candidate-budget N] [--final-budget N]
+                             [--seed S] [--objective J2] [--candidates a,b,...]
+                             [--tracking-uri URI | --no-tracking] [--experiment NAME]
+
+PATHs are CSV/Parquet recordings or directories of them. ``--params`` is the starting point of
+the base identification (``--budget`` evaluations). Writes ``DIR/report.json``, ``DIR/report.md``
+with its plots, ``DIR/params_before.json`` / ``DIR/params_after.json`` (loadable by
+``python -m sweep.evaluate --params``), and one MLflow run (default store: ./mlflow.db, experiment
+``mmg-diagnose``). Stages are kept in ``DIR/stages``: the same command resumes an interrupted run.
+See :mod:`sweep.diagnose.run` for the procedure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+
+from mmg import catalog
+from sweep.diagnose.run import DiagnoseSettings, diagnose
+from sweep.errors import exit_on_user_error
+from sweep.evaluate import UserError, load_parameters
+from sweep.recordings import read_recordings
+
+
+def _paths(values: Sequence[str], what: str) -> list[Path]:
+    paths = [Path(v) for v in values]
+    for p in paths:
+        if not p.exists():
+            raise UserError(f"{what}: {p}: no such file or directory")
+    return paths
+
+
+def parse(argv: Sequence[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(
+        prog="python -m sweep.diagnose", description=(__doc__ or "").splitlines()[0]
+    )
+    d = DiagnoseSettings()
+    ap.add_argument("--params", required=True, help="'efd' or a parameter JSON file")
+    ap.add_argument("--train", nargs="+", required=True, help="training recordings (files/dirs)")
+    ap.add_argument("--test", nargs="+", default=[], help="test recordings (files/dirs)")
+    ap.add_argument("--out", required=True, help="output directory")
+    ap.add_argument("--budget", type=int, default=d.base_budget, help="base identification")
+    ap.add_argument("--candidate-budget", type=int, default=d.candidate_budget)
+    ap.add_argument("--final-budget", type=int, default=d.final_budget)
+    ap.add_argument("--seed", type=int, default=d.seed)
+    ap.add_argument("--objective", default=d.objective, choices=["J1", "J2", "J3"])
+    ap.add_argument("--candidates", default="", help="comma-separated effect names (default all)")
+    ap.add_argument("--min-improvement", type=float, default=d.min_improvement)
+    ap.add_argument("--tracking-uri", default=None, help="MLflow store (default ./mlflow.db)")
+    ap.add_argument("--experiment", default="mmg-diagnose")
+    ap.add_argument("--no-tracking", action="store_true", help="do not log an MLflow run")
+    return ap.parse_args(argv)
+
+
+def run(argv: Sequence[str] | None = None) -> dict[str, object]:
+    args = parse(argv)
+    known = catalog()
+    names = tuple(n.strip() for n in args.candidates.split(",") if n.strip())
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise UserError(f"--candidates: unknown effect(s) {unknown}; known: {sorted(known)}")
+    for flag, value in (
+        ("--budget", args.budget),
+        ("--candidate-budget", args.candidate_budget),
+        ("--final-budget", args.final_budget),
+    ):
+        if value < 20:
+            raise UserError(f"{flag} must be at least 20 evaluations (one generation)")
+    start = load_parameters(args.params)
+    train = read_recordings(_paths(args.train, "--train"))
+    test = read_recordings(_paths(args.test, "--test")) if args.test else []
+    settings = DiagnoseSettings(
+        objective=args.objective,
+        base_budget=args.budget,
+        candidate_budget=args.candidate_budget,
+        final_budget=args.final_budget,
+        seed=args.seed,
+        candidates=names,
+        min_improvement=args.min_improvement,
+    )
+    out = Path(args.out)
+    try:
+        result = diagnose(start, train, test, out, settings)
+    except ValueError as exc:  # too little data, recordings of different steps
+        raise UserError(str(exc)) from None
+    from sweep.diagnose.report import write_report
+
+    report = write_report(result, test, out)
+    print(report["statement"])
+    print(f"report: {out / 'report.md'}")
+    if not args.no_tracking:
+        from sweep.tracking import MlflowTracker, default_tracking_uri
+
+        uri = args.tracking_uri or default_tracking_uri()
+        metrics = {f"improvement/{c.effect}": c.improvement for c in result.candidates}
+        metrics.update(
+            {
+                f"delta_bic/{c.effect}": c.delta_bic
+                for c in result.candidates
+                if c.delta_bic == c.delta_bic and abs(c.delta_bic) < float("inf")
+            }
+        )
+        for when, table in (("before", result.test_before), ("after", result.test_after)):
+            for J, row in table.items():
+                for label, value in row.items():
+                    metrics[f"test_{when}/{J}/{label}"[:250]] = value
+        params = {k: v for k, v in vars(args).items() if k not in ("train", "test")}
+        params["train"] = " ".join(args.train)
+        params["test"] = " ".join(args.test)
+        rid = MlflowTracker(uri, args.experiment).log_diagnosis(
+            f"diagnose-{out.name}", params, metrics, {"verdict": result.verdict}, out
+        )
+        print(f"MLflow run {rid} in {uri} (experiment {args.experiment})")
+    return report
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    warnings.simplefilter("default")
+    with exit_on_user_error():
+        try:
+            run(argv)
+        except UserError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

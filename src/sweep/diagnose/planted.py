@@ -1,0 +1,353 @@
+"""Recordings with a concealed effect, for proving the diagnosis blind.
+
+A *case* takes 100-s windows of the real runs (their recorded first state, rudder, propeller and
+true wind), simulates them with a "true" ship (the EFD parameters perturbed, since a real ship
+differs from its captive tests) plus one planted effect, adds measurement noise with the levels of
+the real recordings, and writes the windows as recordings. The diagnosis sees only the files.
+
+Planted effects come in the catalog's own functional forms and in *other* forms, so that the
+benchmark does not reward a diagnosis tuned to its own formulas:
+
+- ``stall_tanh``: sin(alpha_R) replaced by sin(alpha_s) tanh(sin(alpha_R) / sin(alpha_s)) (a
+  smooth saturation instead of the catalog's kink);
+- ``a_h_piecewise``: a_H(beta) = a_H max(-1, 1 - |beta| / beta_0) (piecewise linear, not sin^2);
+- ``walk_advance``: a propeller walk fading with the advance ratio, (1 - J_P / J_0)+;
+- ``delay``: the controls act a pure dead time after the log (not a first-order lag);
+- ``heading_only``: a heading offset that leaves the logged velocities alone (b_v = 0).
+
+Each maps to the catalog family the diagnosis should name (:data:`FAMILY`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from mmg import Effect, EffectParam, Parameters, bounds, efd_parameters, get_effect, simulate_batch
+from mmg._jit import subfunction
+from mmg.params import N_THETA, Ship, Theta
+from mmg.propeller import advance_ratio, propeller_forces, wake_factor
+from mmg.rudder import rudder_inflow
+from mmg.trig import atan2, sincos
+from sweep.recordings import Recording
+
+# --------------------------------------------------------------------------- other forms
+
+
+class StallTanhParams(NamedTuple):
+    alpha_s: float  # [rad]
+
+
+@subfunction
+def stall_tanh_force(
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    e: StallTanhParams,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float]:
+    """Rudder forces change for sin(alpha) -> sin(alpha_s) tanh(sin(alpha) / sin(alpha_s))."""
+    one_minus_w = wake_factor(u, v_m, r, th, sh)
+    J_s = advance_ratio(u, n_p, sh)
+    K_T = propeller_forces(u, n_p, J_s, one_minus_w, th, sh)[3]
+    u_R, v_R = rudder_inflow(u, v_m, r, n_p, one_minus_w, K_T, th, sh)
+    if u_R <= 0.0:
+        return 0.0, 0.0, 0.0
+    alpha_R = delta - atan2(v_R, u_R)
+    s_a = sincos(alpha_R)[0]
+    s_s = sincos(e.alpha_s)[0]
+    d_sin = s_s * math.tanh(s_a / s_s) - s_a
+    f_alpha = 6.13 * sh.lambda_R / (2.25 + sh.lambda_R)
+    dF_N = 0.5 * sh.rho * sh.A_R * f_alpha * (u_R * u_R + v_R * v_R) * d_sin
+    sin_d, cos_d = sincos(delta)
+    L = sh.L_pp
+    return (
+        -(1.0 - th.t_R) * dF_N * sin_d,
+        -(1.0 + th.a_H) * dF_N * cos_d,
+        -(sh.x_R_nd * L + th.a_H * th.x_H * L) * dF_N * cos_d,
+    )
+
+
+class AHPiecewiseParams(NamedTuple):
+    beta_0: float  # drift angle at which a_H changes sign [rad]
+
+
+@subfunction
+def a_h_piecewise_force(
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    e: AHPiecewiseParams,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float]:
+    """a_H(beta) = a_H max(-1, 1 - |beta| / beta_0) instead of a constant a_H."""
+    if u * u + v_m * v_m <= 0.0:
+        return 0.0, 0.0, 0.0
+    beta = abs(atan2(-v_m, u))
+    beta = min(beta, math.pi - beta)  # astern: the drift from the stern
+    dA = th.a_H * (max(-1.0, 1.0 - beta / e.beta_0) - 1.0)
+    one_minus_w = wake_factor(u, v_m, r, th, sh)
+    J_s = advance_ratio(u, n_p, sh)
+    K_T = propeller_forces(u, n_p, J_s, one_minus_w, th, sh)[3]
+    u_R, v_R = rudder_inflow(u, v_m, r, n_p, one_minus_w, K_T, th, sh)
+    sin_d, cos_d = sincos(delta)
+    f_alpha = 6.13 * sh.lambda_R / (2.25 + sh.lambda_R)
+    U_R = math.sqrt(u_R * u_R + v_R * v_R)
+    F_N = 0.5 * sh.rho * sh.A_R * f_alpha * U_R * (u_R * sin_d - v_R * cos_d)
+    return 0.0, -dA * F_N * cos_d, -dA * th.x_H * sh.L_pp * F_N * cos_d
+
+
+class WalkAdvanceParams(NamedTuple):
+    C_Yw: float
+    C_Nw: float
+    J_0: float  # advance ratio at which the walk vanishes
+
+
+@subfunction
+def walk_advance_force(
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    e: WalkAdvanceParams,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float]:
+    """Propeller walk (n_p > 0) fading linearly with the advance ratio J_P."""
+    if n_p <= 0.0:
+        return 0.0, 0.0, 0.0
+    J_P = u * wake_factor(u, v_m, r, th, sh) / (n_p * sh.D_p)
+    fade = max(0.0, 1.0 - max(J_P, 0.0) / e.J_0)
+    q = 0.5 * sh.rho * sh.L_pp * sh.d * (n_p * sh.D_p) ** 2 * fade
+    return 0.0, q * e.C_Yw, q * sh.L_pp * e.C_Nw
+
+
+def _form(name: str, params: tuple[EffectParam, ...], ptype: type, force: Any) -> Effect:
+    return Effect(name, f"planted form {name}", "", params, ptype, force=force)
+
+
+#: planted forms that are not in the catalog (not registered: the diagnosis never sees them)
+OTHER_FORMS: dict[str, Effect] = {
+    "stall_tanh": _form(
+        "stall_tanh",
+        (EffectParam("alpha_s", "rad", 1.5, 0.1, 1.5, ""),),
+        StallTanhParams,
+        stall_tanh_force,
+    ),
+    "a_h_piecewise": _form(
+        "a_h_piecewise",
+        (EffectParam("beta_0", "rad", 1e3, 0.1, 1e3, ""),),
+        AHPiecewiseParams,
+        a_h_piecewise_force,
+    ),
+    "walk_advance": _form(
+        "walk_advance",
+        (
+            EffectParam("C_Yw", "-", 0.0, -1, 1, ""),
+            EffectParam("C_Nw", "-", 0.0, -1, 1, ""),
+            EffectParam("J_0", "-", 1.0, 0.1, 2, ""),
+        ),
+        WalkAdvanceParams,
+        walk_advance_force,
+    ),
+}
+
+#: the catalog family the diagnosis should name for each planted form
+FAMILY: dict[str, str] = {
+    "none": "none",
+    "current": "current",
+    "propeller_walk": "propeller_walk",
+    "walk_advance": "propeller_walk",
+    "rudder_stall": "rudder_stall",
+    "stall_tanh": "rudder_stall",
+    "a_h_drift": "a_h_drift",
+    "a_h_piecewise": "a_h_drift",
+    "actuator_lag": "actuator_lag",
+    "delay": "actuator_lag",
+    "rudder_offset": "rudder_offset",
+    "heading_bias": "heading_bias",
+    "heading_only": "heading_bias",
+}
+
+# --------------------------------------------------------------------------- noise
+
+#: state columns (x0, u, y0, v_m, psi, r)
+STATE_NAMES = ("x0", "u", "y0", "v_m", "psi", "r")
+
+
+def noise_levels(recordings: Sequence[Recording]) -> dict[str, float]:
+    """White-noise standard deviation of each state channel of real recordings.
+
+    The second difference of a smooth 10-Hz signal is tiny, that of white noise of standard
+    deviation s has variance 6 s^2: s = median over runs of std(second difference) / sqrt(6).
+    """
+    levels: dict[str, list[float]] = {n: [] for n in STATE_NAMES}
+    for rec in recordings:
+        d2 = np.diff(np.asarray(rec.x), n=2, axis=0)
+        for j, n in enumerate(STATE_NAMES):
+            levels[n].append(float(np.std(d2[:, j]) / math.sqrt(6.0)))
+    return {n: float(np.median(v)) for n, v in levels.items()}
+
+
+# --------------------------------------------------------------------------- cases
+
+
+@dataclass(frozen=True)
+class PlantedSpec:
+    """What to plant: a form (catalog effect name, other form, ``delay`` or ``none``) and values."""
+
+    form: str
+    values: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def family(self) -> str:
+        return FAMILY[self.form]
+
+
+def perturbed_ship(rng: np.random.Generator, spread: float) -> Parameters:
+    """EFD parameters each scaled by exp(N(0, spread)), kept inside the search domain."""
+    p = efd_parameters()
+    lo, hi = bounds()
+    v = p.vector() * np.exp(rng.normal(0.0, spread, N_THETA))
+    v = np.clip(v, lo + 0.02 * (hi - lo), hi - 0.02 * (hi - lo))
+    return Parameters.from_vector(v, ship=p.ship)
+
+
+@dataclass(frozen=True)
+class Window:
+    """One 100-s piece of a real run, with a little history for a dead time."""
+
+    run: str
+    start: int  # first sample in the run
+    n: int  # samples
+    rec: Recording
+
+
+def pick_windows(
+    runs: dict[str, Sequence[Recording]],
+    counts: dict[str, int],
+    rng: np.random.Generator,
+    length: int = 1001,
+    history: int = 50,
+) -> list[Window]:
+    """``counts[kind]`` windows of ``length`` samples from the runs of each kind (no overlap)."""
+    out: list[Window] = []
+    for kind, k in counts.items():
+        slots = [
+            (rec, start)
+            for rec in runs[kind]
+            for start in range(history, rec.n_samples - length, length)
+        ]
+        if len(slots) < k:
+            raise ValueError(f"only {len(slots)} windows of kind {kind}, {k} wanted")
+        for i in rng.choice(len(slots), size=k, replace=False):
+            rec, start = slots[int(i)]
+            out.append(Window(rec.name, start, length, rec))
+    return out
+
+
+def _controls(win: Window, spec: PlantedSpec) -> np.ndarray:
+    """(n - 1, 2) acting controls of the window: the log, or the log a dead time earlier."""
+    u = np.asarray(win.rec.u)
+    lo, hi = win.start, win.start + win.n - 1
+    if spec.form != "delay":
+        return u[lo:hi].copy()
+    d = round(spec.values["tau"] / win.rec.dt)
+    return u[lo - d : hi - d].copy()
+
+
+def truth_effects(spec: PlantedSpec) -> tuple[tuple[Effect, ...], Parameters | None]:
+    """(effects for the simulator, and a Parameters template carrying their values)."""
+    if spec.form in ("none", "delay"):
+        return (), None
+    if spec.form == "heading_only":
+        eff = get_effect("heading_bias")
+        vals = {"b_psi": spec.values["b_psi"], "b_v": 0.0}
+        return (eff,), Parameters(
+            efd_parameters().theta, effects=(("heading_bias", tuple(vals.items())),)
+        )
+    eff = OTHER_FORMS.get(spec.form) or get_effect(spec.form)
+    values = tuple((q.name, float(spec.values.get(q.name, q.neutral))) for q in eff.params)
+    return (eff,), Parameters(efd_parameters().theta, effects=((eff.name, values),))
+
+
+def generate(
+    windows: Sequence[Window],
+    ship: Parameters,
+    spec: PlantedSpec,
+    noise: dict[str, float],
+    rng: np.random.Generator,
+) -> tuple[list[Recording], bool]:
+    """Simulated noisy recordings of the windows; also whether any simulation diverged."""
+    effects, template = truth_effects(spec)
+    p = ship if template is None else Parameters(ship.theta, ship.ship, template.effects)
+    x0 = np.stack([np.asarray(w.rec.x[w.start]) for w in windows])
+    u = np.stack([_controls(w, spec) for w in windows])
+    wind = np.stack([np.asarray(w.rec.w[w.start : w.start + w.n - 1]) for w in windows])
+    sim = simulate_batch(x0, u, wind, p, effects=effects)
+    sigma = np.array([noise[n] for n in STATE_NAMES])
+    out = []
+    for i, w in enumerate(windows):
+        x = sim.states[i] + rng.normal(0.0, 1.0, sim.states[i].shape) * sigma
+        x[0] = sim.states[i][0]  # the first logged state is the real one (the simulation's start)
+        sl = slice(w.start, w.start + w.n)
+        out.append(
+            Recording(
+                name=f"{w.run}_{w.start}",
+                path=None,
+                t=np.asarray(w.rec.t[sl]),
+                x=x,
+                u=np.asarray(w.rec.u[sl]),  # the LOG, not the acting controls
+                w=np.asarray(w.rec.w[sl]),
+            )
+        )
+    return out, bool(sim.diverged.any())
+
+
+def write_case(
+    directory: Path,
+    train: Sequence[Recording],
+    test: Sequence[Recording],
+    spec: PlantedSpec,
+    ship: Parameters,
+) -> None:
+    """train/*.csv, test/*.csv (what the diagnosis sees) and truth.json (what it must not)."""
+    for sub, recs in (("train", train), ("test", test)):
+        d = directory / sub
+        d.mkdir(parents=True, exist_ok=True)
+        for rec in recs:
+            rec.frame().to_csv(d / f"{rec.name}.csv", index=False)
+    truth = {"spec": asdict(spec), "family": spec.family, "ship": ship.to_dict()}
+    (directory / "truth.json").write_text(json.dumps(truth, indent=2) + "\n")
+
+
+def true_model(ship: Parameters, spec: PlantedSpec) -> tuple[Parameters, tuple[Effect, ...]] | None:
+    """The true model in a form the project's simulator can evaluate on the logs (None for a
+    dead time, which acts on the inputs before the log)."""
+    if spec.form == "delay":
+        return None
+    effects, template = truth_effects(spec)
+    p = ship if template is None else Parameters(ship.theta, ship.ship, template.effects)
+    return p, effects

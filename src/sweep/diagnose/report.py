@@ -1,0 +1,283 @@
+"""The diagnosis report: ``report.json`` (machine-readable), ``report.md`` and its plots."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+
+from mmg import Parameters, get_effect, simulate_batch
+from sweep.diagnose.locate import BINS, GROUPS, residual_frame
+from sweep.diagnose.run import Diagnosis
+from sweep.recordings import Recording
+
+#: the regime variable in which each catalog effect acts
+EFFECT_REGIME_VARIABLE = {
+    "current": "U",
+    "propeller_walk": "n_p",
+    "rudder_stall": "delta_deg",
+    "a_h_drift": "beta_deg",
+    "actuator_lag": "delta_deg",
+    "rudder_offset": "delta_deg",
+    "heading_bias": "gamma_A_deg",
+}
+
+
+def _effects(p: Parameters) -> tuple[Any, ...]:
+    return tuple(get_effect(n) for n, _ in p.effects)
+
+
+def statement(d: Diagnosis) -> str:
+    """The verdict in plain words."""
+    s = d.settings
+    if d.verdict == "none":
+        best = d.candidates[0] if d.candidates else None
+        text = (
+            "Nothing significant was found: no candidate effect improved the held-out training "
+            f"windows by at least {100 * s.min_improvement:.0f} % over the base model refitted "
+            "with the same budget while lowering the BIC."
+        )
+        if best is not None:
+            text += (
+                f" The largest held-out improvement was {100 * best.improvement:+.1f} % "
+                f"({best.effect})."
+            )
+        return text
+    c = d.chosen
+    assert c is not None
+    after = dict(next(v for n, v in d.after.params.effects if n == d.verdict))
+    eff = get_effect(d.verdict)
+    units = {q.name: q.unit for q in eff.params}
+    values = ", ".join(f"{k} = {v:.4g} {units[k]}" for k, v in after.items())
+    text = (
+        f"Missing physics: {eff.description} (`{d.verdict}`; regime: {eff.regime}). "
+        f"Fitted jointly with the 57 base parameters: {values}. "
+        f"It improves the held-out training windows by {100 * c.improvement:.1f} % over the base "
+        f"model refitted with the same budget (threshold {100 * s.min_improvement:.0f} %), "
+        f"dBIC = {c.delta_bic:.1f}."
+    )
+    J = s.objective
+    if d.test_before:
+        b, a = d.test_before[J]["Total"], d.test_after[J]["Total"]
+        change = 100 * (a - b) / b
+        text += f" On the test recordings {J} goes from {b:.1f} to {a:.1f} ({change:+.1f} %)."
+    return text
+
+
+def report_dict(d: Diagnosis) -> dict[str, Any]:
+    """Everything of ``report.json``."""
+    chosen = d.chosen
+    fitted = {n: dict(v) for n, v in d.after.params.effects} if d.verdict != "none" else {}
+    return {
+        "verdict": d.verdict,
+        "statement": statement(d),
+        "candidates": [asdict(c) for c in d.candidates],
+        "fitted_effect_params": fitted.get(d.verdict, {}),
+        "candidate_fit_params": chosen.params if chosen else {},
+        "J_before": d.test_before,
+        "J_after": d.test_after,
+        "located_regimes": d.regimes,
+        "equation_bias": d.biases,
+        "worst_windows": d.windows,
+        "training": {
+            "windows": d.train_windows,
+            "fit_windows": d.fit_windows,
+            "heldout_windows": d.heldout_windows,
+            "n_eff": d.n_eff,
+            "J_base_fit": d.base.f,
+            "J_control_fit": d.control.f,
+            "J_heldout_control": d.extra.get("J_heldout_control"),
+            "J_final_base": d.before.f,
+            "J_final_after": d.after.f,
+        },
+        "settings": asdict(d.settings),
+        "seconds": d.seconds,
+        "params_before": d.before.params.to_dict(),
+        "params_after": d.after.params.to_dict(),
+    }
+
+
+def _binned_energy(frame: pd.DataFrame, var: str, group: str = "velocity") -> pd.Series:
+    cols = [f"res_{c}" for c in GROUPS[group]]
+    clean = frame.dropna(subset=cols)
+    e = (clean[cols] ** 2).sum(axis=1)
+    labels = pd.cut(clean[var], list(BINS[var]), right=False)
+    return e.groupby(labels, observed=True).mean()
+
+
+def plot_candidates(d: Diagnosis, path: Path) -> None:
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    names = [c.effect for c in d.candidates]
+    vals = [100 * c.improvement for c in d.candidates]
+    colors = ["tab:green" if c.accepted else "tab:gray" for c in d.candidates]
+    ax.barh(names[::-1], vals[::-1], color=colors[::-1])
+    ax.axvline(100 * d.settings.min_improvement, color="k", ls="--", lw=1, label="threshold")
+    ax.set_xlabel("held-out improvement over the refitted base model [%]")
+    ax.legend(loc="lower right")
+    ax.set_title(f"candidate effects (verdict: {d.verdict})")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_regimes(
+    before: pd.DataFrame, after: pd.DataFrame, variables: Sequence[str], path: Path
+) -> None:
+    fig, axes = plt.subplots(1, len(variables), figsize=(5.5 * len(variables), 3.4), squeeze=False)
+    for ax, var in zip(axes[0], variables, strict=True):
+        b = _binned_energy(before, var)
+        a = _binned_energy(after, var)
+        idx = [str(i) for i in b.index]
+        x = np.arange(len(idx))
+        ax.bar(x - 0.2, b.values, 0.4, label="before")
+        ax.bar(x + 0.2, a.reindex(b.index).values, 0.4, label="after")
+        ax.set_xticks(x, idx, rotation=30, fontsize=7)
+        ax.set_xlabel(var)
+        ax.set_ylabel("mean squared standardised residual (u, v_m, r)")
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _simulate(p: Parameters, rec: Recording) -> np.ndarray:
+    x = np.asarray(rec.x)
+    sim = simulate_batch(
+        x[None, 0],
+        np.asarray(rec.u)[None, :-1],
+        np.asarray(rec.w)[None, :-1],
+        p,
+        effects=_effects(p),
+    )
+    return sim.states[0]
+
+
+def plot_trajectories(d: Diagnosis, test: Sequence[Recording], path: Path, limit: int = 6) -> None:
+    recs = list(test)[:limit]
+    if not recs:
+        return
+    cols = min(3, len(recs))
+    rows = (len(recs) + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 4.2 * rows), squeeze=False)
+    for ax, rec in zip(axes.ravel(), recs, strict=False):
+        xb = _simulate(d.before.params, rec)
+        xa = _simulate(d.after.params, rec)
+        ax.plot(rec.x[:, 2], rec.x[:, 0], "k-", lw=1.6, label="recorded")
+        ax.plot(xb[:, 2], xb[:, 0], "--", color="tab:red", label="before")
+        ax.plot(xa[:, 2], xa[:, 0], "-", color="tab:blue", label="after")
+        ax.set_title(rec.name[:40], fontsize=8)
+        ax.set_xlabel("y0 [m]")
+        ax.set_ylabel("x0 [m]")
+        ax.set_aspect("equal", adjustable="datalim")
+    for ax in axes.ravel()[len(recs) :]:
+        ax.axis("off")
+    axes[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _table_md(before: dict[str, dict[str, float]], after: dict[str, dict[str, float]]) -> str:
+    if not before:
+        return "(no test recordings)\n"
+    labels = list(next(iter(before.values())))
+    lines = ["| subset | " + " | ".join(f"{J} before | {J} after" for J in before) + " |"]
+    lines.append("|---|" + "---:|---:|" * len(before))
+    for lab in labels:
+        cells = " | ".join(f"{before[J][lab]:.1f} | {after[J][lab]:.1f}" for J in before)
+        lines.append(f"| {lab} | {cells} |")
+    return "\n".join(lines) + "\n"
+
+
+def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str, Any]:
+    """Write report.json, report.md and the plots into ``out``; returns the report dict."""
+    out.mkdir(parents=True, exist_ok=True)
+    data = report_dict(d)
+    (out / "report.json").write_text(json.dumps(data, indent=2, default=float) + "\n")
+    d.before.params.save_json(out / "params_before.json", stage="base model, re-identified")
+    d.after.params.save_json(out / "params_after.json", stage=f"with effect {d.verdict}")
+    plot_candidates(d, out / "candidates.png")
+    figures = ["candidates.png"]
+    if test:
+        fb = residual_frame(d.before.params, test, _effects(d.before.params))
+        fa = residual_frame(d.after.params, test, _effects(d.after.params))
+        variables = []
+        if d.regimes:
+            variables.append(str(d.regimes[0]["variable"]))
+        if d.verdict in EFFECT_REGIME_VARIABLE:
+            variables.append(EFFECT_REGIME_VARIABLE[d.verdict])
+        variables = list(dict.fromkeys(v for v in variables if v in BINS)) or ["delta_deg"]
+        plot_regimes(fb, fa, variables, out / "residual_vs_regime.png")
+        plot_trajectories(d, test, out / "trajectories.png")
+        figures += ["residual_vs_regime.png", "trajectories.png"]
+    md = [
+        "# Diagnosis report",
+        "",
+        f"**Verdict: `{d.verdict}`.** {data['statement']}",
+        "",
+        "## Where the base model misses (training windows)",
+        "",
+        "| regime variable | channels | eta^2 | worst bin | worst / mean |",
+        "|---|---|---:|---|---:|",
+    ]
+    for r in d.regimes[:6]:
+        md.append(
+            f"| {r['variable']} | {r['group']} | {r['eta2']:.2f} | {r['worst_bin']} | "
+            f"{r['worst_ratio']:.1f} |"
+        )
+    md += ["", "Equation residuals with the strongest bias (recorded - model acceleration):", ""]
+    md += ["| regime bin | acceleration | mean | t |", "|---|---|---:|---:|"]
+    for b in d.biases[:6]:
+        md.append(
+            f"| {b['variable']} {b['bin']} | {b['channel']} | {b['mean']:.3g} | {b['t']:.1f} |"
+        )
+    md += [
+        "",
+        "## Candidates (fitted jointly with the 57 base parameters)",
+        "",
+        "| effect | held-out improvement | dBIC | accepted | fitted parameters |",
+        "|---|---:|---:|:-:|---|",
+    ]
+    for c in d.candidates:
+        vals = ", ".join(f"{k} = {v:.4g}" for k, v in c.params.items())
+        md.append(
+            f"| {c.effect} | {100 * c.improvement:+.1f} % | {c.delta_bic:.1f} | "
+            f"{'yes' if c.accepted else 'no'} | {vals} |"
+        )
+    md += [
+        "",
+        "![candidates](candidates.png)",
+        "",
+        f"## Test recordings: J before and after (the base model refitted vs with `{d.verdict}`)",
+        "",
+        _table_md(d.test_before, d.test_after),
+    ]
+    if test:
+        md += [
+            "![residual vs regime](residual_vs_regime.png)",
+            "",
+            "![trajectories](trajectories.png)",
+            "",
+        ]
+    md += [
+        "## Procedure",
+        "",
+        f"{d.train_windows} training windows ({d.fit_windows} fitted, {d.heldout_windows} held "
+        f"out); base identification {d.base.evaluations} evaluations (J = {d.base.f:.2f}), each "
+        f"candidate and the control {d.settings.candidate_budget}, re-identification "
+        f"{d.settings.final_budget} on all training windows; objective {d.settings.objective}, "
+        f"seed {d.settings.seed}; {d.seconds:.0f} s in all.",
+        "",
+    ]
+    (out / "report.md").write_text("\n".join(md))
+    data["figures"] = figures
+    return data

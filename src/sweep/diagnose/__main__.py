@@ -5,11 +5,13 @@
                              [--seed S] [--objective J2] [--candidates a,b,...]
                              [--tracking-uri URI | --no-tracking] [--experiment NAME]
 
-PATHs are CSV/Parquet recordings or directories of them. ``--params`` is the starting point of
-the base identification (``--budget`` evaluations). Writes ``DIR/report.json``, ``DIR/report.md``
-with its plots, ``DIR/params_before.json`` / ``DIR/params_after.json`` (loadable by
-``python -m sweep.evaluate --params``), and one MLflow run (default store: ./mlflow.db, experiment
-``mmg-diagnose``). Stages are kept in ``DIR/stages``: the same command resumes an interrupted run.
+PATHs are CSV/Parquet recordings or directories of them, or one split name: ``--train R`` (or
+TR, TZR) and ``--test paper`` read the paper's split below ``--data-dir`` / ``MMG_DATA_DIR``.
+``--params`` is the starting point of the base identification (``--budget`` evaluations).
+Writes ``DIR/report.json``, ``DIR/report.md`` with its plots, ``DIR/params_before.json`` and
+``DIR/params_after.json`` (loadable by ``python -m sweep.evaluate --params``), and one MLflow run
+(default store: ./mlflow.db, experiment ``mmg-diagnose``). Stages are kept in ``DIR/stages``:
+the same command resumes an interrupted run.
 See :mod:`sweep.diagnose.run` for the procedure.
 """
 
@@ -22,10 +24,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from mmg import catalog
+from sweep.datasets import CONF_DIR, DataNotFoundError, SplitError, load_split
 from sweep.diagnose.run import DiagnoseSettings, diagnose
 from sweep.errors import exit_on_user_error
 from sweep.evaluate import UserError, load_parameters
-from sweep.recordings import read_recordings
+from sweep.recordings import Recording, read_recordings
 
 
 def _paths(values: Sequence[str], what: str) -> list[Path]:
@@ -36,14 +39,48 @@ def _paths(values: Sequence[str], what: str) -> list[Path]:
     return paths
 
 
+def _recordings(
+    values: Sequence[str], what: str, group: str, data_dir: str | None
+) -> tuple[list[Recording], list[str]]:
+    """Recordings and their labels from paths, or from one split name of ``conf/<group>/``.
+
+    A split name (``R``, ``TR``, ``TZR`` for training, ``paper`` for the test set) reads the
+    split's files below the data directory and labels them as the split does (``Test-B-S``).
+    """
+    if len(values) == 1 and not Path(values[0]).exists() and values[0] in _split_names(group):
+        try:
+            recs = load_split(str(CONF_DIR / group / f"{values[0]}.yaml")).load(data_dir)
+        except (DataNotFoundError, SplitError) as exc:
+            raise UserError(f"{what} {values[0]}: {exc}") from None
+        return list(recs.values()), list(recs)
+    read = read_recordings(_paths(values, what))
+    return read, [r.name for r in read]
+
+
+def _split_names(group: str) -> list[str]:
+    return sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
+
+
 def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(
         prog="python -m sweep.diagnose", description=(__doc__ or "").splitlines()[0]
     )
     d = DiagnoseSettings()
     ap.add_argument("--params", required=True, help="'efd' or a parameter JSON file")
-    ap.add_argument("--train", nargs="+", required=True, help="training recordings (files/dirs)")
-    ap.add_argument("--test", nargs="+", default=[], help="test recordings (files/dirs)")
+    ap.add_argument(
+        "--train",
+        nargs="+",
+        required=True,
+        help="training recordings (files/dirs), or a training split: "
+        + ", ".join(_split_names("train")),
+    )
+    ap.add_argument(
+        "--test",
+        nargs="+",
+        default=[],
+        help="test recordings (files/dirs), or a test split: " + ", ".join(_split_names("test")),
+    )
+    ap.add_argument("--data-dir", default=None, help="recordings of split names (MMG_DATA_DIR)")
     ap.add_argument("--out", required=True, help="output directory")
     ap.add_argument("--budget", type=int, default=d.base_budget, help="base identification")
     ap.add_argument("--candidate-budget", type=int, default=d.candidate_budget)
@@ -52,6 +89,7 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--objective", default=d.objective, choices=["J1", "J2", "J3"])
     ap.add_argument("--candidates", default="", help="comma-separated effect names (default all)")
     ap.add_argument("--min-improvement", type=float, default=d.min_improvement)
+    ap.add_argument("--max-delta-bic", type=float, default=d.max_delta_bic)
     ap.add_argument("--tracking-uri", default=None, help="MLflow store (default ./mlflow.db)")
     ap.add_argument("--experiment", default="mmg-diagnose")
     ap.add_argument("--no-tracking", action="store_true", help="do not log an MLflow run")
@@ -70,11 +108,16 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
         ("--candidate-budget", args.candidate_budget),
         ("--final-budget", args.final_budget),
     ):
-        if value < 20:
-            raise UserError(f"{flag} must be at least 20 evaluations (one generation)")
+        if value != 0 and value < 20:
+            raise UserError(
+                f"{flag} must be 0 (refinement only) or at least 20 evaluations (one generation)"
+            )
     start = load_parameters(args.params)
-    train = read_recordings(_paths(args.train, "--train"))
-    test = read_recordings(_paths(args.test, "--test")) if args.test else []
+    train, _ = _recordings(args.train, "--train", "train", args.data_dir)
+    test: list[Recording] = []
+    labels: list[str] = []
+    if args.test:
+        test, labels = _recordings(args.test, "--test", "test", args.data_dir)
     settings = DiagnoseSettings(
         objective=args.objective,
         base_budget=args.budget,
@@ -83,10 +126,11 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
         seed=args.seed,
         candidates=names,
         min_improvement=args.min_improvement,
+        max_delta_bic=args.max_delta_bic,
     )
     out = Path(args.out)
     try:
-        result = diagnose(start, train, test, out, settings)
+        result = diagnose(start, train, test, out, settings, test_labels=labels)
     except ValueError as exc:  # too little data, recordings of different steps
         raise UserError(str(exc)) from None
     from sweep.diagnose.report import write_report

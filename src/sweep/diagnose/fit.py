@@ -10,6 +10,7 @@ absorbed of the effect (the cancellation effect) while the effect's parameters m
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -21,6 +22,7 @@ from mmg import Effect, Parameters, bounds
 from mmg.params import N_THETA
 from sweep.cmaes import Box, Result, Settings, optimise
 from sweep.objective import Objective
+from sweep.polish import PolishSettings, polish
 from sweep.recordings import Recording
 from sweep.workers import make_evaluator
 
@@ -82,6 +84,11 @@ class FitSettings:
     popsize: int = 20
     #: share of the budget spent first on the effect's parameters alone (base held fixed)
     effect_only_share: float = 0.25
+    #: evaluations of the effect-only grid when ``budget`` is 0 (local refinement only)
+    effect_only_budget: int = 300
+    #: Levenberg-Marquardt refinement after CMA-ES (None: none); with ``budget`` 0 the fit is
+    #: the effect-only grid followed by this refinement alone (deterministic)
+    polish: PolishSettings | None = None
 
 
 @dataclass(frozen=True)
@@ -118,32 +125,54 @@ def fit(
     k = box.n - N_THETA
     budget = settings.budget
     spent = 0
-    if k and settings.effect_only_share > 0:
+    t0 = time.perf_counter()
+    if k and (
+        (budget > 0 and settings.effect_only_share > 0)
+        or (budget == 0 and settings.effect_only_budget > 0)
+    ):
         # phase 1: the effect alone on top of the given base (a k-dimensional search)
-        first = max(settings.popsize, int(settings.budget * settings.effect_only_share))
+        first = (
+            settings.effect_only_budget
+            if budget == 0
+            else max(settings.popsize, int(budget * settings.effect_only_share))
+        )
         x0, spent = _fit_effect_only(obj, box, x0, first, settings, workers)
-        budget = max(settings.popsize, settings.budget - spent)
-    stds = (1.0,) * N_THETA + (settings.effect_sigma / settings.sigma0,) * k
-    cma_settings = Settings(
-        seed=settings.seed,
-        max_evaluations=budget,
-        sigma0=settings.sigma0,
-        popsize_start=settings.popsize,
-        popsize_max=settings.popsize,
-        stds=stds if k else None,
-    )
-    with make_evaluator(obj, workers) as evaluate:
-        result: Result = optimise(evaluate, box, x0, cma_settings, progress=progress)
-    # the start itself competes: a fit never reports worse parameters than it was given
-    f_start = float(obj.evaluate(x0[None, :])[0])
-    theta = result.theta if result.f <= f_start else x0
+        budget = max(settings.popsize, budget - spent) if budget else 0
+    theta = x0
+    f = float(obj.evaluate(x0[None, :])[0])
+    spent += 1
+    history: list[dict[str, float]] = []
+    if budget > 0:
+        stds = (1.0,) * N_THETA + (settings.effect_sigma / settings.sigma0,) * k
+        cma_settings = Settings(
+            seed=settings.seed,
+            max_evaluations=budget,
+            sigma0=settings.sigma0,
+            popsize_start=settings.popsize,
+            popsize_max=settings.popsize,
+            stds=stds if k else None,
+        )
+        with make_evaluator(obj, workers) as evaluate:
+            result: Result = optimise(evaluate, box, x0, cma_settings, progress=progress)
+        spent += result.evaluations
+        history = list(result.history)
+        # the start itself competes: a fit never reports worse parameters than it was given
+        if result.f < f:
+            theta, f = result.theta, result.f
+    if settings.polish is not None:
+        done = spent
+        res = polish(obj, box, theta, settings.polish)
+        spent += res.evaluations
+        history += [{**row, "evaluations": row["evaluations"] + done} for row in res.history]
+        if res.f < f:
+            theta, f = res.theta, res.f
     return Fit(
         params=from_full_vector(theta, start, effects),
         effects=effects,
-        f=min(result.f, f_start),
-        evaluations=spent + result.evaluations + 1,
-        seconds=result.seconds,
-        history=result.history,
+        f=f,
+        evaluations=spent,
+        seconds=time.perf_counter() - t0,
+        history=history,
     )
 
 
@@ -198,6 +227,26 @@ def _fit_effect_only(
     return np.concatenate([base, best_x]), used
 
 
+def fit_effect_only(
+    recordings: Sequence[Recording],
+    base: Parameters,
+    effects: Sequence[Effect],
+    budget: int,
+    objective: str = "J2",
+) -> tuple[Parameters, float]:
+    """The effects' parameters fitted on ``recordings`` with the base parameters held fixed.
+
+    Returns the parameters (base and fitted effects) and their objective value. Deterministic
+    (a grid over up to two parameters, see :func:`fit`).
+    """
+    effects = tuple(effects)
+    obj = Objective(recordings, objective, effects=effects, ship=base.ship)
+    box = joint_box(effects)
+    settings = FitSettings(objective=objective, budget=0, effect_only_budget=budget)
+    x, _ = _fit_effect_only(obj, box, full_vector(base, effects), budget, settings, 0)
+    return from_full_vector(x, base, effects), float(obj.evaluate(x[None, :])[0])
+
+
 def refit(previous: Fit, recordings: Sequence[Recording], settings: FitSettings, **kw: Any) -> Fit:
     """Continue a fit with a new budget and seed (same effects)."""
     return fit(recordings, previous.params, previous.effects, settings, **kw)
@@ -208,6 +257,7 @@ __all__ = [
     "FitSettings",
     "effect_values",
     "fit",
+    "fit_effect_only",
     "from_full_vector",
     "full_vector",
     "joint_box",

@@ -70,7 +70,7 @@ def stall_tanh_force(
     s_s = sincos(e.alpha_s)[0]
     d_sin = s_s * math.tanh(s_a / s_s) - s_a
     f_alpha = 6.13 * sh.lambda_R / (2.25 + sh.lambda_R)
-    dF_N = 0.5 * sh.rho * sh.A_R * f_alpha * (u_R * u_R + v_R * v_R) * d_sin
+    dF_N = 0.5 * sh.rho * sh.A_R * f_alpha * u_R * u_R * d_sin  # continuous at u_R = 0
     sin_d, cos_d = sincos(delta)
     L = sh.L_pp
     return (

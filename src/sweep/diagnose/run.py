@@ -6,25 +6,33 @@ Procedure (:func:`diagnose`), all on the training recordings unless said otherwi
    a *fit* half and a *held-out* half (window 0, 2, 4, ... fit; 1, 3, 5, ... held out), so both
    halves cover every run and regime.
 2. Base identification: CMA-ES from ``--params`` on all training windows (``base_budget``
-   evaluations): the base model absorbs what it can of any missing effect, as in practice.
+   evaluations), then Levenberg-Marquardt refinement (:mod:`sweep.polish`, up to
+   ``polish_iterations``): the base model absorbs what it can of any missing effect, as in practice.
 3. Location: residuals of the base model per run, window and regime
    (:mod:`sweep.diagnose.locate`): where the trajectory residual concentrates (eta^2 of each
    regime variable) and where the equations of motion have a biased residual.
-4. Candidates: each catalog effect is fitted on the fit half, first alone on top of the base (a
-   grid over its one or two parameters), then jointly with the 57 base parameters from there
-   (``candidate_budget`` evaluations in all, base step size ``refit_sigma``). A *control* fit of
-   the base alone with the same budget and seed measures what refitting on the fit half does to
-   the held-out half without new physics.
-   Scores: the held-out improvement ``(J_ho(control) - J_ho(effect)) / J_ho(control)`` and the
-   change of an information criterion on the fit half,
+4. Candidates, in two folds (fit on one half, judge on the other, then the other way round):
+   each catalog effect is fitted first alone on top of the base (a grid over its one or two
+   parameters), then jointly with the 57 base parameters from there (Levenberg-Marquardt;
+   ``candidate_budget`` > 0 adds CMA-ES evaluations before it). A *control* fit of the base
+   alone by the same procedure measures what refitting does without new physics. The procedure
+   is deterministic, so control and candidates start from the same point and differ only by
+   what the effect can explain.
+   Scores: the information criterion over both folds' fits,
    ``dBIC = N_eff ln(J_fit(effect) / J_fit(control)) + k ln(N_eff)``, with
-   ``N_eff = channels x T_fit / TAU`` (trajectory residuals decorrelate over about ``TAU`` = 10 s).
-5. Verdict: the candidate with the largest held-out improvement, if it exceeds
-   ``min_improvement`` (calibrated on planted data without any effect, see
-   ``benchmarks/diagnose_planted.py``) and has dBIC < 0; otherwise ``none``.
-6. Re-identification on all training windows (``final_budget`` evaluations) of the base model plus
-   the chosen effect (from the base fit and the candidate's effect values), and of the base model
-   alone with the same budget ("before"); J1, J2, J3 of both on every test recording.
+   ``N_eff = channels x T / TAU`` (trajectory residuals decorrelate over about ``TAU`` = 10 s),
+   and the held-out improvement ``(J_ho(control) - J_ho(effect)) / J_ho(control)``.
+5. Verdict: the candidate with the lowest dBIC, if dBIC <= ``max_delta_bic`` and its held-out
+   improvement >= ``min_improvement``; otherwise ``none``. Both thresholds are calibrated on
+   planted data (``benchmarks/diagnose_planted.py``): dBIC separates cleanly (no-effect cases
+   never went below -60, planted effects mostly far below -100); the held-out improvement is
+   noisy, because refitting 57 parameters on half the windows moves them along directions that
+   half does not constrain, so it is a veto against an effect that makes unseen windows clearly
+   worse, not the ranking.
+6. Re-identification on all training windows (``final_budget`` CMA-ES evaluations, then the
+   refinement) of the base model plus the chosen effect (from the base fit and the candidate's
+   effect values), and of the base model alone by the same procedure ("before"); J1, J2, J3 of
+   both on every test recording.
 
 Every stage's result is stored in ``DIR/stages/`` as soon as it is done; running the same command
 again resumes after the last finished stage.
@@ -54,13 +62,17 @@ from sweep.diagnose.locate import (
     residual_frame,
 )
 from sweep.objective import CHANNELS, OBJECTIVES, T_F, Objective, split_recording
+from sweep.polish import PolishSettings
 from sweep.recordings import Recording
 
 #: decorrelation time of trajectory residuals [s] used for the effective sample count of dBIC
 TAU = 10.0
-#: held-out improvement a candidate needs; calibrated on the no-effect cases of the planted
-#: benchmark (their largest best-candidate improvement was below this; see the README)
-MIN_IMPROVEMENT = 0.05
+#: held-out improvement a candidate needs (a veto: the held-out windows may get at most 25 % worse;
+#: on the planted benchmark refitting alone moves held-out J by up to +-75 %, see the README)
+MIN_IMPROVEMENT = -0.25
+#: information criterion a candidate must reach (dBIC <= this); calibrated on the no-effect cases
+#: of the planted benchmark, whose best candidate never went below -60 (see the README)
+MAX_DELTA_BIC = -100.0
 #: shortest window kept [s] (the last window of a run may be short)
 MIN_WINDOW = 20.0
 
@@ -70,9 +82,13 @@ class DiagnoseSettings:
     """Budgets and rules of one diagnosis."""
 
     objective: str = "J2"
-    base_budget: int = 12000
-    candidate_budget: int = 1000
-    final_budget: int = 2000
+    base_budget: int = 6000
+    candidate_budget: int = 0  # CMA-ES evaluations before the refinement (0: grid + LM only)
+    final_budget: int = 0
+    polish_iterations: int = 15  # Levenberg-Marquardt iterations of control and candidates
+    effect_only_budget: int = 300  # evaluations of an effect's grid with the base held fixed
+    max_delta_bic: float = MAX_DELTA_BIC
+    final_polish_iterations: int = 100  # ... of the base and final identifications
     seed: int = 0
     candidates: tuple[str, ...] = ()  # empty: every catalog effect
     min_improvement: float = MIN_IMPROVEMENT
@@ -296,7 +312,14 @@ def diagnose(
         f"{len(fit_w)} to fit, {len(held_w)} held out; {len(test)} test recording(s)"
     )
     store = StageStore(out / "stages", s.fingerprint() + _data_fingerprint(train, start))
-    common = FitSettings(objective=s.objective, sigma0=s.sigma0, effect_sigma=s.effect_sigma)
+    common = FitSettings(
+        objective=s.objective,
+        sigma0=s.sigma0,
+        effect_sigma=s.effect_sigma,
+        polish=PolishSettings(
+            max_iterations=s.final_polish_iterations, rtol=1e-4, max_evaluations=10**7
+        ),
+    )
     w = s.workers
 
     base = _staged(
@@ -326,61 +349,83 @@ def diagnose(
         )
     )
 
-    held_obj = Objective(held_w, s.objective, ship=start.ship)
-    refit = replace(common, sigma0=s.refit_sigma)
-    cand_settings = replace(refit, budget=s.candidate_budget, seed=s.seed + 1)
-    control = _staged(
-        store,
-        "control",
-        (),
-        log,
-        lambda: fit(fit_w, base.params, (), cand_settings, w, _progress(log, "control")),
+    # two folds: fit on one half, judge on the other, and the other way round; every fit is the
+    # same deterministic procedure from the base fitted on all windows (the effect alone on a
+    # grid, then Levenberg-Marquardt on the 57 base parameters and the effect jointly), so the
+    # control and the candidates differ only by what the effect can explain
+    halves = ((fit_w, held_w), (held_w, fit_w))
+    cand_settings = replace(
+        common,
+        budget=s.candidate_budget,
+        seed=s.seed + 1,
+        sigma0=s.refit_sigma,
+        effect_only_budget=s.effect_only_budget,
+        polish=PolishSettings(max_iterations=s.polish_iterations, max_evaluations=10**7),
     )
-    J_ho_control = float(held_obj.evaluate(control.params)[0])
-    n_eff = n_effective(fit_w, s.objective)
+
+    def folds(name: str, effs: tuple[Effect, ...]) -> tuple[list[Fit], float]:
+        """The two fold fits of ``effs`` (stored) and their summed held-out J."""
+        out_fits: list[Fit] = []
+        J_ho = 0.0
+        for j, (fit_half, held_half) in enumerate(halves):
+            res = _staged(
+                store,
+                f"{name}-fold{j}",
+                effs,
+                log,
+                lambda fh=fit_half: fit(  # type: ignore[misc]
+                    fh, base.params, effs, cand_settings, w, _progress(log, name)
+                ),
+            )
+            out_fits.append(res)
+            ho = Objective(held_half, s.objective, effects=effs, ship=start.ship)
+            J_ho += float(ho.evaluate(res.params)[0])
+        return out_fits, J_ho
+
+    control_folds, J_ho_control = folds("control", ())
+    control = control_folds[0]
+    J_fit_control = sum(f.f for f in control_folds)
+    n_eff = n_effective(windows, s.objective)
     scores: list[CandidateScore] = []
     fits: dict[str, Fit] = {}
     effects = s.candidate_effects()
     for i, eff in enumerate(effects, 1):
         log(f"candidate {i}/{len(effects)}: {eff.name}")
-        res = _staged(
-            store,
-            f"candidate-{eff.name}",
-            (eff,),
-            log,
-            lambda eff=eff: fit(  # type: ignore[misc]
-                fit_w, base.params, (eff,), cand_settings, w, _progress(log, eff.name)
-            ),
-        )
-        fits[eff.name] = res
-        ho = Objective(held_w, s.objective, effects=(eff,), ship=start.ship)
-        J_ho = float(ho.evaluate(res.params)[0])
-        vals = effect_values(res.params, (eff,))
+        t_c = time.perf_counter()
+        cand_folds, J_ho = folds(f"candidate-{eff.name}", (eff,))
+        J_fit = sum(f.f for f in cand_folds)
+        # the fold whose fit gained more over its control carries the effect's values
+        best = min(range(2), key=lambda j: cand_folds[j].f / max(control_folds[j].f, 1e-300))
+        fits[eff.name] = cand_folds[best]
+        vals = effect_values(cand_folds[best].params, (eff,))
         scores.append(
             CandidateScore(
                 effect=eff.name,
                 description=eff.description,
                 regime=eff.regime,
                 params=dict(zip(eff.param_names, vals, strict=True)),
-                J_fit=res.f,
+                J_fit=J_fit,
                 J_heldout=J_ho,
                 improvement=(J_ho_control - J_ho) / J_ho_control if J_ho_control > 0 else 0.0,
-                delta_bic=delta_bic(res.f, control.f, len(eff.params), n_eff),
-                evaluations=res.evaluations,
-                seconds=res.seconds,
+                delta_bic=delta_bic(J_fit, J_fit_control, len(eff.params), n_eff),
+                evaluations=sum(f.evaluations for f in cand_folds),
+                seconds=time.perf_counter() - t_c,
             )
         )
     for c in scores:
-        c.accepted = c.improvement >= s.min_improvement and c.delta_bic < 0
-    scores.sort(key=lambda c: c.improvement, reverse=True)
+        c.accepted = c.improvement >= s.min_improvement and c.delta_bic <= s.max_delta_bic
+    scores.sort(key=lambda c: c.delta_bic)
     verdict = scores[0].effect if scores and scores[0].accepted else "none"
     log(
         "ranking: "
-        + ", ".join(f"{c.effect} {100 * c.improvement:+.1f}%" for c in scores)
+        + ", ".join(
+            f"{c.effect} dBIC {c.delta_bic:.0f} ({100 * c.improvement:+.1f}% held out)"
+            for c in scores
+        )
         + f" -> verdict: {verdict}"
     )
 
-    final_settings = replace(refit, budget=s.final_budget, seed=s.seed + 2)
+    final_settings = replace(common, budget=s.final_budget, seed=s.seed + 2, sigma0=s.refit_sigma)
     before = _staged(
         store,
         "final-base",
@@ -403,7 +448,7 @@ def diagnose(
                     base.params, chosen_eff, effect_values(fits[verdict].params, chosen_eff)
                 ),
                 chosen_eff,
-                final_settings,
+                replace(final_settings, effect_only_share=0.0, effect_only_budget=0),
                 w,
                 _progress(log, f"final {verdict}"),
             ),

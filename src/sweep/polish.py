@@ -15,8 +15,10 @@ from a final polish.
 The Jacobian is a forward difference in the normalised box ([0, 1] per coordinate), all n + 1
 simulations in one batch; each iteration tries several damping factors lambda in one more batch
 (Marquardt scaling by diag(J^T J)) and keeps the best, so a step is never worse than the current
-point. Steps are clipped to the box. Subsequences that diverge at the current point keep their
-penalty and are left out of the Jacobian; a trial that makes another one diverge pays its penalty.
+point; when none is better, the same Jacobian is tried with 1000 x stronger damping (until the
+damping exceeds :data:`MAX_LAMBDA`: a local minimum). Steps are clipped to the box.
+Subsequences that diverge at the current point keep their penalty and are left out of the
+Jacobian; a trial that makes another one diverge pays its penalty.
 """
 
 from __future__ import annotations
@@ -36,6 +38,8 @@ FloatArray = NDArray[np.float64]
 
 #: damping factors tried at each iteration, relative to the current lambda
 LAMBDA_TRIALS = (1e-2, 1e-1, 1.0, 10.0, 100.0)
+#: damping beyond which a point counts as a (local) minimum: steps are then negligible
+MAX_LAMBDA = 1e8
 #: simulations per batch (candidates x subsequences), bounding the memory of the trajectories
 MAX_LANES = 1200
 
@@ -158,20 +162,25 @@ def polish(
     history: list[dict[str, float]] = [{"iteration": 0, "evaluations": 1, "f": f}]
     small = 0
     it = 0
+    Jac = np.zeros((0, 0))
+    A = g = d = np.zeros(0)
+    fresh = False  # whether Jac, A, g belong to the current point
     while it < s.max_iterations and evaluations + n + 1 + len(LAMBDA_TRIALS) <= s.max_evaluations:
         it += 1
-        keep = ~bad[0]  # subsequences in the Jacobian
-        r0 = r[0][keep].ravel()
-        h = np.where(z + s.fd_step <= 1.0, s.fd_step, -s.fd_step)
-        probes = z[None, :] + np.diag(h)
-        rp, badp = residual_vectors(obj, to_theta(probes))
-        evaluations += n
-        Jac = (rp[:, keep].reshape(n, -1) - r0[None, :]) / h[:, None]  # (n, M)
-        Jac[badp[:, keep].any(axis=1)] = 0.0  # a probe that diverges: coordinate frozen
-        A = Jac @ Jac.T + np.diag(pm)
-        g = Jac @ r0 + pm * (z - z_prior)
-        d = np.diag(A).copy()
-        d[d <= 0] = 1.0
+        if not fresh:
+            keep = ~bad[0]  # subsequences in the Jacobian
+            r0 = r[0][keep].ravel()
+            h = np.where(z + s.fd_step <= 1.0, s.fd_step, -s.fd_step)
+            probes = z[None, :] + np.diag(h)
+            rp, badp = residual_vectors(obj, to_theta(probes))
+            evaluations += n
+            Jac = (rp[:, keep].reshape(n, -1) - r0[None, :]) / h[:, None]  # (n, M)
+            Jac[badp[:, keep].any(axis=1)] = 0.0  # a probe that diverges: coordinate frozen
+            A = Jac @ Jac.T + np.diag(pm)
+            g = Jac @ r0 + pm * (z - z_prior)
+            d = np.diag(A).copy()
+            d[d <= 0] = 1.0
+            fresh = True
         trials = []
         lams = [lam * t for t in LAMBDA_TRIALS]
         for lt in lams:
@@ -184,18 +193,20 @@ def polish(
         gt = ft + prior(zt)
         g_cur = f + float(prior(z))
         i = int(np.argmin(gt))
-        gain = (g_cur - float(gt[i])) / g_cur if g_cur > 0 else 0.0
         if gt[i] < g_cur:
+            gain = (g_cur - float(gt[i])) / g_cur if g_cur > 0 else 0.0
             z, f, r, bad = zt[i], float(ft[i]), rt[i : i + 1], badt[i : i + 1]
             lam = max(lams[i], 1e-9)
+            fresh = False
+            small = small + 1 if gain < s.rtol else 0
         else:
+            # no damping helped: stronger damping on the same Jacobian (shorter, steeper steps)
             lam = lams[-1] * 10.0
         row = {"iteration": float(it), "evaluations": float(evaluations), "f": f, "lambda": lam}
         history.append(row)
         if progress is not None:
             progress(row)
-        small = small + 1 if gain < s.rtol else 0
-        if small >= 2 or f == 0.0:
+        if small >= 2 or f == 0.0 or lam > MAX_LAMBDA:
             break
     return Polished(
         theta=to_theta(z),

@@ -43,9 +43,9 @@ def statement(d: Diagnosis) -> str:
         best = d.candidates[0] if d.candidates else None
         text = (
             "Nothing significant was found: no candidate effect, fitted jointly with the base "
-            f"parameters, lowered the information criterion by {-s.max_delta_bic:.0f} or more "
-            "over the base model refitted by the same procedure without making the held-out "
-            f"windows worse by more than {-100 * s.min_improvement:.0f} %."
+            f"parameters, reached dBIC <= {s.max_delta_bic:.0f} against the base model refitted "
+            "by the same procedure with a held-out change of J of at least "
+            f"{100 * s.min_improvement:+.0f} %."
         )
         if best is not None:
             text += (
@@ -62,9 +62,9 @@ def statement(d: Diagnosis) -> str:
     text = (
         f"Missing physics: {eff.description} (`{d.verdict}`; regime: {eff.regime}). "
         f"Fitted jointly with the 57 base parameters: {values}. "
-        f"Against the base model refitted by the same procedure it lowers the information "
-        f"criterion by {-c.delta_bic:.1f} (threshold {-s.max_delta_bic:.0f}) and changes J on "
-        f"the held-out training windows by {100 * c.improvement:+.1f} %."
+        f"Against the base model refitted by the same procedure: dBIC = {c.delta_bic:.1f} "
+        f"(accepted at <= {s.max_delta_bic:.0f}); J on the held-out training windows changes by "
+        f"{100 * c.improvement:+.1f} %."
     )
     J = s.objective
     if d.test_before:

@@ -102,7 +102,9 @@ class DiagnoseSettings:
         return tuple(get_effect(n) for n in names)
 
     def fingerprint(self) -> str:
-        data = {k: v for k, v in asdict(self).items() if k not in ("workers",)}
+        # thresholds decide the verdict only: stages fitted under other thresholds are reused
+        skip = ("workers", "min_improvement", "max_delta_bic")
+        data = {k: v for k, v in asdict(self).items() if k not in skip}
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]
 
 

@@ -162,3 +162,20 @@ def test_delta_bic_trades_fit_against_parameters():
     )
     assert delta_bic(99.9, 100.0, 2, 1000.0) > 0  # 0.1 % better is not worth two parameters
     assert delta_bic(0.0, 100.0, 1, 10.0) == math.inf
+
+
+def test_rank_breaks_near_ties_of_dbic_by_held_out_improvement():
+    from sweep.diagnose.run import CandidateScore, rank
+
+    def c(name: str, bic: float, imp: float) -> CandidateScore:
+        return CandidateScore(name, "", "", {}, 1.0, 1.0, imp, bic)
+
+    # within 5 % of the best dBIC: the held-out improvement decides
+    got = rank([c("walk", -967.0, 0.930), c("offset", -951.2, 0.949), c("current", -335.0, 0.9)])
+    assert [x.effect for x in got] == ["offset", "walk", "current"]
+    # a clear dBIC winner stays first whatever its held-out change
+    got = rank([c("walk", -1200.0, 0.5), c("offset", -951.2, 0.949)])
+    assert [x.effect for x in got] == ["walk", "offset"]
+    # small dBICs: an absolute margin of 10
+    got = rank([c("a", 6.0, 0.04), c("b", 14.0, 0.10), c("d", 30.0, 0.9)])
+    assert [x.effect for x in got] == ["b", "a", "d"]

@@ -22,13 +22,14 @@ Procedure (:func:`diagnose`), all on the training recordings unless said otherwi
    ``dBIC = N_eff ln(J_fit(effect) / J_fit(control)) + k ln(N_eff)``, with
    ``N_eff = channels x T / TAU`` (trajectory residuals decorrelate over about ``TAU`` = 10 s),
    and the held-out improvement ``(J_ho(control) - J_ho(effect)) / J_ho(control)``.
-5. Verdict: the candidate with the lowest dBIC, if dBIC <= ``max_delta_bic`` and its held-out
-   improvement >= ``min_improvement``; otherwise ``none``. Both thresholds are calibrated on
-   planted data (``benchmarks/diagnose_planted.py``): dBIC separates cleanly (no-effect cases
-   never went below -60, planted effects mostly far below -100); the held-out improvement is
-   noisy, because refitting 57 parameters on half the windows moves them along directions that
-   half does not constrain, so it is a veto against an effect that makes unseen windows clearly
-   worse, not the ranking.
+5. Verdict: the candidate with the lowest dBIC (among candidates tied with it, see
+   :data:`TIE_MARGIN`, the one with the best held-out improvement), if dBIC <= ``max_delta_bic``
+   and its held-out improvement >= ``min_improvement``; otherwise ``none``. Both thresholds are
+   calibrated on planted data (``benchmarks/diagnose_planted.py``): dBIC separates cleanly
+   (no-effect cases stayed above -20, planted effects mostly far below -100); the held-out
+   improvement is noisy, because refitting 57 parameters on half the windows moves them along
+   directions that half does not constrain, so it is a veto against an effect that makes unseen
+   windows clearly worse and a tie-breaker, not the ranking.
 6. Re-identification on all training windows (``final_budget`` CMA-ES evaluations, then the
    refinement) of the base model plus the chosen effect (from the base fit and the candidate's
    effect values), and of the base model alone by the same procedure ("before"); J1, J2, J3 of
@@ -73,6 +74,12 @@ MIN_IMPROVEMENT = -0.25
 #: information criterion a candidate must reach (dBIC <= this); calibrated on the no-effect cases
 #: of the planted benchmark, whose best candidate never went below -60 (see the README)
 MAX_DELTA_BIC = -100.0
+#: candidates whose dBIC is within TIE_MARGIN x |best dBIC| (at least TIE_ABSOLUTE) of the best are
+#: tied, and the held-out improvement decides between them: N_eff is an estimate, so differences of
+#: a few per cent of dBIC are within its uncertainty (e.g. a rudder offset and a propeller walk
+#: both act as a yaw moment growing with n_p^2 and reach nearly the same fit)
+TIE_MARGIN = 0.05
+TIE_ABSOLUTE = 10.0
 #: shortest window kept [s] (the last window of a run may be short)
 MIN_WINDOW = 20.0
 
@@ -85,9 +92,10 @@ class DiagnoseSettings:
     base_budget: int = 6000
     candidate_budget: int = 0  # CMA-ES evaluations before the refinement (0: grid + LM only)
     final_budget: int = 0
-    polish_iterations: int = 15  # Levenberg-Marquardt iterations of control and candidates
+    polish_iterations: int = 30  # Levenberg-Marquardt iterations of control and candidates
     effect_only_budget: int = 300  # evaluations of an effect's grid with the base held fixed
     max_delta_bic: float = MAX_DELTA_BIC
+    tie_margin: float = TIE_MARGIN
     final_polish_iterations: int = 100  # ... of the base and final identifications
     seed: int = 0
     candidates: tuple[str, ...] = ()  # empty: every catalog effect
@@ -103,7 +111,7 @@ class DiagnoseSettings:
 
     def fingerprint(self) -> str:
         # thresholds decide the verdict only: stages fitted under other thresholds are reused
-        skip = ("workers", "min_improvement", "max_delta_bic")
+        skip = ("workers", "min_improvement", "max_delta_bic", "tie_margin")
         data = {k: v for k, v in asdict(self).items() if k not in skip}
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]
 
@@ -247,6 +255,19 @@ class Diagnosis:
     @property
     def chosen(self) -> CandidateScore | None:
         return next((c for c in self.candidates if c.effect == self.verdict), None)
+
+
+def rank(scores: Sequence[CandidateScore], tie_margin: float = TIE_MARGIN) -> list[CandidateScore]:
+    """Candidates by dBIC, except that those tied with the best (dBIC within
+    ``max(TIE_ABSOLUTE, tie_margin x |best|)``) come first in order of held-out improvement."""
+    by_bic = sorted(scores, key=lambda c: c.delta_bic)
+    if not by_bic:
+        return []
+    best = by_bic[0].delta_bic
+    margin = max(TIE_ABSOLUTE, tie_margin * abs(best)) if math.isfinite(best) else 0.0
+    tied = [c for c in by_bic if c.delta_bic - best <= margin]
+    tied.sort(key=lambda c: c.improvement, reverse=True)
+    return tied + [c for c in by_bic if c not in tied]
 
 
 def n_effective(windows: Sequence[Recording], objective: str) -> float:
@@ -416,7 +437,7 @@ def diagnose(
         )
     for c in scores:
         c.accepted = c.improvement >= s.min_improvement and c.delta_bic <= s.max_delta_bic
-    scores.sort(key=lambda c: c.delta_bic)
+    scores = rank(scores, s.tie_margin)
     verdict = scores[0].effect if scores and scores[0].accepted else "none"
     log(
         "ranking: "

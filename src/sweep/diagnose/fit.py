@@ -3,9 +3,12 @@
 The search space is the paper's 57-parameter box (:func:`mmg.bounds`) followed by each effect's
 own search interval (:class:`mmg.EffectParam`), normalised to [0, 1] like the base job. A joint fit
 starts from given base parameters (usually the base model identified without the effect) with the
-effect at its neutral values; the step size of the effect's coordinates is ``effect_sigma`` of
-their interval, that of the base coordinates ``sigma0``: the base can re-balance what it had
-absorbed of the effect (the cancellation effect) while the effect's parameters move freely.
+effect at its neutral values, then: (1) the effect alone on top of the base (a grid for one or two
+parameters); (2) optionally CMA-ES on all coordinates (``budget`` > 0; the effect's coordinates
+step ``effect_sigma`` of their interval, the base ones ``sigma0``); (3) optionally
+Levenberg-Marquardt on all coordinates (``polish``, :mod:`sweep.polish`). In (2) and (3) the base
+can re-balance what it had absorbed of the effect (the cancellation effect) while the effect's
+parameters move freely. With ``budget`` 0 the fit is deterministic.
 """
 
 from __future__ import annotations
@@ -227,40 +230,13 @@ def _fit_effect_only(
     return np.concatenate([base, best_x]), used
 
 
-def fit_effect_only(
-    recordings: Sequence[Recording],
-    base: Parameters,
-    effects: Sequence[Effect],
-    budget: int,
-    objective: str = "J2",
-) -> tuple[Parameters, float]:
-    """The effects' parameters fitted on ``recordings`` with the base parameters held fixed.
-
-    Returns the parameters (base and fitted effects) and their objective value. Deterministic
-    (a grid over up to two parameters, see :func:`fit`).
-    """
-    effects = tuple(effects)
-    obj = Objective(recordings, objective, effects=effects, ship=base.ship)
-    box = joint_box(effects)
-    settings = FitSettings(objective=objective, budget=0, effect_only_budget=budget)
-    x, _ = _fit_effect_only(obj, box, full_vector(base, effects), budget, settings, 0)
-    return from_full_vector(x, base, effects), float(obj.evaluate(x[None, :])[0])
-
-
-def refit(previous: Fit, recordings: Sequence[Recording], settings: FitSettings, **kw: Any) -> Fit:
-    """Continue a fit with a new budget and seed (same effects)."""
-    return fit(recordings, previous.params, previous.effects, settings, **kw)
-
-
 __all__ = [
     "Fit",
     "FitSettings",
     "effect_values",
     "fit",
-    "fit_effect_only",
     "from_full_vector",
     "full_vector",
     "joint_box",
-    "refit",
     "with_effects",
 ]

@@ -96,6 +96,8 @@ class DiagnoseSettings:
     effect_only_budget: int = 300  # evaluations of an effect's grid with the base held fixed
     max_delta_bic: float = MAX_DELTA_BIC
     tie_margin: float = TIE_MARGIN
+    refine_top: int = 3  # leading candidates (by dBIC) refined before the verdict
+    refine_iterations: int = 70  # further Levenberg-Marquardt iterations of their fold fits
     final_polish_iterations: int = 100  # ... of the base and final identifications
     seed: int = 0
     candidates: tuple[str, ...] = ()  # empty: every catalog effect
@@ -163,6 +165,7 @@ class CandidateScore:
     accepted: bool = False
     evaluations: int = 0
     seconds: float = 0.0
+    refined: bool = False  # scores after the refinement of the leading candidates
 
 
 @dataclass
@@ -386,18 +389,31 @@ def diagnose(
         polish=PolishSettings(max_iterations=s.polish_iterations, max_evaluations=10**7),
     )
 
-    def folds(name: str, effs: tuple[Effect, ...]) -> tuple[list[Fit], float]:
+    refine_settings = replace(
+        cand_settings,
+        budget=0,
+        effect_only_budget=0,
+        polish=PolishSettings(max_iterations=s.refine_iterations, rtol=1e-4, max_evaluations=10**7),
+    )
+
+    def folds(
+        name: str,
+        effs: tuple[Effect, ...],
+        settings: FitSettings,
+        starts: Sequence[Fit] | None = None,
+    ) -> tuple[list[Fit], float]:
         """The two fold fits of ``effs`` (stored) and their summed held-out J."""
         out_fits: list[Fit] = []
         J_ho = 0.0
         for j, (fit_half, held_half) in enumerate(halves):
+            p0 = base.params if starts is None else starts[j].params
             res = _staged(
                 store,
                 f"{name}-fold{j}",
                 effs,
                 log,
-                lambda fh=fit_half: fit(  # type: ignore[misc]
-                    fh, base.params, effs, cand_settings, w, _progress(log, name)
+                lambda fh=fit_half, p0=p0: fit(  # type: ignore[misc]
+                    fh, p0, effs, settings, w, _progress(log, name)
                 ),
             )
             out_fits.append(res)
@@ -405,39 +421,68 @@ def diagnose(
             J_ho += float(ho.evaluate(res.params)[0])
         return out_fits, J_ho
 
-    control_folds, J_ho_control = folds("control", ())
-    control = control_folds[0]
-    J_fit_control = sum(f.f for f in control_folds)
     n_eff = n_effective(windows, s.objective)
+
+    def score(
+        eff: Effect, cand: list[Fit], J_ho: float, control: list[Fit], J_ho_control: float
+    ) -> CandidateScore:
+        J_fit = sum(f.f for f in cand)
+        # the fold whose fit gained more over its control carries the effect's values
+        best = min(range(2), key=lambda j: cand[j].f / max(control[j].f, 1e-300))
+        fits[eff.name] = cand[best]
+        vals = effect_values(cand[best].params, (eff,))
+        return CandidateScore(
+            effect=eff.name,
+            description=eff.description,
+            regime=eff.regime,
+            params=dict(zip(eff.param_names, vals, strict=True)),
+            J_fit=J_fit,
+            J_heldout=J_ho,
+            improvement=(J_ho_control - J_ho) / J_ho_control if J_ho_control > 0 else 0.0,
+            delta_bic=delta_bic(J_fit, sum(f.f for f in control), len(eff.params), n_eff),
+            evaluations=sum(f.evaluations for f in cand),
+        )
+
+    control_folds, J_ho_control = folds("control", (), cand_settings)
     scores: list[CandidateScore] = []
     fits: dict[str, Fit] = {}
+    cand_folds: dict[str, list[Fit]] = {}
     effects = s.candidate_effects()
     for i, eff in enumerate(effects, 1):
         log(f"candidate {i}/{len(effects)}: {eff.name}")
         t_c = time.perf_counter()
-        cand_folds, J_ho = folds(f"candidate-{eff.name}", (eff,))
-        J_fit = sum(f.f for f in cand_folds)
-        # the fold whose fit gained more over its control carries the effect's values
-        best = min(range(2), key=lambda j: cand_folds[j].f / max(control_folds[j].f, 1e-300))
-        fits[eff.name] = cand_folds[best]
-        vals = effect_values(cand_folds[best].params, (eff,))
-        scores.append(
-            CandidateScore(
-                effect=eff.name,
-                description=eff.description,
-                regime=eff.regime,
-                params=dict(zip(eff.param_names, vals, strict=True)),
-                J_fit=J_fit,
-                J_heldout=J_ho,
-                improvement=(J_ho_control - J_ho) / J_ho_control if J_ho_control > 0 else 0.0,
-                delta_bic=delta_bic(J_fit, J_fit_control, len(eff.params), n_eff),
-                evaluations=sum(f.evaluations for f in cand_folds),
-                seconds=time.perf_counter() - t_c,
+        cand_folds[eff.name], J_ho = folds(f"candidate-{eff.name}", (eff,), cand_settings)
+        c = score(eff, cand_folds[eff.name], J_ho, control_folds, J_ho_control)
+        c.seconds = time.perf_counter() - t_c
+        scores.append(c)
+    # refinement: the leading candidates and the control, each continued from its fold fits
+    # with more Levenberg-Marquardt iterations (a joint fit that must undo what the base had
+    # absorbed can still be descending after the first iterations)
+    leaders = [c.effect for c in sorted(scores, key=lambda c: c.delta_bic)[: s.refine_top]]
+    if s.refine_top > 0 and s.refine_iterations > 0:
+        control_folds, J_ho_control = folds("control-refined", (), refine_settings, control_folds)
+        by_name = {e.name: e for e in effects}
+        refined = []
+        for name in leaders:
+            eff = by_name[name]
+            t_c = time.perf_counter()
+            ref, J_ho = folds(
+                f"candidate-{name}-refined", (eff,), refine_settings, cand_folds[name]
             )
-        )
+            c = score(eff, ref, J_ho, control_folds, J_ho_control)
+            c.refined = True
+            c.seconds = time.perf_counter() - t_c
+            refined.append(c)
+        others = [c for c in scores if c.effect not in leaders]
+        scores = refined + others
     for c in scores:
-        c.accepted = c.improvement >= s.min_improvement and c.delta_bic <= s.max_delta_bic
-    scores = rank(scores, s.tie_margin)
+        c.accepted = (
+            c.refined == (s.refine_top > 0 and s.refine_iterations > 0)
+            and c.improvement >= s.min_improvement
+            and c.delta_bic <= s.max_delta_bic
+        )
+    top = rank([c for c in scores if c.effect in leaders], s.tie_margin)
+    scores = top + sorted([c for c in scores if c.effect not in leaders], key=lambda c: c.delta_bic)
     verdict = scores[0].effect if scores and scores[0].accepted else "none"
     log(
         "ranking: "
@@ -490,7 +535,7 @@ def diagnose(
         fit_windows=len(fit_w),
         heldout_windows=len(held_w),
         base=base,
-        control=control,
+        control=control_folds[0],
         candidates=scores,
         verdict=verdict,
         before=before,

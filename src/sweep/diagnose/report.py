@@ -256,7 +256,8 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
     for c in d.candidates:
         vals = ", ".join(f"{k} = {v:.4g}" for k, v in c.params.items())
         md.append(
-            f"| {c.effect} | {c.delta_bic:.1f} | {100 * c.improvement:+.1f} % | "
+            f"| {c.effect}{' *' if c.refined else ''} | {c.delta_bic:.1f} | "
+            f"{100 * c.improvement:+.1f} % | "
             f"{'yes' if c.accepted else 'no'} | {vals} |"
         )
     md += [
@@ -283,6 +284,8 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
         f"{d.base.f:.2f}. Control and candidates: fitted on each half from the base (effect grid "
         f"{d.settings.effect_only_budget} evaluations, then up to {d.settings.polish_iterations} "
         "Levenberg-Marquardt iterations on base and effect jointly) and judged on the other half; "
+        f"the {d.settings.refine_top} leading candidates (marked *) and the control continued "
+        f"with up to {d.settings.refine_iterations} more iterations; "
         "dBIC from both fits. Re-identification on all training windows (up to "
         f"{d.settings.final_polish_iterations} iterations); objective {d.settings.objective}, "
         f"seed {d.settings.seed}; {d.seconds:.0f} s in all. Ranking: lowest dBIC; accepted if "

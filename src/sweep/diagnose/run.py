@@ -18,6 +18,9 @@ Procedure (:func:`diagnose`), all on the training recordings unless said otherwi
    alone by the same procedure measures what refitting does without new physics. The procedure
    is deterministic, so control and candidates start from the same point and differ only by
    what the effect can explain.
+   The three leading candidates (by dBIC) and the control are then refined: their fold fits are
+   continued with up to ``refine_iterations`` more iterations (a joint fit that must undo what
+   the base had absorbed of the effect can still be descending), and scored again.
    Scores: the information criterion over both folds' fits,
    ``dBIC = N_eff ln(J_fit(effect) / J_fit(control)) + k ln(N_eff)``, with
    ``N_eff = channels x T / TAU`` (trajectory residuals decorrelate over about ``TAU`` = 10 s),

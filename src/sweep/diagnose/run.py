@@ -34,9 +34,9 @@ Procedure (:func:`diagnose`), all on the training recordings unless said otherwi
    directions that half does not constrain, so it is a veto against an effect that makes unseen
    windows clearly worse and a tie-breaker, not the ranking.
 6. Re-identification on all training windows (``final_budget`` CMA-ES evaluations, then the
-   refinement) of the base model plus the chosen effect (from the base fit and the candidate's
-   effect values), and of the base model alone by the same procedure ("before"); J1, J2, J3 of
-   both on every test recording.
+   refinement) of the base model plus the chosen effect (from the candidate's better fold fit),
+   and of the base model alone by the same procedure ("before"); J1, J2, J3 of both on every
+   test recording.
 
 Every stage's result is stored in ``DIR/stages/`` as soon as it is done; running the same command
 again resumes after the last finished stage.
@@ -57,7 +57,7 @@ from typing import Any
 import numpy as np
 
 from mmg import Effect, Parameters, catalog, get_effect
-from sweep.diagnose.fit import Fit, FitSettings, effect_values, fit, with_effects
+from sweep.diagnose.fit import Fit, FitSettings, effect_values, fit
 from sweep.diagnose.locate import (
     equation_residuals,
     locate,
@@ -515,9 +515,9 @@ def diagnose(
             log,
             lambda: fit(
                 windows,
-                with_effects(
-                    base.params, chosen_eff, effect_values(fits[verdict].params, chosen_eff)
-                ),
+                # from the candidate's joint fit (base re-balanced with the effect), not from the
+                # base plus the effect's values: that base had absorbed part of the effect
+                fits[verdict].params,
                 chosen_eff,
                 replace(final_settings, effect_only_share=0.0, effect_only_budget=0),
                 w,

@@ -34,9 +34,9 @@ Procedure (:func:`diagnose`), all on the training recordings unless said otherwi
    directions that half does not constrain, so it is a veto against an effect that makes unseen
    windows clearly worse and a tie-breaker, not the ranking.
 6. Re-identification on all training windows (``final_budget`` CMA-ES evaluations, then the
-   refinement) of the base model plus the chosen effect (from the candidate's better fold fit),
-   and of the base model alone by the same procedure ("before"); J1, J2, J3 of both on every
-   test recording.
+   refinement) of the base model plus the chosen effect (from the candidate's better fold fit
+   and from the base plus the effect's values; the better end wins), and of the base model
+   alone by the same procedure ("before"); J1, J2, J3 of both on every test recording.
 
 Every stage's result is stored in ``DIR/stages/`` as soon as it is done; running the same command
 again resumes after the last finished stage.
@@ -57,7 +57,7 @@ from typing import Any
 import numpy as np
 
 from mmg import Effect, Parameters, catalog, get_effect
-from sweep.diagnose.fit import Fit, FitSettings, effect_values, fit
+from sweep.diagnose.fit import Fit, FitSettings, effect_values, fit, with_effects
 from sweep.diagnose.locate import (
     equation_residuals,
     locate,
@@ -508,22 +508,25 @@ def diagnose(
         after = before
     else:
         chosen_eff = (get_effect(verdict),)
-        after = _staged(
-            store,
-            f"final-{verdict}",
-            chosen_eff,
-            log,
-            lambda: fit(
-                windows,
-                # from the candidate's joint fit (base re-balanced with the effect), not from the
-                # base plus the effect's values: that base had absorbed part of the effect
+        after_settings = replace(final_settings, effect_only_share=0.0, effect_only_budget=0)
+
+        def final_after() -> Fit:
+            # two starts, the better end wins: the candidate's joint fold fit (base re-balanced
+            # with the effect, but on half the windows) and the base fitted on all windows plus
+            # the effect's values (which had absorbed part of the effect)
+            starts = (
                 fits[verdict].params,
-                chosen_eff,
-                replace(final_settings, effect_only_share=0.0, effect_only_budget=0),
-                w,
-                _progress(log, f"final {verdict}"),
-            ),
-        )
+                with_effects(
+                    base.params, chosen_eff, effect_values(fits[verdict].params, chosen_eff)
+                ),
+            )
+            ends = [
+                fit(windows, p0, chosen_eff, after_settings, w, _progress(log, f"final {verdict}"))
+                for p0 in starts
+            ]
+            return min(ends, key=lambda e: e.f)
+
+        after = _staged(store, f"final-{verdict}", chosen_eff, log, final_after)
     labels = list(test_labels) if test_labels is not None else [r.name for r in test]
     test_before = test_table(before.params, test, labels) if test else {}
     test_after = test_table(after.params, test, labels) if test else {}

@@ -83,6 +83,8 @@ MAX_DELTA_BIC = -100.0
 #: both act as a yaw moment growing with n_p^2 and reach nearly the same fit)
 TIE_MARGIN = 0.05
 TIE_ABSOLUTE = 10.0
+#: version of the fitting procedure; raise it when a change alters what a stage computes
+PROCEDURE_VERSION = 2
 #: shortest window kept [s] (the last window of a run may be short)
 MIN_WINDOW = 20.0
 
@@ -118,6 +120,7 @@ class DiagnoseSettings:
         # thresholds decide the verdict only: stages fitted under other thresholds are reused
         skip = ("workers", "min_improvement", "max_delta_bic", "tie_margin")
         data = {k: v for k, v in asdict(self).items() if k not in skip}
+        data["procedure"] = PROCEDURE_VERSION  # stages of an older procedure are not reused
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]
 
 

@@ -42,6 +42,22 @@ def hydrodynamic_forces(
 
 
 @subfunction
+def rudder_inflow_at(
+    u: float, v_m: float, r: float, n_p: float, th: Theta, sh: Ship
+) -> tuple[float, float]:
+    """Rudder inflow u_R, v_R [m/s] at a state: the wake factor, advance ratio and K_T of the
+    propeller model (section 2.2) feeding Eqs. (21)-(25), as in :func:`hydrodynamic_forces`.
+
+    For sub-models that change the rudder force (:mod:`mmg.catalog`): u, v_m [m/s], r [rad/s],
+    n_p [rev/s].
+    """
+    one_minus_w = wake_factor(u, v_m, r, th, sh)
+    J_s = advance_ratio(u, n_p, sh)
+    K_T = propeller_forces(u, n_p, J_s, one_minus_w, th, sh)[3]
+    return rudder_inflow(u, v_m, r, n_p, one_minus_w, K_T, th, sh)
+
+
+@subfunction
 def aerodynamic_forces(
     u: float,
     v_m: float,

@@ -59,6 +59,12 @@ def rudder_inflow(
 
 
 @subfunction
+def lift_gradient(sh: Ship) -> float:
+    """f_alpha [-], the rudder's normal-force gradient coefficient (Eq. (18), Fujii's formula)."""
+    return 6.13 * sh.lambda_R / (2.25 + sh.lambda_R)  # Eq. (18)
+
+
+@subfunction
 def rudder_forces(
     u_R: float, v_R: float, sin_delta: float, cos_delta: float, th: Theta, sh: Ship
 ) -> tuple[float, float, float]:
@@ -70,7 +76,7 @@ def rudder_forces(
     without the angle: U_R^2 sin(alpha_R) = U_R (u_R sin(delta) - v_R cos(delta)).
     """
     L = sh.L_pp
-    f_alpha = 6.13 * sh.lambda_R / (2.25 + sh.lambda_R)  # Eq. (18), Fujii's formula
+    f_alpha = lift_gradient(sh)  # Eq. (18), Fujii's formula
     U_R = math.sqrt(u_R * u_R + v_R * v_R)  # Eq. (19)
     sin_d = sin_delta
     cos_d = cos_delta

@@ -18,9 +18,9 @@ from typing import NamedTuple
 
 from mmg._jit import subfunction
 from mmg.effects import Effect, EffectParam, register
+from mmg.model import rudder_inflow_at
 from mmg.params import Ship, Theta
-from mmg.propeller import advance_ratio, propeller_forces, wake_factor
-from mmg.rudder import rudder_inflow
+from mmg.rudder import lift_gradient
 from mmg.trig import sincos
 
 
@@ -47,12 +47,9 @@ def a_h_drift_force(
     if U2 <= 0.0:
         return 0.0, 0.0, 0.0
     sin2_beta = v_m * v_m / U2  # sin^2(beta), beta = atan2(-v_m, u)
-    one_minus_w = wake_factor(u, v_m, r, th, sh)  # as in mmg.model.hydrodynamic_forces
-    J_s = advance_ratio(u, n_p, sh)
-    K_T = propeller_forces(u, n_p, J_s, one_minus_w, th, sh)[3]
-    u_R, v_R = rudder_inflow(u, v_m, r, n_p, one_minus_w, K_T, th, sh)
+    u_R, v_R = rudder_inflow_at(u, v_m, r, n_p, th, sh)  # as in hydrodynamic_forces
     sin_d, cos_d = sincos(delta)
-    f_alpha = 6.13 * sh.lambda_R / (2.25 + sh.lambda_R)  # Eq. (18)
+    f_alpha = lift_gradient(sh)  # Eq. (18)
     U_R = math.sqrt(u_R * u_R + v_R * v_R)  # Eq. (19)
     F_N = 0.5 * sh.rho * sh.A_R * f_alpha * U_R * (u_R * sin_d - v_R * cos_d)  # Eqs. (17), (20)
     dA = e.k_aH * sin2_beta

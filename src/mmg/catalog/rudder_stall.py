@@ -21,9 +21,9 @@ from typing import NamedTuple
 
 from mmg._jit import subfunction
 from mmg.effects import Effect, EffectParam, register
+from mmg.model import rudder_inflow_at
 from mmg.params import Ship, Theta
-from mmg.propeller import advance_ratio, propeller_forces, wake_factor
-from mmg.rudder import rudder_inflow
+from mmg.rudder import lift_gradient
 from mmg.trig import atan2, sincos
 
 
@@ -47,10 +47,7 @@ def rudder_stall_force(
     sh: Ship,
 ) -> tuple[float, float, float]:
     """Change (dX_R [N], dY_R [N], dN_R [N m]) of the rudder forces from stall."""
-    one_minus_w = wake_factor(u, v_m, r, th, sh)  # as in mmg.model.hydrodynamic_forces
-    J_s = advance_ratio(u, n_p, sh)
-    K_T = propeller_forces(u, n_p, J_s, one_minus_w, th, sh)[3]
-    u_R, v_R = rudder_inflow(u, v_m, r, n_p, one_minus_w, K_T, th, sh)
+    u_R, v_R = rudder_inflow_at(u, v_m, r, n_p, th, sh)  # as in hydrodynamic_forces
     if u_R <= 0.0:
         return 0.0, 0.0, 0.0
     alpha_R = delta - atan2(v_R, u_R)  # Eq. (20)
@@ -61,7 +58,7 @@ def rudder_stall_force(
     s_s = sincos(e.alpha_s)[0]
     sign = 1.0 if alpha_R > 0.0 else -1.0
     d_sin = -sign * e.k_s * (s_a - s_s)  # sin_eff - sin(alpha_R)
-    f_alpha = 6.13 * sh.lambda_R / (2.25 + sh.lambda_R)  # Eq. (18)
+    f_alpha = lift_gradient(sh)  # Eq. (18)
     dF_N = 0.5 * sh.rho * sh.A_R * f_alpha * u_R * u_R * d_sin  # Eq. (17), changed part
     sin_d, cos_d = sincos(delta)
     L = sh.L_pp

@@ -31,9 +31,10 @@ import numpy as np
 
 from mmg import Effect, EffectParam, Parameters, bounds, efd_parameters, get_effect, simulate_batch
 from mmg._jit import subfunction
+from mmg.model import rudder_inflow_at
 from mmg.params import N_THETA, Ship, Theta
-from mmg.propeller import advance_ratio, propeller_forces, wake_factor
-from mmg.rudder import rudder_inflow
+from mmg.propeller import wake_factor
+from mmg.rudder import lift_gradient
 from mmg.trig import atan2, sincos
 from sweep.recordings import Recording
 
@@ -59,17 +60,14 @@ def stall_tanh_force(
     sh: Ship,
 ) -> tuple[float, float, float]:
     """Rudder forces change for sin(alpha) -> sin(alpha_s) tanh(sin(alpha) / sin(alpha_s))."""
-    one_minus_w = wake_factor(u, v_m, r, th, sh)
-    J_s = advance_ratio(u, n_p, sh)
-    K_T = propeller_forces(u, n_p, J_s, one_minus_w, th, sh)[3]
-    u_R, v_R = rudder_inflow(u, v_m, r, n_p, one_minus_w, K_T, th, sh)
+    u_R, v_R = rudder_inflow_at(u, v_m, r, n_p, th, sh)  # as in hydrodynamic_forces
     if u_R <= 0.0:
         return 0.0, 0.0, 0.0
     alpha_R = delta - atan2(v_R, u_R)
     s_a = sincos(alpha_R)[0]
     s_s = sincos(e.alpha_s)[0]
     d_sin = s_s * math.tanh(s_a / s_s) - s_a
-    f_alpha = 6.13 * sh.lambda_R / (2.25 + sh.lambda_R)
+    f_alpha = lift_gradient(sh)  # Eq. (18)
     dF_N = 0.5 * sh.rho * sh.A_R * f_alpha * u_R * u_R * d_sin  # continuous at u_R = 0
     sin_d, cos_d = sincos(delta)
     L = sh.L_pp
@@ -104,12 +102,9 @@ def a_h_piecewise_force(
     beta = abs(atan2(-v_m, u))
     beta = min(beta, math.pi - beta)  # astern: the drift from the stern
     dA = th.a_H * (max(-1.0, 1.0 - beta / e.beta_0) - 1.0)
-    one_minus_w = wake_factor(u, v_m, r, th, sh)
-    J_s = advance_ratio(u, n_p, sh)
-    K_T = propeller_forces(u, n_p, J_s, one_minus_w, th, sh)[3]
-    u_R, v_R = rudder_inflow(u, v_m, r, n_p, one_minus_w, K_T, th, sh)
+    u_R, v_R = rudder_inflow_at(u, v_m, r, n_p, th, sh)  # as in hydrodynamic_forces
     sin_d, cos_d = sincos(delta)
-    f_alpha = 6.13 * sh.lambda_R / (2.25 + sh.lambda_R)
+    f_alpha = lift_gradient(sh)  # Eq. (18)
     U_R = math.sqrt(u_R * u_R + v_R * v_R)
     F_N = 0.5 * sh.rho * sh.A_R * f_alpha * U_R * (u_R * sin_d - v_R * cos_d)
     return 0.0, -dA * F_N * cos_d, -dA * th.x_H * sh.L_pp * F_N * cos_d

@@ -157,6 +157,57 @@ def test_actuator_lag_is_a_first_order_lag_of_the_logged_rudder():
     assert np.abs(simulate(x, log, w, p0) - by_hand).max() > 1e-3
 
 
+def _dead_time_case(tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A zigzag-like logged rudder and propeller, and the same controls a dead time tau earlier
+    (linear interpolation between the 0.1-s samples, the first sample held before the start)."""
+    K = 300
+    t = 0.1 * np.arange(K)
+    log = np.zeros((1, K, 2))
+    log[0, :, 0] = 0.35 * np.sign(np.sin(2 * np.pi * t / 12.0))
+    log[0, :, 1] = 8.0 + 2.0 * np.sin(2 * np.pi * t / 7.0)
+    acting = log.copy()
+    for c in range(2):
+        acting[0, :, c] = np.interp(t - tau, t, log[0, :, c])  # holds log[0] before t = 0
+    x = np.array([[0.0, 0.4, 0.0, 0.0, 0.0, 0.0]])
+    w = np.tile([1.5, 0.7], (1, K, 1))
+    return x, log, acting, w
+
+
+@pytest.mark.parametrize("tau", [1.0, 0.35])
+def test_actuator_dead_time_shifts_the_logged_controls(tau: float) -> None:
+    eff = get_effect("actuator_lag")
+    vals = (("T_delta", 0.0), ("T_n", 0.0), ("tau_delta", tau), ("tau_n", tau))
+    p0 = efd_parameters()
+    p1 = Parameters(p0.theta, p0.ship, effects=(("actuator_lag", vals),))
+    x, log, acting, w = _dead_time_case(tau)
+    with_effect = simulate(x, log, w, p1, effects=(eff,))
+    by_hand = simulate(x, acting, w, p0)
+    np.testing.assert_allclose(with_effect, by_hand, rtol=1e-12, atol=1e-12)
+    assert np.abs(simulate(x, log, w, p0) - by_hand).max() > 1e-2
+
+
+def test_dead_time_acts_in_the_objective_kernel_too():
+    """The objective's own kernel (moments of the observables) delays the controls the same way."""
+    from sweep.objective import Objective
+    from sweep.recordings import Recording
+
+    eff = get_effect("actuator_lag")
+    p0 = efd_parameters()
+    tau = 1.0
+    x, log, acting, w = _dead_time_case(tau)
+    truth = simulate(x, acting, w, p0)[0]
+    t = 0.1 * np.arange(truth.shape[0])
+    u_rec = np.vstack([log[0], log[0, -1:]])
+    w_rec = np.vstack([w[0], w[0, -1:]])
+    rec = Recording(name="dead_time", path=None, t=t, x=truth, u=u_rec, w=w_rec)
+    obj = Objective([rec], "J2", effects=(eff,))
+    theta = np.concatenate([p0.vector(), [0.0, 0.0, 0.0, 0.0]])
+    right = theta.copy()
+    right[-2:] = tau
+    f = obj.evaluate(np.stack([theta, right]))
+    assert f[1] < 1e-12 < 1e-4 < f[0]
+
+
 def test_rudder_offset_shifts_the_logged_rudder():
     eff = get_effect("rudder_offset")
     p0 = efd_parameters()

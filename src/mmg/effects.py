@@ -1,6 +1,6 @@
 """Extra physics that plugs into the MMG model without editing its sub-models.
 
-An :class:`Effect` adds named parameters and one or both of two hooks, each a scalar function
+An :class:`Effect` adds named parameters and one or more hooks, each a scalar function
 compiled with :func:`mmg._jit.subfunction` and defined at module level (the kernel generator imports
 it by name):
 
@@ -16,6 +16,10 @@ it by name):
   lag, offsets of the log). The kernel applies it once per time step (zero-order hold); at the
   first step of a simulation delta_prev, n_prev are the logged values. With several input effects
   the hooks are chained in order, and ``*_prev`` is the output of the whole chain;
+- ``delay(e) -> (tau_delta, tau_n)`` [s]: dead times between the log and the acting controls:
+  the controls that act at time t are the logged ones at t - tau (linearly interpolated between
+  samples; within tau of the start of a simulation, the first logged value). Dead times of
+  several effects add up; ``inputs`` hooks then act on the delayed values;
 - ``observe(e) -> (b_psi, b_v)`` [rad]: how the measurement differs from the true state: the
   logged heading is psi + b_psi, and the logged body velocities are the true ones rotated by
   -b_v (u_log = u cos b_v + v_m sin b_v, v_log = -u sin b_v + v_m cos b_v: a velocity over
@@ -57,19 +61,24 @@ class Effect:
     current: Callable[..., Any] | None = None
     inputs: Callable[..., Any] | None = None
     observe: Callable[..., Any] | None = None
+    delay: Callable[..., Any] | None = None
 
     def __post_init__(self) -> None:
         fields = getattr(self.param_type, "_fields", None)
         if fields != tuple(p.name for p in self.params):
             raise ValueError(f"effect {self.name}: param_type fields differ from params")
         if not self.hooks:
-            raise ValueError(f"effect {self.name}: needs a force, current, inputs or observe hook")
+            raise ValueError(
+                f"effect {self.name}: needs a force, current, inputs, observe or delay hook"
+            )
 
     @property
     def hooks(self) -> tuple[Callable[..., Any], ...]:
         """The hook functions the effect defines."""
         return tuple(
-            f for f in (self.force, self.current, self.inputs, self.observe) if f is not None
+            f
+            for f in (self.force, self.current, self.inputs, self.observe, self.delay)
+            if f is not None
         )
 
     @property

@@ -130,14 +130,43 @@ def rk4_step(X, Ks, Tr, delta, n_p, U_T, gamma_T, P, sh, k, dt, t_f, lim_lin, li
 
 
 @numba.njit(inline="always", **JIT_OPTIONS)
-def gather_inputs(cur, u_seq, w_seq, rows, last, k, W):
+def input_delays(Pc, i):
+    """(tau_delta, tau_n) [s] of lane i (``delay`` hooks): the acting controls are the logged
+    ones that much earlier."""
+{delay_body}
+
+
+@numba.njit(inline="always", **JIT_OPTIONS)
+def delayed(u_seq, b, kk, c, steps):
+    """Control c of row b a (fractional) number of steps before step kk, linearly interpolated
+    between samples; before the first sample the first one is held."""
+    p = kk - steps
+    if p <= 0.0:
+        return u_seq[b, 0, c]
+    j = int(p)
+    f = p - j
+    if f <= 0.0:
+        return u_seq[b, j, c]
+    return (1.0 - f) * u_seq[b, j, c] + f * u_seq[b, j + 1, c]
+
+
+@numba.njit(inline="always", **JIT_OPTIONS)
+def gather_inputs(cur, u_seq, w_seq, rows, last, k, W, Pc, dt):
     """Inputs of step k for W lanes into cur (4, W): delta, n_p, U_T, gamma_T of rows[i], held
-    (zero-order hold); past its own end (last[i]) a lane repeats its last input."""
+    (zero-order hold); past its own end (last[i]) a lane repeats its last input. Controls are
+    taken a dead time earlier where an effect has one (:func:`input_delays`)."""
     for i in range(W):
         b = rows[i]
         kk = min(k, last[i])
-        cur[0, i] = u_seq[b, kk, 0]
-        cur[1, i] = u_seq[b, kk, 1]
+        tau_d, tau_n = input_delays(Pc, i)
+        if tau_d > 0.0:
+            cur[0, i] = delayed(u_seq, b, kk, 0, tau_d / dt)
+        else:
+            cur[0, i] = u_seq[b, kk, 0]
+        if tau_n > 0.0:
+            cur[1, i] = delayed(u_seq, b, kk, 1, tau_n / dt)
+        else:
+            cur[1, i] = u_seq[b, kk, 1]
         cur[2, i] = w_seq[b, kk, 0]
         cur[3, i] = w_seq[b, kk, 1]
 
@@ -219,7 +248,7 @@ def simulate_lanes(
                     out[b, 0, j] = x0[b, j]
                 start_state(X, x0, b, Pc, ob, i)
             for k in range(kmax):
-                gather_inputs(cur, u_seq, w_seq, ids, last, k, w)
+                gather_inputs(cur, u_seq, w_seq, ids, last, k, w, Pc, dt)
                 transform_inputs(cur, prev, Pc, k, w, dt)
                 rk4_step(
                     X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
@@ -325,7 +354,7 @@ def moments_lanes(
                         acc[q, 4, i] += wt * z * seg_ref[s, kk, q]
                 if k == kmax:
                     break
-                gather_inputs(cur, seg_u, seg_w, seg, last, k, w)
+                gather_inputs(cur, seg_u, seg_w, seg, last, k, w, Pc, dt)
                 transform_inputs(cur, prev, Pc, k, w, dt)
                 rk4_step(
                     X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
@@ -414,6 +443,7 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
     force_lines: list[str] = []
     input_lines: list[str] = []
     observe_lines: list[str] = []
+    delay_lines: list[str] = []
     offset = N_THETA
     for q, eff in enumerate(effects):
         ptype = eff.param_type
@@ -428,6 +458,13 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
             input_lines.append(
                 f"        d, n = {fn.__name__}(d, n, prev[0, i], prev[1, i], dt, "
                 f"{ptype.__name__}({pc_args}))  # {eff.name}\n"
+            )
+        if eff.delay is not None:
+            fn = eff.delay
+            imports.append(f"from {fn.__module__} import {fn.__name__}")
+            delay_lines.append(
+                f"    d_d, d_n = {fn.__name__}({ptype.__name__}({pc_args}))  # {eff.name}\n"
+                "    tau_d += d_d\n    tau_n += d_n\n"
             )
         if eff.observe is not None:
             fn = eff.observe
@@ -477,8 +514,12 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
     observe_body = (
         "    b_psi = 0.0\n    b_v = 0.0\n" + "".join(observe_lines) + "    return b_psi, b_v"
     )
+    delay_body = (
+        "    tau_d = 0.0\n    tau_n = 0.0\n" + "".join(delay_lines) + "    return tau_d, tau_n"
+    )
     return _TEMPLATE.format(
         key="{key}",
+        delay_body=delay_body,
         imports="\n".join(sorted(set(imports))),
         n_params=offset,
         rhs_body=body,

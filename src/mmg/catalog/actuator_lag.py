@@ -1,12 +1,16 @@
 """``actuator_lag``: the acting rudder angle and propeller speed lag the logged ones.
 
 The logged delta and n_p are commands or readings upstream of the steering gear and the motor;
-the acting values follow with first-order lags of time constants T_delta and T_n:
+the acting values follow them after a dead time tau and with a first-order lag of time
+constant T ("first order plus dead time", the usual model of an actuator loop):
 
-    d delta / dt = (delta_log - delta) / T_delta,   d n_p / dt = (n_log - n_p) / T_n
+    d delta / dt = (delta_log(t - tau_delta) - delta) / T_delta,
+    d n_p / dt = (n_log(t - tau_n) - n_p) / T_n
 
-integrated exactly over each 0.1-s step with the logged value held. T = 0 is no lag (the paper).
-Regime: fast control changes (zigzag rudder reversals, propeller reversals in berthing).
+the lag integrated exactly over each 0.1-s step with the (delayed) logged value held, the dead
+time interpolated between logged samples. T = tau = 0 is no lag (the paper). A dead time alone
+(a logging clock offset, a steering gear that starts late) is T = 0, tau > 0.
+Regime: fast changes of the controls (zigzag rudder reversals, propeller reversals in berthing).
 """
 
 from __future__ import annotations
@@ -21,6 +25,8 @@ from mmg.effects import Effect, EffectParam, register
 class ActuatorLagParams(NamedTuple):
     T_delta: float  # rudder time constant [s]
     T_n: float  # propeller time constant [s]
+    tau_delta: float  # rudder dead time [s]
+    tau_n: float  # propeller dead time [s]
 
 
 @subfunction
@@ -38,22 +44,34 @@ def actuator_lag_inputs(
     dt: float,
     e: ActuatorLagParams,
 ) -> tuple[float, float]:
-    """Acting (delta [rad], n_p [rev/s]) of this step."""
+    """Acting (delta [rad], n_p [rev/s]) of this step from the (delayed) logged ones."""
     delta = delta_prev + lag_gain(e.T_delta, dt) * (delta_log - delta_prev)
     n_p = n_prev + lag_gain(e.T_n, dt) * (n_log - n_prev)
     return delta, n_p
 
 
+@subfunction
+def actuator_dead_times(e: ActuatorLagParams) -> tuple[float, float]:
+    """(tau_delta, tau_n) [s]."""
+    return e.tau_delta, e.tau_n
+
+
 ACTUATOR_LAG = register(
     Effect(
         name="actuator_lag",
-        description="the acting rudder angle and propeller speed lag the logged values",
+        description=(
+            "the acting rudder angle and propeller speed lag the logged values "
+            "(first-order lag and dead time)"
+        ),
         regime="fast changes of the controls (rudder reversals, propeller reversals)",
         params=(
             EffectParam("T_delta", "s", 0.0, 0.0, 5.0, "rudder time constant"),
             EffectParam("T_n", "s", 0.0, 0.0, 5.0, "propeller time constant"),
+            EffectParam("tau_delta", "s", 0.0, 0.0, 3.0, "rudder dead time"),
+            EffectParam("tau_n", "s", 0.0, 0.0, 3.0, "propeller dead time"),
         ),
         param_type=ActuatorLagParams,
         inputs=actuator_lag_inputs,
+        delay=actuator_dead_times,
     )
 )

@@ -16,7 +16,8 @@ The Jacobian is a forward difference in the normalised box ([0, 1] per coordinat
 simulations in one batch; each iteration tries several damping factors lambda in one more batch
 (Marquardt scaling by diag(J^T J)) and keeps the best, so a step is never worse than the current
 point; when none is better, the same Jacobian is tried with 1000 x stronger damping (until the
-damping exceeds :data:`MAX_LAMBDA`: a local minimum). Steps are clipped to the box.
+damping exceeds :data:`MAX_LAMBDA`: a local minimum). Coordinates on a bound that the gradient
+pushes outward are held there (:func:`damped_step`); the other steps are clipped to the box.
 Subsequences that diverge at the current point keep their penalty and are left out of the
 Jacobian; a trial that makes another one diverge pays its penalty.
 """
@@ -130,14 +131,38 @@ def totals(obj: Objective, r: FloatArray, bad: np.ndarray) -> FloatArray:
     return np.asarray((r * r).sum(axis=2).sum(axis=1) + (bad * penalty[None]).sum(axis=1))
 
 
+def damped_step(
+    A: FloatArray, g: FloatArray, d: FloatArray, z: FloatArray, lam: float
+) -> FloatArray:
+    """The point z + step of one Levenberg-Marquardt trial in the unit box.
+
+    ``step`` solves (A + lam diag(d)) step = -g over the *free* coordinates; a coordinate on a
+    bound whose gradient pushes it further out is held there (active set). Solving for it too
+    and clipping afterwards would bend the step of every coordinate coupled to it: with the
+    fitted base at a bound of the search domain, such clipped steps crept along at a few 1e-4 of
+    J per iteration where the active-set steps converged in tens of iterations.
+    """
+    n = z.size
+    free = ~(((z <= 0.0) & (g > 0.0)) | ((z >= 1.0) & (g < 0.0)))
+    step = np.zeros(n)
+    Af = A[np.ix_(free, free)] + lam * np.diag(d[free]) + 1e-12 * np.eye(int(free.sum()))
+    step[free] = np.linalg.solve(Af, -g[free])
+    return np.asarray(np.clip(z + step, 0.0, 1.0))
+
+
 def polish(
     obj: Objective,
     box: Box,
     theta0: FloatArray,
     settings: PolishSettings | None = None,
     progress: Callable[[dict[str, float]], None] | None = None,
+    prior_center: FloatArray | None = None,
 ) -> Polished:
-    """Levenberg-Marquardt from ``theta0`` (parameter units, shape (n,)) within ``box``."""
+    """Levenberg-Marquardt from ``theta0`` (parameter units, shape (n,)) within ``box``.
+
+    The prior of ``settings`` (if any) pulls toward ``prior_center`` (parameter units, shape (n,);
+    default ``theta0``).
+    """
     s = settings or PolishSettings()
     t0 = time.perf_counter()
     width = box.upper - box.lower
@@ -147,7 +172,11 @@ def polish(
         return np.asarray(box.lower + z * width)
 
     z = np.clip((np.asarray(theta0, dtype=np.float64) - box.lower) / width, 0.0, 1.0)
-    z_prior = z.copy()
+    z_prior = (
+        z.copy()
+        if prior_center is None
+        else np.clip((np.asarray(prior_center, dtype=np.float64) - box.lower) / width, 0.0, 1.0)
+    )
     pm = np.zeros(n)
     pm[: s.prior_dims] = s.prior_weight
 
@@ -181,14 +210,10 @@ def polish(
             d = np.diag(A).copy()
             d[d <= 0] = 1.0
             fresh = True
-        trials = []
         lams = [lam * t for t in LAMBDA_TRIALS]
-        for lt in lams:
-            step = np.linalg.solve(A + lt * np.diag(d) + 1e-12 * np.eye(n), -g)
-            trials.append(np.clip(z + step, 0.0, 1.0))
-        zt = np.array(trials)
+        zt = np.array([damped_step(A, g, d, z, lt) for lt in lams])
         rt, badt = residual_vectors(obj, to_theta(zt))
-        evaluations += len(trials)
+        evaluations += len(zt)
         ft = totals(obj, rt, badt)
         gt = ft + prior(zt)
         g_cur = f + float(prior(z))
@@ -219,4 +244,4 @@ def polish(
     )
 
 
-__all__ = ["PolishSettings", "Polished", "polish", "residual_vectors", "totals"]
+__all__ = ["PolishSettings", "Polished", "damped_step", "polish", "residual_vectors", "totals"]

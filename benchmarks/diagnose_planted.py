@@ -82,7 +82,7 @@ RECOVERED = {
     "rudder_offset": ("delta_0",),
     "heading_bias": ("b_psi",),
     "heading_only": ("b_psi",),
-    "delay": ("T_delta",),  # a dead time tau is matched by a lag T ~ tau
+    "delay": ("tau_delta", "tau_n"),  # the dead time of both controls
 }
 
 
@@ -129,11 +129,7 @@ def run_case(
     d = diagnose(efd_parameters(), blind_train, blind_test, case_dir / "diagnosis", settings)
     seconds = time.perf_counter() - t0
     truth = true_model(ship, spec)
-    J_true = (
-        float(Objective(blind_test, "J2", effects=truth[1]).evaluate(truth[0])[0])
-        if truth is not None
-        else math.nan
-    )
+    J_true = float(Objective(blind_test, "J2", effects=truth[1]).evaluate(truth[0])[0])
     errors: dict[str, float] = {}
     if d.verdict == spec.family and spec.form in RECOVERED:
         chosen = d.chosen

@@ -115,6 +115,8 @@ def test_user_mistakes_are_one_line_errors(runs, tmp_path, capsys):
     _case(runs, PlantedSpec("none"), case)
     assert _diagnose(case, tmp_path / "o1", "--candidates", "warp_drive") == 2
     assert "unknown effect" in capsys.readouterr().err
+    assert _diagnose(case, tmp_path / "o1", "--prior-weight", "-1") == 2
+    assert "--prior-weight must be >= 0" in capsys.readouterr().err
     one = tmp_path / "one"
     one.mkdir()
     first = sorted((case / "train").iterdir())[0]

@@ -3,11 +3,13 @@
     python -m sweep.diagnose --params {efd|PATH.json} --train PATH [PATH ...] --test PATH [PATH ...]
                              --out DIR [--budget N] [--candidate-budget N] [--final-budget N]
                              [--seed S] [--objective J2] [--candidates a,b,...]
+                             [--prior-weight MU]
                              [--tracking-uri URI | --no-tracking] [--experiment NAME]
 
 PATHs are CSV/Parquet recordings or directories of them, or one split name: ``--train R`` (or
 TR, TZR) and ``--test paper`` read the paper's split below ``--data-dir`` / ``MMG_DATA_DIR``.
-``--params`` is the starting point of the base identification (``--budget`` evaluations).
+``--params`` is the starting point of the base identification (``--budget`` evaluations) and
+the centre of the weak prior of every refinement (``--prior-weight``, 0 to switch it off).
 Writes ``DIR/report.json``, ``DIR/report.md`` with its plots, ``DIR/params_before.json`` and
 ``DIR/params_after.json`` (loadable by ``python -m sweep.evaluate --params``), and one MLflow run
 (default store: ./mlflow.db, experiment ``mmg-diagnose``). Stages are kept in ``DIR/stages``:
@@ -89,6 +91,12 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--objective", default=d.objective, choices=["J1", "J2", "J3"])
     ap.add_argument("--candidates", default="", help="comma-separated effect names (default all)")
     ap.add_argument("--min-improvement", type=float, default=d.min_improvement)
+    ap.add_argument(
+        "--prior-weight",
+        type=float,
+        default=d.prior_weight,
+        help="weight of the prior toward --params (J per squared normalised coordinate)",
+    )
     ap.add_argument("--max-delta-bic", type=float, default=d.max_delta_bic)
     ap.add_argument("--tracking-uri", default=None, help="MLflow store (default ./mlflow.db)")
     ap.add_argument("--experiment", default="mmg-diagnose")
@@ -112,6 +120,8 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
             raise UserError(
                 f"{flag} must be 0 (refinement only) or at least 20 evaluations (one generation)"
             )
+    if not args.prior_weight >= 0.0:
+        raise UserError(f"--prior-weight must be >= 0; got {args.prior_weight}")
     start = load_parameters(args.params)
     train, _ = _recordings(args.train, "--train", "train", args.data_dir)
     test: list[Recording] = []
@@ -127,6 +137,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
         candidates=names,
         min_improvement=args.min_improvement,
         max_delta_bic=args.max_delta_bic,
+        prior_weight=args.prior_weight,
     )
     out = Path(args.out)
     try:

@@ -114,10 +114,16 @@ def fit(
     workers: int | None = 0,
     progress: Any = None,
     objective: Objective | None = None,
+    prior_center: Parameters | None = None,
 ) -> Fit:
     """Minimise the objective over base + effect parameters, starting from ``start``.
 
     ``objective`` may be given to reuse a prepared :class:`Objective` (it must carry ``effects``).
+    With a prior in ``settings.polish`` (``prior_weight`` > 0 on the first ``prior_dims``
+    coordinates), the Levenberg-Marquardt refinement minimises J + prior, the prior pulling the
+    base parameters toward ``prior_center`` (default: ``start``); its end is then kept even when
+    its J alone is a little above that of its start (it traded J for plausibility). ``Fit.f`` is
+    always J alone.
     """
     effects = tuple(effects)
     obj = objective or Objective(recordings, settings.objective, effects=effects, ship=start.ship)
@@ -164,10 +170,12 @@ def fit(
             theta, f = result.theta, result.f
     if settings.polish is not None:
         done = spent
-        res = polish(obj, box, theta, settings.polish)
+        center = None if prior_center is None else full_vector(prior_center, effects)
+        res = polish(obj, box, theta, settings.polish, prior_center=center)
         spent += res.evaluations
         history += [{**row, "evaluations": row["evaluations"] + done} for row in res.history]
-        if res.f < f:
+        with_prior = settings.polish.prior_weight > 0 and settings.polish.prior_dims > 0
+        if with_prior or res.f < f:
             theta, f = res.theta, res.f
     return Fit(
         params=from_full_vector(theta, start, effects),

@@ -338,11 +338,16 @@ def write_case(
     (directory / "truth.json").write_text(json.dumps(truth, indent=2) + "\n")
 
 
-def true_model(ship: Parameters, spec: PlantedSpec) -> tuple[Parameters, tuple[Effect, ...]] | None:
-    """The true model in a form the project's simulator can evaluate on the logs (None for a
-    dead time, which acts on the inputs before the log)."""
+def true_model(ship: Parameters, spec: PlantedSpec) -> tuple[Parameters, tuple[Effect, ...]]:
+    """The true model in a form the project's simulator can evaluate on the logs. A planted
+    dead time becomes the catalog's ``actuator_lag`` with that dead time and no lag, which holds
+    the first logged value within tau of a window's start where the generator had the run's
+    earlier samples."""
     if spec.form == "delay":
-        return None
+        eff = get_effect("actuator_lag")
+        tau = spec.values["tau"]
+        vals = {"T_delta": 0.0, "T_n": 0.0, "tau_delta": tau, "tau_n": tau}
+        return Parameters(ship.theta, ship.ship, (("actuator_lag", tuple(vals.items())),)), (eff,)
     effects, template = truth_effects(spec)
     p = ship if template is None else Parameters(ship.theta, ship.ship, template.effects)
     return p, effects

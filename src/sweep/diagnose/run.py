@@ -8,6 +8,11 @@ Procedure (:func:`diagnose`), all on the training recordings unless said otherwi
 2. Base identification: CMA-ES from ``--params`` on all training windows (``base_budget``
    evaluations), then Levenberg-Marquardt refinement (:mod:`sweep.polish`, up to
    ``polish_iterations``): the base model absorbs what it can of any missing effect, as in practice.
+   Every Levenberg-Marquardt refinement of the diagnosis minimises J plus a weak prior
+   ``prior_weight |z - z_start|^2`` on the 57 base parameters (normalised box, ``z_start`` the
+   ``--params`` values): along directions the data leave nearly flat (a_H traded against an
+   effect's coefficient) it keeps the parameters near the captive-model values instead of
+   letting them wander to wherever the descent stopped; ``Fit.f`` and all scores are J alone.
 3. Location: residuals of the base model per run, window and regime
    (:mod:`sweep.diagnose.locate`): where the trajectory residual concentrates (eta^2 of each
    regime variable) and where the equations of motion have a biased residual.
@@ -57,6 +62,7 @@ from typing import Any
 import numpy as np
 
 from mmg import Effect, Parameters, catalog, get_effect
+from mmg.params import N_THETA
 from sweep.diagnose.fit import Fit, FitSettings, effect_values, fit, with_effects
 from sweep.diagnose.locate import (
     equation_residuals,
@@ -83,8 +89,14 @@ MAX_DELTA_BIC = -100.0
 #: both act as a yaw moment growing with n_p^2 and reach nearly the same fit)
 TIE_MARGIN = 0.05
 TIE_ABSOLUTE = 10.0
+#: weight of the prior toward the starting parameters, in units of J per squared normalised
+#: coordinate. A coordinate 0.05 of its interval away from the start costs 0.0025: a few per cent
+#: of one 100-s window's J at the noise level of the recordings (J2 about 0.04 per window), so
+#: the prior decides only along directions the data leave nearly flat (a_H against k_aH of
+#: ``a_h_drift``, see the README); on the real recordings (J2 of thousands) it is negligible
+PRIOR_WEIGHT = 1.0
 #: version of the fitting procedure; raise it when a change alters what a stage computes
-PROCEDURE_VERSION = 2
+PROCEDURE_VERSION = 3
 #: shortest window kept [s] (the last window of a run may be short)
 MIN_WINDOW = 20.0
 
@@ -104,6 +116,10 @@ class DiagnoseSettings:
     refine_top: int = 3  # leading candidates (by dBIC) refined before the verdict
     refine_iterations: int = 70  # further Levenberg-Marquardt iterations of their fold fits
     final_polish_iterations: int = 100  # ... of the base and final identifications
+    #: weight mu of the prior mu |z - z_start|^2 on the 57 base parameters (normalised box) in
+    #: every refinement: among parameter sets that fit about equally well, the one nearest the
+    #: starting (captive-model) values; 0 switches it off
+    prior_weight: float = PRIOR_WEIGHT
     seed: int = 0
     candidates: tuple[str, ...] = ()  # empty: every catalog effect
     min_improvement: float = MIN_IMPROVEMENT
@@ -344,13 +360,22 @@ def diagnose(
         f"{len(fit_w)} to fit, {len(held_w)} held out; {len(test)} test recording(s)"
     )
     store = StageStore(out / "stages", s.fingerprint() + _data_fingerprint(train, start))
+
+    def lm(iterations: int, rtol: float) -> PolishSettings:
+        # every refinement carries the same weak prior toward the starting parameters
+        return PolishSettings(
+            max_iterations=iterations,
+            rtol=rtol,
+            max_evaluations=10**7,
+            prior_weight=s.prior_weight,
+            prior_dims=N_THETA,
+        )
+
     common = FitSettings(
         objective=s.objective,
         sigma0=s.sigma0,
         effect_sigma=s.effect_sigma,
-        polish=PolishSettings(
-            max_iterations=s.final_polish_iterations, rtol=1e-4, max_evaluations=10**7
-        ),
+        polish=lm(s.final_polish_iterations, 1e-4),
     )
     w = s.workers
 
@@ -366,6 +391,7 @@ def diagnose(
             replace(common, budget=s.base_budget, seed=s.seed),
             w,
             _progress(log, "base"),
+            prior_center=start,
         ),
     )
     # where does the base model miss? (all training windows)
@@ -392,14 +418,14 @@ def diagnose(
         seed=s.seed + 1,
         sigma0=s.refit_sigma,
         effect_only_budget=s.effect_only_budget,
-        polish=PolishSettings(max_iterations=s.polish_iterations, max_evaluations=10**7),
+        polish=lm(s.polish_iterations, PolishSettings.rtol),
     )
 
     refine_settings = replace(
         cand_settings,
         budget=0,
         effect_only_budget=0,
-        polish=PolishSettings(max_iterations=s.refine_iterations, rtol=1e-4, max_evaluations=10**7),
+        polish=lm(s.refine_iterations, 1e-4),
     )
 
     def folds(
@@ -419,7 +445,7 @@ def diagnose(
                 effs,
                 log,
                 lambda fh=fit_half, p0=p0: fit(  # type: ignore[misc]
-                    fh, p0, effs, settings, w, _progress(log, name)
+                    fh, p0, effs, settings, w, _progress(log, name), prior_center=start
                 ),
             )
             out_fits.append(res)
@@ -505,7 +531,15 @@ def diagnose(
         "final-base",
         (),
         log,
-        lambda: fit(windows, base.params, (), final_settings, w, _progress(log, "final base")),
+        lambda: fit(
+            windows,
+            base.params,
+            (),
+            final_settings,
+            w,
+            _progress(log, "final base"),
+            prior_center=start,
+        ),
     )
     if verdict == "none":
         after = before
@@ -524,7 +558,15 @@ def diagnose(
                 ),
             )
             ends = [
-                fit(windows, p0, chosen_eff, after_settings, w, _progress(log, f"final {verdict}"))
+                fit(
+                    windows,
+                    p0,
+                    chosen_eff,
+                    after_settings,
+                    w,
+                    _progress(log, f"final {verdict}"),
+                    prior_center=start,
+                )
                 for p0 in starts
             ]
             return min(ends, key=lambda e: e.f)

@@ -10,7 +10,7 @@ candidates, recovered effect parameters; then per family the top-1 rate, the fal
 on the no-effect cases, parameter errors, and the test-set J2 before / after / of the true model.
 
     python benchmarks/diagnose_planted.py [--cases all|quick|N,M,...] [--repeats R]
-        [--base-budget 6000] [--candidate-budget 1500] [--final-budget 3000] [--out DIR]
+        [--base-budget 6000] [--candidate-budget 0] [--final-budget 0] [--out DIR] [--markdown]
 
 Results (one JSON per case) go to ``--out`` (default ``benchmarks/out/diagnose``); a case already
 there is not run again, so an interrupted benchmark resumes.
@@ -208,6 +208,31 @@ def summarise(results: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def markdown_table(results: list[dict[str, Any]]) -> str:
+    """The per-case table of docs/missing-physics.md."""
+    head = (
+        "| # | planted form (values) | family | verdict | best dBIC | recovered parameter error "
+        "| J2 test before -> after (true model) | time |\n"
+        "|---:|---|---|---|---:|---|---|---:|"
+    )
+    rows = [head]
+    for r in sorted(results, key=lambda r: (r["index"], r["repeat"])):
+        values = ", ".join(f"{k} = {v:.4g}" for k, v in r["values"].items()) or "-"
+        verdict = r["verdict"] + ("" if r["correct"] else " (miss)")
+        if r["family"] == "none" and not r["correct"]:
+            verdict = r["verdict"] + " (false positive)"
+        best = min(c["delta_bic"] for c in r["candidates"])
+        errs = ", ".join(
+            f"{k} {100 * v:.1f} %" for k, v in r["param_errors"].items() if "candidate" not in k
+        )
+        rows.append(
+            f"| {r['index']} | {r['form']} ({values}) | {r['family']} | {verdict} | {best:.0f} "
+            f"| {errs or '-'} | {r['J2_test_before']:.1f} -> {r['J2_test_after']:.1f} "
+            f"({r['J2_test_true']:.1f}) | {r['seconds']:.0f} s |"
+        )
+    return "\n".join(rows)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", default="all", help="all, quick or comma-separated indices")
@@ -217,6 +242,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--final-budget", type=int, default=DiagnoseSettings.final_budget)
     ap.add_argument("--out", default="benchmarks/out/diagnose")
     ap.add_argument("--data-root", default=None)
+    ap.add_argument(
+        "--markdown", action="store_true", help="also print the per-case table in Markdown"
+    )
     args = ap.parse_args(argv)
     root = data_root(args.data_root)
     runs = load_runs(root)
@@ -260,6 +288,9 @@ def main(argv: list[str] | None = None) -> int:
             )
     print()
     print(summarise(results))
+    if args.markdown:
+        print()
+        print(markdown_table(results))
     return 0
 
 

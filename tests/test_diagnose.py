@@ -181,3 +181,23 @@ def test_rank_breaks_near_ties_of_dbic_by_held_out_improvement():
     # small dBICs: an absolute margin of 10
     got = rank([c("a", 6.0, 0.04), c("b", 14.0, 0.10), c("d", 30.0, 0.9)])
     assert [x.effect for x in got] == ["b", "a", "d"]
+
+
+def test_a_planted_dead_time_is_the_catalog_lag_with_that_dead_time(runs):
+    """The planted dead time (controls taken from the run's earlier samples) is what the catalog's
+    actuator_lag computes with tau_delta = tau_n = tau: on noise-free windows its J2 is nearly 0
+    (only the first tau seconds of each window differ), that of the plain ship is not."""
+    from sweep.diagnose.planted import true_model
+    from sweep.objective import Objective
+
+    rng = np.random.default_rng(5)
+    wins = pick_windows(runs, {"zigzag": 2}, rng)
+    spec = PlantedSpec("delay", {"tau": 1.0})
+    quiet = dict.fromkeys(("x0", "u", "y0", "v_m", "psi", "r"), 0.0)
+    recs, diverged = generate(wins, efd_parameters(), spec, quiet, rng)
+    assert not diverged
+    p, effects = true_model(efd_parameters(), spec)
+    assert [e.name for e in effects] == ["actuator_lag"]
+    J_true = float(Objective(recs, "J2", effects=effects).evaluate(p)[0])
+    J_plain = float(Objective(recs, "J2").evaluate(efd_parameters())[0])
+    assert J_true < 1e-2 * J_plain, (J_true, J_plain)

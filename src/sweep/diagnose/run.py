@@ -34,7 +34,7 @@ Procedure (:func:`diagnose`), all on the training recordings unless said otherwi
    :data:`TIE_MARGIN`, the one with the best held-out improvement), if dBIC <= ``max_delta_bic``
    and its held-out improvement >= ``min_improvement``; otherwise ``none``. Both thresholds are
    calibrated on planted data (``benchmarks/diagnose_planted.py``): dBIC separates cleanly
-   (no-effect cases stayed above -20, planted effects mostly far below -100); the held-out
+   (no-effect cases stayed above 0, planted effects mostly far below -100); the held-out
    improvement is noisy, because refitting 57 parameters on half the windows moves them along
    directions that half does not constrain, so it is a veto against an effect that makes unseen
    windows clearly worse and a tie-breaker, not the ranking.
@@ -78,10 +78,10 @@ from sweep.recordings import Recording
 #: decorrelation time of trajectory residuals [s] used for the effective sample count of dBIC
 TAU = 10.0
 #: held-out improvement a candidate needs (a veto: the held-out windows may get at most 25 % worse;
-#: on the planted benchmark refitting alone changed held-out J by -64 % to +33 %, see the README)
+#: on the planted benchmark refitting alone changed held-out J by -89 % to +36 %, see docs/)
 MIN_IMPROVEMENT = -0.25
 #: information criterion a candidate must reach (dBIC <= this); calibrated on the no-effect cases
-#: of the planted benchmark (best candidate -4 to +9) against -711 to -4,284 for planted effects
+#: of the planted benchmark (best candidate 2 to 7) against -628 to -5,014 for planted effects
 MAX_DELTA_BIC = -100.0
 #: candidates whose dBIC is within TIE_MARGIN x |best dBIC| (at least TIE_ABSOLUTE) of the best are
 #: tied, and the held-out improvement decides between them: N_eff is an estimate, so differences of

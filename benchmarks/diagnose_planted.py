@@ -216,7 +216,7 @@ def markdown_table(results: list[dict[str, Any]]) -> str:
         "|---:|---|---|---|---:|---|---|---:|"
     )
     rows = [head]
-    for r in sorted(results, key=lambda r: (r["index"], r["repeat"])):
+    for r in sorted(results, key=lambda r: (r["repeat"], r["index"])):
         values = ", ".join(f"{k} = {v:.4g}" for k, v in r["values"].items()) or "-"
         verdict = r["verdict"] + ("" if r["correct"] else " (miss)")
         if r["family"] == "none" and not r["correct"]:
@@ -226,7 +226,8 @@ def markdown_table(results: list[dict[str, Any]]) -> str:
             f"{k} {100 * v:.1f} %" for k, v in r["param_errors"].items() if "candidate" not in k
         )
         rows.append(
-            f"| {r['index']} | {r['form']} ({values}) | {r['family']} | {verdict} | {best:.0f} "
+            f"| {r['index']}.{r['repeat']} | {r['form']} ({values}) | {r['family']} "
+            f"| {verdict} | {best:.0f} "
             f"| {errs or '-'} | {r['J2_test_before']:.1f} -> {r['J2_test_after']:.1f} "
             f"({r['J2_test_true']:.1f}) | {r['seconds']:.0f} s |"
         )

@@ -459,20 +459,17 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
                 f"        d, n = {fn.__name__}(d, n, prev[0, i], prev[1, i], dt, "
                 f"{ptype.__name__}({pc_args}))  # {eff.name}\n"
             )
-        if eff.delay is not None:
-            fn = eff.delay
-            imports.append(f"from {fn.__module__} import {fn.__name__}")
-            delay_lines.append(
-                f"    d_d, d_n = {fn.__name__}({ptype.__name__}({pc_args}))  # {eff.name}\n"
-                "    tau_d += d_d\n    tau_n += d_n\n"
-            )
-        if eff.observe is not None:
-            fn = eff.observe
-            imports.append(f"from {fn.__module__} import {fn.__name__}")
-            observe_lines.append(
-                f"    db_psi, db_v = {fn.__name__}({ptype.__name__}({pc_args}))  # {eff.name}\n"
-                "    b_psi += db_psi\n    b_v += db_v\n"
-            )
+        for hook, lines, sums in (
+            (eff.delay, delay_lines, ("tau_d", "tau_n")),
+            (eff.observe, observe_lines, ("b_psi", "b_v")),
+        ):
+            if hook is not None:  # hooks of the effect's parameters only, summed over effects
+                imports.append(f"from {hook.__module__} import {hook.__name__}")
+                a, b = sums
+                lines.append(
+                    f"    d{a}, d{b} = {hook.__name__}({ptype.__name__}({pc_args}))"
+                    f"  # {eff.name}\n    {a} += d{a}\n    {b} += d{b}\n"
+                )
         if eff.current is not None:
             fn = eff.current
             imports.append(f"from {fn.__module__} import {fn.__name__}")

@@ -171,12 +171,11 @@ def polish(
     def to_theta(z: FloatArray) -> FloatArray:
         return np.asarray(box.lower + z * width)
 
-    z = np.clip((np.asarray(theta0, dtype=np.float64) - box.lower) / width, 0.0, 1.0)
-    z_prior = (
-        z.copy()
-        if prior_center is None
-        else np.clip((np.asarray(prior_center, dtype=np.float64) - box.lower) / width, 0.0, 1.0)
-    )
+    def to_z(theta: FloatArray) -> FloatArray:
+        return np.clip((np.asarray(theta, dtype=np.float64) - box.lower) / width, 0.0, 1.0)
+
+    z = to_z(theta0)
+    z_prior = z.copy() if prior_center is None else to_z(prior_center)
     pm = np.zeros(n)
     pm[: s.prior_dims] = s.prior_weight
 

@@ -121,7 +121,8 @@ def fit(
     ``objective`` may be given to reuse a prepared :class:`Objective` (it must carry ``effects``).
     With a prior in ``settings.polish`` (``prior_weight`` > 0 on the first ``prior_dims``
     coordinates), the Levenberg-Marquardt refinement minimises J + prior, the prior pulling the
-    base parameters toward ``prior_center`` (default: ``start``); its end is then kept even when
+    base parameters toward ``prior_center`` (default: the point the refinement starts from, the
+    CMA-ES end if there is one); its end is then kept even when
     its J alone is a little above that of its start (it traded J for plausibility). ``Fit.f`` is
     always J alone.
     """

@@ -379,19 +379,23 @@ def diagnose(
     )
     w = s.workers
 
+    def refit(
+        recs: Sequence[Recording],
+        p0: Parameters,
+        effs: Sequence[Effect],
+        settings: FitSettings,
+        label: str,
+    ) -> Fit:
+        # every fit of the diagnosis: the prior of its refinement is centred on --params
+        return fit(recs, p0, effs, settings, w, _progress(log, label), prior_center=start)
+
     base = _staged(
         store,
         "base",
         (),
         log,
-        lambda: fit(
-            windows,
-            start,
-            (),
-            replace(common, budget=s.base_budget, seed=s.seed),
-            w,
-            _progress(log, "base"),
-            prior_center=start,
+        lambda: refit(
+            windows, start, (), replace(common, budget=s.base_budget, seed=s.seed), "base"
         ),
     )
     # where does the base model miss? (all training windows)
@@ -444,9 +448,7 @@ def diagnose(
                 f"{name}-fold{j}",
                 effs,
                 log,
-                lambda fh=fit_half, p0=p0: fit(  # type: ignore[misc]
-                    fh, p0, effs, settings, w, _progress(log, name), prior_center=start
-                ),
+                lambda fh=fit_half, p0=p0: refit(fh, p0, effs, settings, name),  # type: ignore[misc]
             )
             out_fits.append(res)
             ho = Objective(held_half, s.objective, effects=effs, ship=start.ship)
@@ -531,15 +533,7 @@ def diagnose(
         "final-base",
         (),
         log,
-        lambda: fit(
-            windows,
-            base.params,
-            (),
-            final_settings,
-            w,
-            _progress(log, "final base"),
-            prior_center=start,
-        ),
+        lambda: refit(windows, base.params, (), final_settings, "final base"),
     )
     if verdict == "none":
         after = before
@@ -558,16 +552,7 @@ def diagnose(
                 ),
             )
             ends = [
-                fit(
-                    windows,
-                    p0,
-                    chosen_eff,
-                    after_settings,
-                    w,
-                    _progress(log, f"final {verdict}"),
-                    prior_center=start,
-                )
-                for p0 in starts
+                refit(windows, p0, chosen_eff, after_settings, f"final {verdict}") for p0 in starts
             ]
             return min(ends, key=lambda e: e.f)
 

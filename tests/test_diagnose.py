@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import warnings
 from pathlib import Path
 
@@ -73,8 +74,14 @@ def test_planted_rudder_offset_is_found_end_to_end(runs, tmp_path, capsys):
     for name in ("report.md", "candidates.png", "residual_vs_regime.png", "trajectories.png"):
         assert (out / name).stat().st_size > 0
     assert "rudder_offset" in (out / "report.md").read_text()
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
     assert "Missing physics" in printed and "MLflow run" in printed
+    # the base is the better end of CMA-ES + descent and of the descent alone
+    ends = re.search(r"CMA-ES then descent J = ([\d.]+), descent alone J = ([\d.]+)", captured.err)
+    assert ends is not None
+    J_base = report["training"]["J_base_fit"]
+    assert J_base == pytest.approx(min(float(ends[1]), float(ends[2])), abs=0.006)
 
     from mlflow import MlflowClient
 

@@ -280,7 +280,9 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
         "",
         f"{d.train_windows} training windows in two halves of {d.fit_windows} and "
         f"{d.heldout_windows}; base identification on all of them: {d.base.evaluations} "
-        f"evaluations (CMA-ES {d.settings.base_budget}, then Levenberg-Marquardt), J = "
+        f"evaluations (CMA-ES {d.settings.base_budget} then Levenberg-Marquardt, and "
+        f"Levenberg-Marquardt alone for up to {d.settings.base_lm_iterations} iterations; the "
+        f"lower end kept), J = "
         f"{d.base.f:.2f}. Control and candidates: fitted on each half from the base (effect grid "
         f"{d.settings.effect_only_budget} evaluations, then up to {d.settings.polish_iterations} "
         "Levenberg-Marquardt iterations on base and effect jointly) and judged on the other half; "

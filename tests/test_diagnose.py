@@ -124,6 +124,8 @@ def test_user_mistakes_are_one_line_errors(runs, tmp_path, capsys):
     assert "unknown effect" in capsys.readouterr().err
     assert _diagnose(case, tmp_path / "o1", "--prior-weight", "-1") == 2
     assert "--prior-weight must be >= 0" in capsys.readouterr().err
+    assert _diagnose(case, tmp_path / "o1", "--base-descent", "-5") == 2
+    assert "--base-descent must be >= 0" in capsys.readouterr().err
     one = tmp_path / "one"
     one.mkdir()
     first = sorted((case / "train").iterdir())[0]

@@ -1,14 +1,16 @@
 """Find the physics a model leaves out: ``python -m sweep.diagnose``.
 
     python -m sweep.diagnose --params {efd|PATH.json} --train PATH [PATH ...] --test PATH [PATH ...]
-                             --out DIR [--budget N] [--candidate-budget N] [--final-budget N]
+                             --out DIR [--budget N] [--base-descent N] [--candidate-budget N]
+                             [--final-budget N]
                              [--seed S] [--objective J2] [--candidates a,b,...]
                              [--prior-weight MU]
                              [--tracking-uri URI | --no-tracking] [--experiment NAME]
 
 PATHs are CSV/Parquet recordings or directories of them, or one split name: ``--train R`` (or
 TR, TZR) and ``--test paper`` read the paper's split below ``--data-dir`` / ``MMG_DATA_DIR``.
-``--params`` is the starting point of the base identification (``--budget`` evaluations) and
+``--params`` is the starting point of the base identification (``--budget`` CMA-ES evaluations
+then Levenberg-Marquardt, against up to ``--base-descent`` Levenberg-Marquardt iterations alone) and
 the centre of the weak prior of every refinement (``--prior-weight``, 0 to switch it off).
 Writes ``DIR/report.json``, ``DIR/report.md`` with its plots, ``DIR/params_before.json`` and
 ``DIR/params_after.json`` (loadable by ``python -m sweep.evaluate --params``), and one MLflow run
@@ -85,6 +87,13 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--data-dir", default=None, help="recordings of split names (MMG_DATA_DIR)")
     ap.add_argument("--out", required=True, help="output directory")
     ap.add_argument("--budget", type=int, default=d.base_budget, help="base identification")
+    ap.add_argument(
+        "--base-descent",
+        type=int,
+        default=d.base_lm_iterations,
+        help="Levenberg-Marquardt iterations of the base's second route, the descent alone from "
+        "--params (0: CMA-ES route only)",
+    )
     ap.add_argument("--candidate-budget", type=int, default=d.candidate_budget)
     ap.add_argument("--final-budget", type=int, default=d.final_budget)
     ap.add_argument("--seed", type=int, default=d.seed)
@@ -120,6 +129,8 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
             raise UserError(
                 f"{flag} must be 0 (refinement only) or at least 20 evaluations (one generation)"
             )
+    if args.base_descent < 0:
+        raise UserError(f"--base-descent must be >= 0 iterations; got {args.base_descent}")
     if not args.prior_weight >= 0.0:
         raise UserError(f"--prior-weight must be >= 0; got {args.prior_weight}")
     start = load_parameters(args.params)
@@ -131,6 +142,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
     settings = DiagnoseSettings(
         objective=args.objective,
         base_budget=args.budget,
+        base_lm_iterations=args.base_descent,
         candidate_budget=args.candidate_budget,
         final_budget=args.final_budget,
         seed=args.seed,

@@ -10,7 +10,12 @@ candidates, recovered effect parameters; then per family the top-1 rate, the fal
 on the no-effect cases, parameter errors, and the test-set J2 before / after / of the true model.
 
     python benchmarks/diagnose_planted.py [--cases all|quick|N,M,...] [--repeats R]
-        [--base-budget 6000] [--candidate-budget 0] [--final-budget 0] [--out DIR] [--markdown]
+        [--base-budget 6000] [--candidate-budget 0] [--final-budget 0] [--scale 1] [--out DIR]
+        [--markdown]
+
+``--scale s`` plants every effect s times as strong (its strength parameters times s; the onset
+angle of the tanh stall and of the piecewise a_H divided by s) in the same ships, windows and
+noise: how the figures depend on the magnitude.
 
 Results (one JSON per case) go to ``--out`` (default ``benchmarks/out/diagnose``); a case already
 there is not run again, so an interrupted benchmark resumes.
@@ -72,6 +77,34 @@ SPECS: list[PlantedSpec] = [
     PlantedSpec("none"),
     PlantedSpec("none"),
 ]
+#: parameters that set a planted effect's strength: ``--scale s`` multiplies them by s
+STRENGTH: dict[str, tuple[str, ...]] = {
+    "current": ("V_c",),
+    "propeller_walk": ("C_Yw", "C_Nw"),
+    "walk_advance": ("C_Yw", "C_Nw"),
+    "rudder_stall": ("k_s",),
+    "a_h_drift": ("k_aH",),
+    "actuator_lag": ("T_delta", "T_n"),
+    "delay": ("tau",),
+    "rudder_offset": ("delta_0",),
+    "heading_bias": ("b_psi", "b_v"),
+    "heading_only": ("b_psi",),
+}
+#: ... and, for the forms whose strength is the angle where the effect takes hold, that angle,
+#: which ``--scale s`` divides by s (a weaker tanh stall saturates later)
+ONSET: dict[str, tuple[str, ...]] = {"stall_tanh": ("alpha_s",), "a_h_piecewise": ("beta_0",)}
+
+
+def scaled(spec: PlantedSpec, scale: float) -> PlantedSpec:
+    """``spec`` with its effect made ``scale`` times as strong (shape parameters unchanged)."""
+    values = dict(spec.values)
+    for name in STRENGTH.get(spec.form, ()):
+        values[name] *= scale
+    for name in ONSET.get(spec.form, ()):
+        values[name] /= scale
+    return PlantedSpec(spec.form, values)
+
+
 #: parameters whose recovery is scored, per planted form (same form: same parameter)
 RECOVERED = {
     "current": ("V_c",),
@@ -244,6 +277,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="benchmarks/out/diagnose")
     ap.add_argument("--data-root", default=None)
     ap.add_argument(
+        "--scale",
+        type=float,
+        default=1.0,
+        help="planted effects this many times as strong (same ships, windows and noise)",
+    )
+    ap.add_argument(
         "--markdown", action="store_true", help="also print the per-case table in Markdown"
     )
     args = ap.parse_args(argv)
@@ -274,7 +313,9 @@ def main(argv: list[str] | None = None) -> int:
             if path.exists():
                 results.append(json.loads(path.read_text()))
                 continue
-            r = run_case(index, SPECS[index], repeat, runs, noise, settings, out)
+            r = run_case(
+                index, scaled(SPECS[index], args.scale), repeat, runs, noise, settings, out
+            )
             path.write_text(json.dumps(r, indent=2, default=float) + "\n")
             results.append(r)
             top = ", ".join(

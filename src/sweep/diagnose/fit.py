@@ -122,9 +122,8 @@ def fit(
     With a prior in ``settings.polish`` (``prior_weight`` > 0 on the first ``prior_dims``
     coordinates), the Levenberg-Marquardt refinement minimises J + prior, the prior pulling the
     base parameters toward ``prior_center`` (default: the point the refinement starts from, the
-    CMA-ES end if there is one); its end is then kept even when
-    its J alone is a little above that of its start (it traded J for plausibility). ``Fit.f`` is
-    always J alone.
+    CMA-ES end if there is one); its end is then kept even when its J alone is a little above
+    that of its start (it traded J for plausibility). ``Fit.f`` is always J alone.
     """
     effects = tuple(effects)
     obj = objective or Objective(recordings, settings.objective, effects=effects, ship=start.ship)

@@ -86,7 +86,7 @@ TAU = 10.0
 #: on the planted benchmark refitting alone changed held-out J by -89 % to +36 %, see docs/)
 MIN_IMPROVEMENT = -0.25
 #: information criterion a candidate must reach (dBIC <= this); calibrated on the no-effect cases
-#: of the planted benchmark (best candidate -3 to 7) against -275 to -5,014 for planted effects
+#: of the planted benchmark (best candidate -3 to 7) against -299 to -5,014 for planted effects
 MAX_DELTA_BIC = -100.0
 #: candidates whose dBIC is within TIE_MARGIN x |best dBIC| (at least TIE_ABSOLUTE) of the best are
 #: tied, and the held-out improvement decides between them: N_eff is an estimate, so differences of

@@ -6,6 +6,9 @@ it by name):
 
 - ``force(u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh) -> (dX [N], dY [N], dN [N m])``:
   an additional force and moment at midship, added to the sum of paper Eq. (2);
+- ``force_at(x0, y0, u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh) -> (dX, dY, dN)``:
+  like ``force``, for forces that also depend on the position of midship (x0, y0) [m] (a bank,
+  shallow patch or a field of the basin); generated effects (:mod:`mmg.discovered`) use it;
 - ``current(x0, y0, psi, e) -> (u_c, v_c)`` [m/s]: the body-frame velocity of the water at the ship.
   The hydrodynamic sub-models then see the velocity through the water (u - u_c, v_m - v_c), the
   wind still sees the velocity over ground, and the equations of motion are written for the
@@ -58,6 +61,7 @@ class Effect:
     params: tuple[EffectParam, ...]
     param_type: type  # NamedTuple class of the parameters, fields = names of ``params``
     force: Callable[..., Any] | None = None
+    force_at: Callable[..., Any] | None = None
     current: Callable[..., Any] | None = None
     inputs: Callable[..., Any] | None = None
     observe: Callable[..., Any] | None = None
@@ -69,7 +73,8 @@ class Effect:
             raise ValueError(f"effect {self.name}: param_type fields differ from params")
         if not self.hooks:
             raise ValueError(
-                f"effect {self.name}: needs a force, current, inputs, observe or delay hook"
+                f"effect {self.name}: needs a force, force_at, current, inputs, observe or "
+                "delay hook"
             )
 
     @property
@@ -77,7 +82,14 @@ class Effect:
         """The hook functions the effect defines."""
         return tuple(
             f
-            for f in (self.force, self.current, self.inputs, self.observe, self.delay)
+            for f in (
+                self.force,
+                self.force_at,
+                self.current,
+                self.inputs,
+                self.observe,
+                self.delay,
+            )
             if f is not None
         )
 
@@ -96,6 +108,8 @@ class Effect:
 
 
 _REGISTRY: dict[str, Effect] = {}
+#: names of generated effects start with this (the rest lists the library terms)
+DISCOVERED_PREFIX = "discovered:"
 
 
 def register(effect: Effect) -> Effect:
@@ -105,8 +119,20 @@ def register(effect: Effect) -> Effect:
 
 
 def get_effect(name: str) -> Effect:
-    """Look an effect up by name; raises KeyError listing the known names."""
+    """Look an effect up by name; raises KeyError listing the known names.
+
+    A name ``discovered:<term>+<term>...`` is a generated effect (:mod:`mmg.discovered`): it is
+    built from the term library on first use, in any process, so that parameter files carrying
+    it load everywhere.
+    """
     _load_catalog()
+    if name.startswith(DISCOVERED_PREFIX) and name not in _REGISTRY:
+        from mmg.discovered import discovered_effect
+
+        try:
+            return discovered_effect(name[len(DISCOVERED_PREFIX) :].split("+"))
+        except ValueError as exc:
+            raise KeyError(f"effect {name!r}: {exc}") from None
     try:
         return _REGISTRY[name]
     except KeyError:

@@ -475,14 +475,14 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
             imports.append(f"from {fn.__module__} import {fn.__name__}")
             current_lines.append(f"    du_c, dv_c = {fn.__name__}(x0, y0, psi, e{q})\n")
             current_lines.append("    u_c += du_c\n    v_c += dv_c\n")
-        if eff.force is not None:
-            fn = eff.force
-            imports.append(f"from {fn.__module__} import {fn.__name__}")
-            force_lines.append(
-                f"    dX, dY, dN = {fn.__name__}("
-                f"u_w, v_w, r, psi, delta, n_p, U_T, gamma_T, e{q}, th, sh)  # {eff.name}\n"
-                "    X += dX\n    Y += dY\n    N += dN\n"
-            )
+        for hook, position in ((eff.force, ""), (eff.force_at, "x0, y0, ")):
+            if hook is not None:
+                imports.append(f"from {hook.__module__} import {hook.__name__}")
+                force_lines.append(
+                    f"    dX, dY, dN = {hook.__name__}({position}"
+                    f"u_w, v_w, r, psi, delta, n_p, U_T, gamma_T, e{q}, th, sh)  # {eff.name}\n"
+                    "    X += dX\n    Y += dY\n    N += dN\n"
+                )
     if rhs_override is not None:
         name = getattr(rhs_override, "__name__", "")
         imports.append(f"from {rhs_override.__module__} import {name}")

@@ -1,0 +1,126 @@
+"""The library of candidate force terms from which missing physics is discovered.
+
+Every term adds a force or moment at midship, linear in one dimensionless coefficient C, written
+like the MMG model's own terms (paper Eqs. (4)-(28)):
+
+    X = 0.5 rho L_pp d C g,   Y = 0.5 rho L_pp d C g,   N = 0.5 rho L_pp^2 d C g
+
+with g [m^2/s^2] a function of the state (through the water), the controls, the true wind, the
+heading and the position. Hull terms are products of u, v_m and r L_pp (the MMG polynomials
+times U^2, with their |.| forms; third-order ones divided by U_e = sqrt(U^2 + U_0^2), which keeps
+them finite at rest); propeller terms use n_p D_p; rudder terms delta; wind terms the apparent wind
+scaled to the above-water areas; heading and position terms describe a force fixed to the basin.
+``X_...``, ``Y_...`` and ``N_...`` are the equations the term enters.
+
+Each term is one scalar Python expression, compiled into the hook of a generated effect
+(:mod:`mmg.discovered`), over these names:
+
+    u, v_m [m/s], r [rad/s], psi [rad], delta [rad], n_p [rev/s], x0, y0 [m], U2 = u^2 + v_m^2,
+    Ue = sqrt(U2 + U_0^2), rL = r L_pp, nD = n_p D_p [m/s], uA, vA (apparent wind [m/s], see
+    :func:`mmg.wind.apparent_wind`), wT = rho_A A_T / (rho L_pp d), wL = rho_A A_L / (rho L_pp d),
+    Lp = L_pp, ast = 1 if u < 0 (astern) else 0, rev = 1 if n_p < 0 else 0, abs and math.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+#: speed that keeps third-order terms finite at rest [m/s] (a few per cent of the service speed)
+U_0 = 0.05
+#: reference speed of terms with no velocity in them (heading, position, constant) [m/s]
+U_REF = 1.0
+
+
+@dataclass(frozen=True)
+class Term:
+    """One library term: ``id`` (equation_name), its expression g, formula and kind."""
+
+    id: str
+    expr: str
+    formula: str  # g in the paper's notation
+    kind: str  # hull, propeller, rudder, wind, quadrant, heading, position
+
+    @property
+    def equation(self) -> str:
+        """``X``, ``Y`` or ``N``."""
+        return self.id[0]
+
+    @property
+    def coefficient(self) -> str:
+        """Name of the term's coefficient (a parameter of the generated effect)."""
+        return f"C_{self.id}"
+
+    def force_formula(self) -> str:
+        """The term as a force in the paper's notation, with units."""
+        scale = "0.5 rho L_pp^2 d" if self.equation == "N" else "0.5 rho L_pp d"
+        unit = "N m" if self.equation == "N" else "N"
+        return f"{self.equation} += {scale} {self.coefficient} {self.formula}  [{unit}]"
+
+
+def _t(eqs: str, name: str, expr: str, formula: str, kind: str) -> list[Term]:
+    return [Term(f"{e}_{name}", expr, formula, kind) for e in eqs]
+
+
+_TERMS: list[Term] = [
+    # hull: second order (u, v_m, r L) with |.| forms, and third order / U_e
+    *_t("X", "uau", "u * abs(u)", "u|u|", "hull"),
+    *_t("X", "uuu", "u * u * u / Ue", "u^3 / U_e", "hull"),
+    *_t("XYN", "vv", "v_m * v_m", "v_m^2", "hull"),
+    *_t("XYN", "vr", "v_m * rL", "v_m r L_pp", "hull"),
+    *_t("XYN", "rr", "rL * rL", "(r L_pp)^2", "hull"),
+    *_t("YN", "uv", "u * v_m", "u v_m", "hull"),
+    *_t("YN", "ur", "u * rL", "u r L_pp", "hull"),
+    *_t("XYN", "uav", "u * abs(v_m)", "u |v_m|", "hull"),
+    *_t("YN", "vav", "v_m * abs(v_m)", "v_m |v_m|", "hull"),
+    *_t("YN", "rar", "rL * abs(rL)", "r L_pp |r L_pp|", "hull"),
+    *_t("YN", "var", "v_m * abs(rL)", "v_m |r L_pp|", "hull"),
+    *_t("YN", "avr", "abs(v_m) * rL", "|v_m| r L_pp", "hull"),
+    *_t("YN", "vvv", "v_m * v_m * v_m / Ue", "v_m^3 / U_e", "hull"),
+    *_t("YN", "rrr", "rL * rL * rL / Ue", "(r L_pp)^3 / U_e", "hull"),
+    *_t("YN", "vvr", "v_m * v_m * rL / Ue", "v_m^2 r L_pp / U_e", "hull"),
+    *_t("YN", "vrr", "v_m * rL * rL / Ue", "v_m (r L_pp)^2 / U_e", "hull"),
+    *_t("YN", "s3b", "v_m * (3.0 * U2 - 4.0 * v_m * v_m) / Ue", "-U^2 sin(3 beta)", "hull"),
+    # propeller
+    *_t("XYN", "nn", "nD * abs(nD)", "n_p |n_p| D_p^2", "propeller"),
+    *_t("XYN", "nu", "nD * u", "n_p D_p u", "propeller"),
+    *_t("YN", "nv", "abs(nD) * v_m", "|n_p| D_p v_m", "propeller"),
+    *_t("YN", "nr", "abs(nD) * rL", "|n_p| D_p r L_pp", "propeller"),
+    # rudder
+    *_t("YN", "duu", "delta * u * abs(u)", "delta u|u|", "rudder"),
+    *_t("YN", "dnn", "delta * nD * nD", "delta (n_p D_p)^2", "rudder"),
+    *_t("YN", "dddu", "delta * delta * delta * u * abs(u)", "delta^3 u|u|", "rudder"),
+    *_t("X", "dduu", "delta * delta * u * abs(u)", "delta^2 u|u|", "rudder"),
+    *_t("X", "ddnn", "delta * delta * nD * nD", "delta^2 (n_p D_p)^2", "rudder"),
+    # quadrants: astern (u < 0) and reversed propeller (n_p < 0)
+    *_t("X", "ast_uu", "ast * u * u", "[u < 0] u^2", "quadrant"),
+    *_t("XYN", "rev_nn", "rev * nD * nD", "[n_p < 0] (n_p D_p)^2", "quadrant"),
+    *_t("YN", "ast_vav", "ast * v_m * abs(v_m)", "[u < 0] v_m |v_m|", "quadrant"),
+    *_t("YN", "ast_rar", "ast * rL * abs(rL)", "[u < 0] r L_pp |r L_pp|", "quadrant"),
+    # apparent wind (sign of the scaled apparent wind components)
+    *_t("X", "wuu", "wT * uA * abs(uA)", "(rho_A A_T / rho L_pp d) u_A|u_A|", "wind"),
+    *_t("YN", "wvv", "wL * vA * abs(vA)", "(rho_A A_L / rho L_pp d) v_A|v_A|", "wind"),
+    *_t("YN", "wuv", "wL * uA * vA", "(rho_A A_L / rho L_pp d) u_A v_A", "wind"),
+    # a force fixed to the basin: constant, with the heading, with the position (and speed)
+    *_t("XYN", "one", "1.0", "U_ref^2", "heading"),
+    *_t("XYN", "cpsi", "math.cos(psi)", "U_ref^2 cos(psi)", "heading"),
+    *_t("XYN", "spsi", "math.sin(psi)", "U_ref^2 sin(psi)", "heading"),
+    *_t("XYN", "x", "x0 / Lp", "U_ref^2 x0 / L_pp", "position"),
+    *_t("XYN", "y", "y0 / Lp", "U_ref^2 y0 / L_pp", "position"),
+    *_t("XYN", "Uy", "U2 * y0 / Lp", "U^2 y0 / L_pp", "position"),
+    *_t("XYN", "Ux", "U2 * x0 / Lp", "U^2 x0 / L_pp", "position"),
+]
+
+#: every library term by id
+TERMS: dict[str, Term] = {t.id: t for t in _TERMS}
+if len(TERMS) != len(_TERMS):  # pragma: no cover - a typo in the table above
+    raise RuntimeError("duplicate library term ids")
+
+
+def term(term_id: str) -> Term:
+    """A library term by id; ValueError naming the known ids for an unknown one."""
+    try:
+        return TERMS[term_id]
+    except KeyError:
+        raise ValueError(
+            f"unknown library term {term_id!r}; known terms: {', '.join(TERMS)}"
+        ) from None

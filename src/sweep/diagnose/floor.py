@@ -1,0 +1,304 @@
+"""Is anything missing at all? The measurement-noise floor of J, estimated from the recordings.
+
+1. **Noise model** (:func:`estimate_noise`): per state channel (x0, u, y0, v_m, psi, r), the
+   measurement noise is taken as a first-order autoregressive process (AR(1): standard deviation
+   sigma, correlation phi between samples; phi = 0 is white noise, phi > 0 a low-pass filtered,
+   *coloured* noise). It is estimated from the high-frequency content of the recordings: the
+   residual e of a local cubic fit (Savitzky-Golay, ``window_s`` seconds) holds the noise and
+   almost none of the ship's motion. The smoother removes part of a coloured noise, so the
+   residual's variance and lag-1 and lag-2 correlations are matched to those an AR(1) noise
+   would leave through the same filter (computed exactly from the filter's coefficients), which
+   gives phi and then sigma.
+2. **Floor of J** (:func:`noise_floor`): the identified model is simulated on every training
+   window (from the recorded first state, with the recorded controls and wind); ``draws`` noise
+   series of the estimated model are added to the simulation and J of the model against these
+   synthetic recordings is computed exactly as the objective does (per window and channel). That
+   is the J a model exact in form and values would reach on these windows: the floor, with its
+   spread over noise draws.
+3. **Test** (:func:`misfit_test`): the base model's J per run and channel against the floor. The
+   misfit is significant when the total exceeds the floor by more than ``margin`` (allowance for
+   a noise model that is only an AR(1) approximation) *and* by more than ``z`` standard
+   deviations of the floor's spread over draws.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mmg import Parameters, get_effect, simulate_batch
+from mmg.integrate import OBSERVABLES as OBSERVABLES_J
+from sweep.objective import CHANNELS, Objective
+from sweep.recordings import Recording
+
+FloatArray = NDArray[np.float64]
+
+#: state channels of the recordings (columns of Recording.x)
+STATES = ("x0", "u", "y0", "v_m", "psi", "r")
+#: allowance for the noise model's approximation: the misfit must exceed the floor by this share
+MARGIN = 0.10
+#: ... and by this many standard deviations of the floor over noise draws
+Z_CRIT = 3.0
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """AR(1) measurement noise per state channel: standard deviation and lag-1 correlation."""
+
+    sigma: dict[str, float]
+    phi: dict[str, float]
+    window_s: float = 3.0
+    model_based: bool = False
+
+    def draw(self, rng: np.random.Generator, n: int) -> FloatArray:
+        """(n, 6) noise samples of the six state channels (stationary AR(1) each)."""
+        out = np.empty((n, len(STATES)))
+        for j, c in enumerate(STATES):
+            s, phi = self.sigma[c], self.phi[c]
+            e = rng.normal(0.0, 1.0, n)
+            x = np.empty(n)
+            x[0] = e[0]
+            innov = np.sqrt(1.0 - phi * phi)
+            if phi == 0.0:
+                x[:] = e
+            else:
+                from scipy.signal import lfilter
+
+                x[1:], _ = lfilter([innov], [1.0, -phi], e[1:], zi=[phi * e[0]])
+            out[:, j] = s * x
+        return out
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            c: {"sigma": self.sigma[c], "phi": self.phi[c], "corr_time_s": self.corr_time(c)}
+            for c in STATES
+        }
+
+    def corr_time(self, c: str, dt: float = 0.1) -> float:
+        """Correlation time -dt / ln(phi) [s] of channel c (0 for white noise)."""
+        phi = self.phi[c]
+        return 0.0 if phi <= 0.0 else float(-dt / np.log(phi))
+
+
+def estimate_noise(
+    recordings: Sequence[Recording],
+    params: Parameters | None = None,
+    window_s: float = 3.0,
+    max_corr_time: float = 2.0,
+    stride: int = 3,
+) -> NoiseModel:
+    """The AR(1) noise model of each state channel (see the module docstring).
+
+    Per channel, the variogram V(k) = E[(x_{t+k} - xhat_{t+k})^2] / 2, lags
+    k = 1 .. ``window_s`` / dt, is fitted by sigma^2 (1 - phi^k) (AR(1) noise) + a k^2 + b k^4
+    (what the prediction misses: it grows with the lag); phi is searched on a grid up to a
+    correlation time of ``max_corr_time`` [s], the rest by non-negative least squares. The
+    prediction xhat_{t+k} is the recorded x_t (a plain variogram) or, with ``params``, the
+    model's simulation from the recorded x_t (every ``stride`` samples) with the recorded controls
+    and wind: the ship's motion then cancels up to the model's error over a few seconds, and
+    the increments hold the noise (the controls' own jitter drives both alike).
+    """
+    from scipy.optimize import nnls
+
+    if not recordings:
+        raise ValueError("no recordings to estimate the noise from")
+    dt = recordings[0].dt
+    K = max(5, int(round(window_s / dt)))
+    lags = np.arange(1, K + 1)
+    sums = np.zeros((K, len(STATES)))
+    counts = np.zeros(K)
+    effects = tuple(get_effect(n) for n, _ in params.effects) if params is not None else ()
+    for rec in recordings:
+        x = np.asarray(rec.x, dtype=np.float64).copy()
+        if x.shape[0] < 3 * K:
+            continue
+        x[:, 4] = np.unwrap(x[:, 4])
+        if params is None:
+            for i, k in enumerate(lags):
+                d = x[k:] - x[:-k]
+                sums[i] += 0.5 * np.sum(d * d, axis=0)
+                counts[i] += d.shape[0]
+            continue
+        starts = np.arange(0, x.shape[0] - K - 1, stride)
+        idx = starts[:, None] + np.arange(K)[None, :]
+        uu = np.asarray(rec.u)[idx]
+        ww = np.asarray(rec.w)[idx]
+        sim = simulate_batch(x[starts], uu, ww, params, effects=effects).states  # (B, K+1, 6)
+        truth = x[starts[:, None] + np.arange(K + 1)[None, :]]
+        d = truth[:, 1:] - sim[:, 1:]
+        d[..., 4] = (d[..., 4] + np.pi) % (2 * np.pi) - np.pi
+        ok = np.all(np.isfinite(d), axis=(1, 2))
+        sums += 0.5 * np.sum(d[ok] ** 2, axis=0)
+        counts += ok.sum()
+    if counts[0] == 0:
+        raise ValueError("the recordings are too short to estimate their noise")
+    V = sums / counts[:, None]
+    phi_max = float(np.exp(-dt / max_corr_time))
+    phis = np.concatenate([[0.0], np.linspace(0.05, phi_max, 60)])
+    sigma: dict[str, float] = {}
+    phi: dict[str, float] = {}
+    for j, c in enumerate(STATES):
+        v = V[:, j]
+        if not np.all(np.isfinite(v)) or v[0] <= 0:
+            sigma[c], phi[c] = 0.0, 0.0
+            continue
+        w = 1.0 / v  # relative errors: every lag counts alike
+        best = (np.inf, 0.0, 0.0)
+        for p in phis:
+            A = np.stack([1.0 - p**lags, lags**2.0, lags**4.0], axis=1) * w[:, None]
+            coef, res = nnls(A, v * w)
+            if res < best[0]:
+                best = (res, float(p), float(coef[0]))
+        phi[c] = best[1]
+        sigma[c] = float(np.sqrt(best[2]))
+    return NoiseModel(sigma, phi, window_s, params is not None)
+
+
+def calibrated_noise(
+    recordings: Sequence[Recording], params: Parameters, rng: np.random.Generator
+) -> NoiseModel:
+    """:func:`estimate_noise` with its bias removed: the estimator is run once more on the
+    model's own simulation of the recordings plus noise of the first estimate, and each sigma is
+    scaled by first estimate / re-estimate (the variogram fit trades a little noise for motion)."""
+    first = estimate_noise(recordings, params)
+    synthetic = [
+        Recording(r.name, None, r.t, x + first.draw(rng, x.shape[0]), r.u, r.w)
+        for r, x in zip(recordings, _simulate(params, recordings), strict=True)
+    ]
+    second = estimate_noise(synthetic, params)
+    sigma = {
+        c: first.sigma[c] * (first.sigma[c] / second.sigma[c] if second.sigma[c] > 0 else 1.0)
+        for c in STATES
+    }
+    return NoiseModel(sigma, dict(first.phi), first.window_s, True)
+
+
+def _simulate(params: Parameters, windows: Sequence[Recording]) -> list[FloatArray]:
+    """The model's states (n_i, 6) on each recording, from its first recorded state; a window
+    whose simulation diverges is replaced by its recording."""
+    effects = tuple(get_effect(n) for n, _ in params.effects)
+    x0 = np.stack([np.asarray(w.x[0]) for w in windows])
+    K = max(w.n_samples for w in windows) - 1
+    u = np.zeros((len(windows), K, 2))
+    wind = np.zeros((len(windows), K, 2))
+    n_steps = np.array([w.n_samples - 1 for w in windows])
+    for i, w in enumerate(windows):
+        u[i, : n_steps[i]] = np.asarray(w.u)[:-1]
+        wind[i, : n_steps[i]] = np.asarray(w.w)[:-1]
+        u[i, n_steps[i] :] = u[i, n_steps[i] - 1]
+        wind[i, n_steps[i] :] = wind[i, n_steps[i] - 1]
+    sim = simulate_batch(x0, u, wind, params, effects=effects)
+    out = []
+    for i, w in enumerate(windows):
+        clean = np.array(sim.states[i, : n_steps[i] + 1])
+        out.append(clean if np.all(np.isfinite(clean)) else np.array(w.x, dtype=np.float64))
+    return out
+
+
+@dataclass
+class Floor:
+    """J of the model against its own simulation plus noise, per window and channel."""
+
+    mean: FloatArray  # (S, 7) mean over draws
+    draws: FloatArray  # (D, S, 7)
+    actual: FloatArray  # (S, 7) J of the model against the recordings
+    runs: list[str]  # (S,) run of each window
+    noise: NoiseModel
+
+
+def _windows_of(windows: Sequence[Recording]) -> list[str]:
+    return [w.name.rsplit("@", 1)[0] for w in windows]
+
+
+def noise_floor(
+    params: Parameters,
+    windows: Sequence[Recording],
+    noise: NoiseModel,
+    rng: np.random.Generator,
+    draws: int = 12,
+) -> Floor:
+    """Floor of J on ``windows`` (each one subsequence of the objective) for ``params``."""
+    effects = tuple(get_effect(n) for n, _ in params.effects)
+    sims = _simulate(params, windows)
+    actual, _ = Objective(windows, effects=effects, ship=params.ship).costs(params)
+    out = []
+    for _ in range(draws):
+        noisy = []
+        for w, clean in zip(windows, sims, strict=True):
+            x = clean + noise.draw(rng, clean.shape[0])
+            noisy.append(Recording(name=w.name, path=None, t=w.t, x=x, u=w.u, w=w.w))
+        cost, _ = Objective(noisy, effects=effects, ship=params.ship).costs(params)
+        out.append(cost[0])
+    d = np.stack(out)
+    return Floor(d.mean(axis=0), d, actual[0], _windows_of(windows), noise)
+
+
+@dataclass
+class MisfitTest:
+    """The base model's misfit against the noise floor."""
+
+    objective: str
+    J: float  # base model's J on the training windows
+    floor: float  # mean floor
+    floor_sd: float  # spread of the floor's total over noise draws
+    ratio: float  # J / floor
+    z: float  # (J - floor) / floor_sd
+    significant: bool
+    margin: float
+    z_crit: float
+    per_run: list[dict[str, Any]] = field(default_factory=list)
+    per_channel: dict[str, float] = field(default_factory=dict)  # ratio per channel
+
+
+def misfit_test(
+    f: Floor, objective: str = "J2", margin: float = MARGIN, z_crit: float = Z_CRIT
+) -> MisfitTest:
+    """Total and per run and channel ratio of J to the floor; significance (module docstring)."""
+    ch = list(CHANNELS[objective])
+    J = float(f.actual[:, ch].sum())
+    totals = f.draws[:, :, ch].sum(axis=(1, 2))
+    floor = float(totals.mean())
+    sd = float(totals.std(ddof=1)) if totals.size > 1 else 0.0
+    sd = max(sd, 1e-12)
+    z = (J - floor) / sd
+    significant = bool(J > (1.0 + margin) * floor and z > z_crit)
+    per_channel = {
+        OBSERVABLES_J[c]: float(f.actual[:, c].sum() / max(f.mean[:, c].sum(), 1e-300)) for c in ch
+    }
+    per_run = []
+    for run in dict.fromkeys(f.runs):
+        idx = [i for i, r in enumerate(f.runs) if r == run]
+        a = f.actual[np.ix_(idx, ch)].sum(axis=0)
+        b = f.mean[np.ix_(idx, ch)].sum(axis=0)
+        tot_d = f.draws[:, idx][:, :, ch].sum(axis=(1, 2))
+        sd_r = max(float(tot_d.std(ddof=1)) if tot_d.size > 1 else 0.0, 1e-12)
+        per_run.append(
+            {
+                "run": run,
+                "J": float(a.sum()),
+                "floor": float(b.sum()),
+                "ratio": float(a.sum() / max(b.sum(), 1e-300)),
+                "z": float((a.sum() - b.sum()) / sd_r),
+                "channels": {
+                    OBSERVABLES_J[c]: float(a[k] / max(b[k], 1e-300)) for k, c in enumerate(ch)
+                },
+            }
+        )
+    per_run.sort(key=lambda r: r["ratio"], reverse=True)
+    return MisfitTest(
+        objective=objective,
+        J=J,
+        floor=floor,
+        floor_sd=sd,
+        ratio=J / floor if floor > 0 else float("inf"),
+        z=z,
+        significant=significant,
+        margin=margin,
+        z_crit=z_crit,
+        per_run=per_run,
+        per_channel=per_channel,
+    )

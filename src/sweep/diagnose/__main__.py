@@ -107,6 +107,23 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         help="weight of the prior toward --params (J per squared normalised coordinate)",
     )
     ap.add_argument("--max-delta-bic", type=float, default=d.max_delta_bic)
+    ap.add_argument(
+        "--no-discovery",
+        action="store_true",
+        help="do not propose terms from the library (catalog candidates only)",
+    )
+    ap.add_argument(
+        "--discover-terms",
+        type=int,
+        default=d.discover_terms,
+        help="most library terms in a discovered effect",
+    )
+    ap.add_argument(
+        "--alpha",
+        type=float,
+        default=d.alpha,
+        help="false-alarm rate of the discovery's proposal (null quantile 1 - alpha)",
+    )
     ap.add_argument("--tracking-uri", default=None, help="MLflow store (default ./mlflow.db)")
     ap.add_argument("--experiment", default="mmg-diagnose")
     ap.add_argument("--no-tracking", action="store_true", help="do not log an MLflow run")
@@ -129,6 +146,10 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
             raise UserError(
                 f"{flag} must be 0 (refinement only) or at least 20 evaluations (one generation)"
             )
+    if args.discover_terms < 1:
+        raise UserError(f"--discover-terms must be >= 1; got {args.discover_terms}")
+    if not 0.0 < args.alpha < 1.0:
+        raise UserError(f"--alpha must be between 0 and 1; got {args.alpha}")
     if args.base_descent < 0:
         raise UserError(f"--base-descent must be >= 0 iterations; got {args.base_descent}")
     if not args.prior_weight >= 0.0:
@@ -150,6 +171,9 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
         min_improvement=args.min_improvement,
         max_delta_bic=args.max_delta_bic,
         prior_weight=args.prior_weight,
+        discover=not args.no_discovery,
+        discover_terms=args.discover_terms,
+        alpha=args.alpha,
     )
     out = Path(args.out)
     try:
@@ -165,14 +189,21 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
         from sweep.tracking import MlflowTracker, default_tracking_uri
 
         uri = args.tracking_uri or default_tracking_uri()
-        metrics = {f"improvement/{c.effect}": c.improvement for c in result.candidates}
+
+        def key(effect: str) -> str:  # a generated effect's name lists terms: not a metric name
+            return "discovered" if effect.startswith("discovered:") else effect
+
+        metrics = {f"improvement/{key(c.effect)}": c.improvement for c in result.candidates}
         metrics.update(
             {
-                f"delta_bic/{c.effect}": c.delta_bic
+                f"delta_bic/{key(c.effect)}": c.delta_bic
                 for c in result.candidates
                 if c.delta_bic == c.delta_bic and abs(c.delta_bic) < float("inf")
             }
         )
+        if result.misfit is not None:
+            metrics["misfit/ratio_to_floor"] = result.misfit.ratio
+            metrics["misfit/z"] = result.misfit.z
         for when, table in (("before", result.test_before), ("after", result.test_after)):
             for J, row in table.items():
                 for label, value in row.items():

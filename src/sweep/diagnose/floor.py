@@ -107,7 +107,7 @@ def estimate_noise(
     if not recordings:
         raise ValueError("no recordings to estimate the noise from")
     dt = recordings[0].dt
-    K = max(5, int(round(window_s / dt)))
+    K = max(5, round(window_s / dt))
     lags = np.arange(1, K + 1)
     sums = np.zeros((K, len(STATES)))
     counts = np.zeros(K)
@@ -265,11 +265,11 @@ def misfit_test(
     sd = float(totals.std(ddof=1)) if totals.size > 1 else 0.0
     sd = max(sd, 1e-12)
     z = (J - floor) / sd
-    significant = bool(J > (1.0 + margin) * floor and z > z_crit)
+    significant = bool((1.0 + margin) * floor < J and z > z_crit)
     per_channel = {
         OBSERVABLES_J[c]: float(f.actual[:, c].sum() / max(f.mean[:, c].sum(), 1e-300)) for c in ch
     }
-    per_run = []
+    per_run: list[dict[str, Any]] = []
     for run in dict.fromkeys(f.runs):
         idx = [i for i, r in enumerate(f.runs) if r == run]
         a = f.actual[np.ix_(idx, ch)].sum(axis=0)

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+from scipy.signal import lfilter
 
 from mmg import Effect, EffectParam, Parameters, bounds, efd_parameters, get_effect, simulate_batch
 from mmg._jit import subfunction
@@ -139,8 +140,189 @@ def walk_advance_force(
     return 0.0, q * e.C_Yw, q * sh.L_pp * e.C_Nw
 
 
+# ----------------------------------------------------------- forms outside the catalog
+# None of these has a catalog entry: the diagnosis can only explain them by discovery. They act
+# in different equations and through different variables (state, controls, heading, position);
+# two (the bank and the wave resistance) are outside the term library's span too.
+
+
+class BankParams(NamedTuple):
+    C_b: float  # strength of the bank suction [-]
+    y_b: float  # where it changes sign [m]
+    W_b: float  # width of the transition [m]
+
+
+@subfunction
+def bank_force_at(
+    x0: float,
+    y0: float,
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    e: BankParams,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float]:
+    """Bank suction: Y = 0.5 rho L d C_b U^2 tanh((y0 - y_b) / W_b), N = -0.2 L Y (position)."""
+    q = 0.5 * sh.rho * sh.L_pp * sh.d * (u * u + v_m * v_m)
+    Y = q * e.C_b * math.tanh((y0 - e.y_b) / e.W_b)
+    return 0.0, Y, -0.2 * sh.L_pp * Y
+
+
+class WaveResistanceParams(NamedTuple):
+    C_w: float  # [-], X = -0.5 rho L d C_w u^4 / U_ref^2
+
+
+@subfunction
+def wave_resistance_force(
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    e: WaveResistanceParams,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float]:
+    """Wave-making resistance growing with u^4 (surge only, ahead only)."""
+    if u <= 0.0:
+        return 0.0, 0.0, 0.0
+    return -0.5 * sh.rho * sh.L_pp * sh.d * e.C_w * u * u * u * u, 0.0, 0.0
+
+
+class AsternCrossflowParams(NamedTuple):
+    C_a: float  # [-]
+
+
+@subfunction
+def astern_crossflow_force(
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    e: AsternCrossflowParams,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float]:
+    """Going astern, the stern leads: extra yaw moment N = 0.5 rho L^2 d C_a v_m |v_m| (u < 0)."""
+    if u >= 0.0:
+        return 0.0, 0.0, 0.0
+    return 0.0, 0.0, 0.5 * sh.rho * sh.L_pp * sh.L_pp * sh.d * e.C_a * v_m * abs(v_m)
+
+
+class EarthForceParams(NamedTuple):
+    F_e: float  # [N], a steady force fixed to the basin
+    chi_e: float  # its direction, clockwise from x0 [rad]
+
+
+@subfunction
+def earth_force_force(
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    e: EarthForceParams,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float]:
+    """A steady earth-fixed push (a slope, a towline, an unmodelled steady wind): heading."""
+    s, c = sincos(e.chi_e - psi)
+    return e.F_e * c, e.F_e * s, 0.0
+
+
+class WashYawParams(NamedTuple):
+    C_d: float  # [-]
+
+
+@subfunction
+def wash_yaw_force(
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    e: WashYawParams,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float]:
+    """Yaw moment of the rudder in the propeller wash: N = 0.5 rho L^2 d C_d sin(2 delta) (n D)^2
+    (controls)."""
+    nD = n_p * sh.D_p
+    s2 = sincos(2.0 * delta)[0]
+    return 0.0, 0.0, 0.5 * sh.rho * sh.L_pp * sh.L_pp * sh.d * e.C_d * s2 * nD * nD
+
+
+class ReverseSwayParams(NamedTuple):
+    C_r: float  # [-]
+
+
+@subfunction
+def reverse_sway_force(
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    e: ReverseSwayParams,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float]:
+    """A reversing propeller's lateral force: Y = 0.5 rho L d C_r (n D)^2 for n_p < 0, with the
+    moment of a force at the stern (quadrant)."""
+    if n_p >= 0.0:
+        return 0.0, 0.0, 0.0
+    nD = n_p * sh.D_p
+    Y = 0.5 * sh.rho * sh.L_pp * sh.d * e.C_r * nD * nD
+    return 0.0, Y, -0.5 * sh.L_pp * Y
+
+
 def _form(name: str, params: tuple[EffectParam, ...], ptype: type, force: Any) -> Effect:
     return Effect(name, f"planted form {name}", "", params, ptype, force=force)
+
+
+def _form_at(name: str, params: tuple[EffectParam, ...], ptype: type, force: Any) -> Effect:
+    return Effect(name, f"planted form {name}", "", params, ptype, force_at=force)
+
+
+def _p(*names: str) -> tuple[EffectParam, ...]:
+    return tuple(EffectParam(n, "-", 0.0, -1e9, 1e9, "") for n in names)
+
+
+#: planted forms in no catalog entry: only discovery can explain them
+UNLISTED: dict[str, Effect] = {
+    "bank": _form_at("bank", _p("C_b", "y_b", "W_b"), BankParams, bank_force_at),
+    "wave_resistance": _form(
+        "wave_resistance", _p("C_w"), WaveResistanceParams, wave_resistance_force
+    ),
+    "astern_crossflow": _form(
+        "astern_crossflow", _p("C_a"), AsternCrossflowParams, astern_crossflow_force
+    ),
+    "earth_force": _form("earth_force", _p("F_e", "chi_e"), EarthForceParams, earth_force_force),
+    "wash_yaw": _form("wash_yaw", _p("C_d"), WashYawParams, wash_yaw_force),
+    "reverse_sway": _form("reverse_sway", _p("C_r"), ReverseSwayParams, reverse_sway_force),
+}
 
 
 #: planted forms that are not in the catalog (not registered: the diagnosis never sees them)
@@ -184,6 +366,7 @@ FAMILY: dict[str, str] = {
     "rudder_offset": "rudder_offset",
     "heading_bias": "heading_bias",
     "heading_only": "heading_bias",
+    **{name: "discovered" for name in UNLISTED},
 }
 
 # --------------------------------------------------------------------------- noise
@@ -283,7 +466,7 @@ def truth_effects(spec: PlantedSpec) -> tuple[tuple[Effect, ...], Parameters | N
         return (eff,), Parameters(
             efd_parameters().theta, effects=(("heading_bias", tuple(vals.items())),)
         )
-    eff = OTHER_FORMS.get(spec.form) or get_effect(spec.form)
+    eff = OTHER_FORMS.get(spec.form) or UNLISTED.get(spec.form) or get_effect(spec.form)
     values = tuple((q.name, float(spec.values.get(q.name, q.neutral))) for q in eff.params)
     return (eff,), Parameters(efd_parameters().theta, effects=((eff.name, values),))
 
@@ -294,8 +477,12 @@ def generate(
     spec: PlantedSpec,
     noise: dict[str, float],
     rng: np.random.Generator,
+    phi: float = 0.0,
 ) -> tuple[list[Recording], bool]:
-    """Simulated noisy recordings of the windows; also whether any simulation diverged."""
+    """Simulated noisy recordings of the windows; also whether any simulation diverged.
+
+    ``phi`` > 0 colours the noise: a first-order low-pass (AR(1), correlation phi between
+    samples) of the same standard deviation, as a filtered sensor would give."""
     effects, template = truth_effects(spec)
     p = ship if template is None else Parameters(ship.theta, ship.ship, template.effects)
     x0 = np.stack([np.asarray(w.rec.x[w.start]) for w in windows])
@@ -305,7 +492,10 @@ def generate(
     sigma = np.array([noise[n] for n in STATE_NAMES])
     out = []
     for i, w in enumerate(windows):
-        x = sim.states[i] + rng.normal(0.0, 1.0, sim.states[i].shape) * sigma
+        e = rng.normal(0.0, 1.0, sim.states[i].shape)
+        if phi > 0.0:
+            e = lfilter([math.sqrt(1.0 - phi * phi)], [1.0, -phi], e, axis=0, zi=phi * e[:1])[0]
+        x = sim.states[i] + e * sigma
         x[0] = sim.states[i][0]  # the first logged state is the real one (the simulation's start)
         sl = slice(w.start, w.start + w.n)
         out.append(

@@ -36,13 +36,84 @@ def _effects(p: Parameters) -> tuple[Any, ...]:
     return tuple(get_effect(n) for n, _ in p.effects)
 
 
+def misfit_text(d: Diagnosis) -> str:
+    """The base model's misfit against the noise floor, in words."""
+    m = d.misfit
+    if m is None:
+        return ""
+    return (
+        f"The base model's {m.objective} on the training windows is {m.J:.3g}, {m.ratio:.2f} x "
+        f"the floor that measurement noise alone gives ({m.floor:.3g}, z = {m.z:.1f}; "
+        f"significant above {1 + m.margin:.2f} x and z > {m.z_crit:.0f})."
+    )
+
+
+def _with_value(formula: str, name: str, values: dict[str, float]) -> str:
+    return formula.replace(name, f"({values[name]:.4g})")
+
+
+def discovered_entry(d: Diagnosis) -> dict[str, Any]:
+    """The discovered terms: formulas, coefficients, and how to reuse them."""
+    if d.verdict != "discovered":
+        return {}
+    from mmg.library import term
+
+    values = dict(next(v for n, v in d.after.params.effects if n == d.verdict_effect))
+    terms = d.verdict_effect.split(":", 1)[1].split("+")
+    c = d.chosen
+    return {
+        "effect": d.verdict_effect,
+        "terms": [
+            {
+                "term": t,
+                "kind": term(t).kind,
+                "formula": term(t).force_formula(),
+                "coefficient": term(t).coefficient,
+                "value": values[term(t).coefficient],
+            }
+            for t in terms
+        ],
+        "formula": "; ".join(
+            term(t)
+            .force_formula()
+            .replace(term(t).coefficient, f"({values[term(t).coefficient]:.4g})")
+            for t in terms
+        ),
+        "heldout_improvement": c.improvement if c else None,
+        "delta_bic": c.delta_bic if c else None,
+        "resembles": d.extra.get("resemblance", {}),
+        "reuse": "python -m sweep.evaluate --params params_after.json (the effect is rebuilt "
+        "from its name in any process)",
+    }
+
+
 def statement(d: Diagnosis) -> str:
     """The verdict in plain words."""
     s = d.settings
+    if d.verdict == "unexplained":
+        m = d.misfit
+        assert m is not None
+        best = d.candidates[0] if d.candidates else None
+        text = (
+            f"Unexplained misfit: the base model misses by {m.ratio:.1f} x what measurement noise "
+            f"alone gives ({s.objective} {m.J:.3g} against a floor of {m.floor:.3g}, z = "
+            f"{m.z:.0f}), and no candidate (catalog or discovered) was accepted."
+        )
+        if m.per_run:
+            worst = m.per_run[0]
+            ch = max(worst["channels"], key=worst["channels"].get)
+            text += f" Worst run: {worst['run']} ({worst['ratio']:.1f} x its floor, most in {ch})."
+        if best is not None:
+            text += (
+                f" The best candidate was {best.effect} (dBIC {best.delta_bic:.1f}, held-out "
+                f"change {100 * best.improvement:+.1f} %)."
+            )
+        return text
     if d.verdict == "none":
         best = d.candidates[0] if d.candidates else None
         text = (
-            "Nothing significant was found: no candidate effect, fitted jointly with the base "
+            "Nothing significant was found: the model fits to the noise floor and no candidate "
+            "effect, fitted jointly with the base "
             f"parameters, reached dBIC <= {s.max_delta_bic:.0f} against the base model refitted "
             "by the same procedure with a held-out change of J of at least "
             f"{100 * s.min_improvement:+.0f} %."
@@ -52,15 +123,26 @@ def statement(d: Diagnosis) -> str:
                 f" The best candidate was {best.effect} (dBIC {best.delta_bic:.1f}, held-out "
                 f"change {100 * best.improvement:+.1f} %)."
             )
-        return text
+        return text + " " + misfit_text(d)
     c = d.chosen
     assert c is not None
-    after = dict(next(v for n, v in d.after.params.effects if n == d.verdict))
-    eff = get_effect(d.verdict)
+    after = dict(next(v for n, v in d.after.params.effects if n == d.verdict_effect))
+    eff = get_effect(d.verdict_effect)
     units = {q.name: q.unit for q in eff.params}
     values = ", ".join(f"{k} = {v:.4g} {units[k]}" for k, v in after.items())
-    text = (
-        f"Missing physics: {eff.description} (`{d.verdict}`; regime: {eff.regime}). "
+    if d.verdict == "discovered":
+        entry = discovered_entry(d)
+        like = entry["resembles"]
+        text = (
+            f"Missing physics, discovered (no catalog entry): {entry['formula']} "
+            f"(regime: {eff.regime}). "
+        )
+        if like:
+            name, r = next(iter(like.items()))
+            text += f"Its force pattern resembles {name} most (correlation {r:+.2f}). "
+    else:
+        text = f"Missing physics: {eff.description} (`{d.verdict}`; regime: {eff.regime}). "
+    text += (
         f"Fitted jointly with the 57 base parameters: {values}. "
         f"Against the base model refitted by the same procedure: dBIC = {c.delta_bic:.1f} "
         f"(accepted at <= {s.max_delta_bic:.0f}); J on the held-out training windows changes by "
@@ -77,12 +159,33 @@ def statement(d: Diagnosis) -> str:
 def report_dict(d: Diagnosis) -> dict[str, Any]:
     """Everything of ``report.json``."""
     chosen = d.chosen
-    fitted = {n: dict(v) for n, v in d.after.params.effects} if d.verdict != "none" else {}
+    fitted = {n: dict(v) for n, v in d.after.params.effects} if d.verdict_effect else {}
+    prop = d.proposal
     return {
         "verdict": d.verdict,
         "statement": statement(d),
+        "discovered": discovered_entry(d),
+        "misfit": asdict(d.misfit) if d.misfit is not None else None,
+        "noise_model": d.extra.get("noise", {}),
+        "discovery": (
+            {
+                "proposed": prop.proposed,
+                "terms": prop.selection.terms,
+                "equation_coefficients": prop.selection.coefficients,
+                "heldout_r2": prop.selection.cv_r2,
+                "threshold": prop.threshold,
+                "alpha": prop.alpha,
+                "null": prop.null,
+                "absorbed": prop.selection.absorbed,
+                "path": prop.selection.path,
+                "single_terms": prop.selection.single,
+                "seconds": prop.seconds,
+            }
+            if prop is not None
+            else None
+        ),
         "candidates": [asdict(c) for c in d.candidates],
-        "fitted_effect_params": fitted.get(d.verdict, {}),
+        "fitted_effect_params": fitted.get(d.verdict_effect, {}),
         "candidate_fit_params": chosen.params if chosen else {},
         "J_before": d.test_before,
         "J_after": d.test_after,
@@ -204,13 +307,41 @@ def _table_md(before: dict[str, dict[str, float]], after: dict[str, dict[str, fl
     return "\n".join(lines) + "\n"
 
 
+def _discovery_md(d: Diagnosis) -> list[str]:
+    p = d.proposal
+    if p is None:
+        return ["(discovery switched off)"]
+    sel = p.selection
+    lines = [
+        f"Selected: {' + '.join(sel.terms) or 'no term'}; held-out R^2 of the equation residual "
+        f"{100 * sel.cv_r2:.2f} % against the null's {100 * (1 - p.alpha):.0f} % quantile "
+        f"{100 * p.threshold:.2f} % ({len(p.null)} noise-only copies of the windows: "
+        f"{', '.join(f'{100 * v:.2f}' for v in sorted(p.null))} %) -> "
+        + ("proposed as a candidate." if p.proposed else "not proposed."),
+        "",
+        "| term (alone) | force | held-out R^2 | absorbed by the base |",
+        "|---|---|---:|---:|",
+    ]
+    from mmg.library import term
+
+    for r in sel.single[:8]:
+        t = term(str(r["term"]))
+        lines.append(
+            f"| {t.id} | {t.force_formula()} | {100 * float(r['cv_r2']):.2f} % | "
+            f"{100 * float(r['absorbed']):.0f} % |"
+        )
+    return lines
+
+
 def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str, Any]:
     """Write report.json, report.md and the plots into ``out``; returns the report dict."""
     out.mkdir(parents=True, exist_ok=True)
     data = report_dict(d)
     (out / "report.json").write_text(json.dumps(data, indent=2, default=float) + "\n")
     d.before.params.save_json(out / "params_before.json", stage="base model, re-identified")
-    d.after.params.save_json(out / "params_after.json", stage=f"with effect {d.verdict}")
+    d.after.params.save_json(
+        out / "params_after.json", stage=f"with effect {d.verdict_effect or d.verdict}"
+    )
     plot_candidates(d, out / "candidates.png")
     figures = ["candidates.png"]
     if test:
@@ -229,6 +360,22 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
         "# Diagnosis report",
         "",
         f"**Verdict: `{d.verdict}`.** {data['statement']}",
+        "",
+        "## Is anything missing? The misfit against the noise floor",
+        "",
+        misfit_text(d),
+        "",
+        "| run | J / floor | z | worst channel |",
+        "|---|---:|---:|---|",
+        *(
+            f"| {r['run']} | {r['ratio']:.2f} | {r['z']:.1f} | "
+            f"{max(r['channels'], key=r['channels'].get)} |"
+            for r in (d.misfit.per_run[:8] if d.misfit else [])
+        ),
+        "",
+        "## Discovery: equation-level residuals regressed on the term library",
+        "",
+        *_discovery_md(d),
         "",
         "## Where the base model misses (training windows)",
         "",

@@ -67,8 +67,11 @@ from typing import Any
 import numpy as np
 
 from mmg import Effect, Parameters, catalog, get_effect
+from mmg.effects import DISCOVERED_PREFIX
 from mmg.params import N_THETA
+from sweep.diagnose.discover import DiscoverySettings, Proposal, discover, resemblance
 from sweep.diagnose.fit import Fit, FitSettings, effect_values, fit, with_effects
+from sweep.diagnose.floor import MisfitTest, calibrated_noise, misfit_test, noise_floor
 from sweep.diagnose.locate import (
     equation_residuals,
     locate,
@@ -101,7 +104,7 @@ TIE_ABSOLUTE = 10.0
 #: ``a_h_drift``, see the README); on the real recordings (J2 of thousands) it is negligible
 PRIOR_WEIGHT = 1.0
 #: version of the fitting procedure; raise it when a change alters what a stage computes
-PROCEDURE_VERSION = 4
+PROCEDURE_VERSION = 5
 #: shortest window kept [s] (the last window of a run may be short)
 MIN_WINDOW = 20.0
 
@@ -133,6 +136,13 @@ class DiagnoseSettings:
     effect_sigma: float = 0.15
     refit_sigma: float = 0.003  # base coordinates when refitting from the base fit
     workers: int | None = 0
+    #: propose terms from the library (:mod:`sweep.diagnose.discover`) as one more candidate
+    discover: bool = True
+    discover_terms: int = DiscoverySettings.max_terms
+    null_draws: int = DiscoverySettings.null_draws
+    alpha: float = DiscoverySettings.alpha  # false-alarm rate of the discovery's proposal
+    floor_draws: int = 12  # noise draws of the J floor
+    floor_margin: float = 0.10  # the misfit must exceed the floor by this share (and z > 3)
 
     def candidate_effects(self) -> tuple[Effect, ...]:
         names = self.candidates or tuple(sorted(catalog()))
@@ -140,7 +150,7 @@ class DiagnoseSettings:
 
     def fingerprint(self) -> str:
         # thresholds decide the verdict only: stages fitted under other thresholds are reused
-        skip = ("workers", "min_improvement", "max_delta_bic", "tie_margin")
+        skip = ("workers", "min_improvement", "max_delta_bic", "tie_margin", "floor_margin")
         data = {k: v for k, v in asdict(self).items() if k not in skip}
         data["procedure"] = PROCEDURE_VERSION  # stages of an older procedure are not reused
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]
@@ -281,11 +291,16 @@ class Diagnosis:
     windows: list[dict[str, Any]]
     seconds: float
     n_eff: float
+    misfit: MisfitTest | None = None
+    proposal: Proposal | None = None
+    #: the chosen candidate's effect name (the verdict is ``discovered`` for a generated one)
+    verdict_effect: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
     def chosen(self) -> CandidateScore | None:
-        return next((c for c in self.candidates if c.effect == self.verdict), None)
+        name = self.verdict_effect or self.verdict
+        return next((c for c in self.candidates if c.effect == name), None)
 
 
 def rank(scores: Sequence[CandidateScore], tie_margin: float = TIE_MARGIN) -> list[CandidateScore]:
@@ -425,6 +440,30 @@ def diagnose(
         )
     )
 
+    # is anything missing at all? the base model's misfit against the noise floor
+    rng = np.random.default_rng(s.seed + 7)
+    noise = calibrated_noise(windows, base.params, rng)
+    floor = noise_floor(base.params, windows, noise, rng, s.floor_draws)
+    misfit = misfit_test(floor, s.objective, margin=s.floor_margin)
+    log(
+        f"misfit: {s.objective} {misfit.J:.3g} on the training windows, {misfit.ratio:.2f} x the "
+        f"noise floor {misfit.floor:.3g} (z = {misfit.z:.1f}): "
+        + ("significant" if misfit.significant else "within the floor")
+    )
+    proposal: Proposal | None = None
+    extra_effects: list[Effect] = []
+    if s.discover:
+        proposal = discover(
+            base.params,
+            windows,
+            noise,
+            rng,
+            DiscoverySettings(max_terms=s.discover_terms, null_draws=s.null_draws, alpha=s.alpha),
+            log=log,
+        )
+        if proposal.proposed:
+            extra_effects.append(proposal.effect())
+
     # two folds: fit on one half, judge on the other, and the other way round; every fit is the
     # same deterministic procedure from the base fitted on all windows (the effect alone on a
     # grid, then Levenberg-Marquardt on the 57 base parameters and the effect jointly), so the
@@ -459,7 +498,7 @@ def diagnose(
             p0 = base.params if starts is None else starts[j].params
             res = _staged(
                 store,
-                f"{name}-fold{j}",
+                f"{stage_label(name, effs)}-fold{j}",
                 effs,
                 log,
                 lambda fh=fit_half, p0=p0: refit(fh, p0, effs, settings, name),  # type: ignore[misc]
@@ -495,7 +534,7 @@ def diagnose(
     scores: list[CandidateScore] = []
     fits: dict[str, Fit] = {}
     cand_folds: dict[str, list[Fit]] = {}
-    effects = s.candidate_effects()
+    effects = (*s.candidate_effects(), *extra_effects)
     for i, eff in enumerate(effects, 1):
         log(f"candidate {i}/{len(effects)}: {eff.name}")
         t_c = time.perf_counter()
@@ -531,7 +570,11 @@ def diagnose(
         )
     top = rank([c for c in scores if c.effect in leaders], s.tie_margin)
     scores = top + sorted([c for c in scores if c.effect not in leaders], key=lambda c: c.delta_bic)
-    verdict = scores[0].effect if scores and scores[0].accepted else "none"
+    verdict_effect = scores[0].effect if scores and scores[0].accepted else ""
+    if verdict_effect:
+        verdict = "discovered" if verdict_effect.startswith(DISCOVERED_PREFIX) else verdict_effect
+    else:
+        verdict = "unexplained" if misfit.significant else "none"
     log(
         "ranking: "
         + ", ".join(
@@ -549,10 +592,10 @@ def diagnose(
         log,
         lambda: refit(windows, base.params, (), final_settings, "final base"),
     )
-    if verdict == "none":
+    if not verdict_effect:
         after = before
     else:
-        chosen_eff = (get_effect(verdict),)
+        chosen_eff = (next(e for e in effects if e.name == verdict_effect),)
         after_settings = replace(final_settings, effect_only_share=0.0, effect_only_budget=0)
 
         def final_after() -> Fit:
@@ -560,9 +603,9 @@ def diagnose(
             # with the effect, but on half the windows) and the base fitted on all windows plus
             # the effect's values (which had absorbed part of the effect)
             starts = (
-                fits[verdict].params,
+                fits[verdict_effect].params,
                 with_effects(
-                    base.params, chosen_eff, effect_values(fits[verdict].params, chosen_eff)
+                    base.params, chosen_eff, effect_values(fits[verdict_effect].params, chosen_eff)
                 ),
             )
             ends = [
@@ -570,7 +613,9 @@ def diagnose(
             ]
             return min(ends, key=lambda e: e.f)
 
-        after = _staged(store, f"final-{verdict}", chosen_eff, log, final_after)
+        after = _staged(
+            store, stage_label(f"final-{verdict_effect}", chosen_eff), chosen_eff, log, final_after
+        )
     labels = list(test_labels) if test_labels is not None else [r.name for r in test]
     test_before = test_table(before.params, test, labels) if test else {}
     test_after = test_table(after.params, test, labels) if test else {}
@@ -597,8 +642,30 @@ def diagnose(
         windows=[{str(k): v for k, v in r.items()} for r in top_windows.to_dict("records")],
         seconds=time.perf_counter() - t0,
         n_eff=n_eff,
-        extra={"J_heldout_control": J_ho_control},
+        misfit=misfit,
+        proposal=proposal,
+        verdict_effect=verdict_effect,
+        extra={
+            "J_heldout_control": J_ho_control,
+            "noise": noise.as_dict(),
+            "resemblance": (
+                resemblance(base.params, windows, chosen_eff[0], scores, effects)
+                if verdict == "discovered"
+                else {}
+            ),
+        },
     )
+
+
+def stage_label(name: str, effects: Sequence[Effect]) -> str:
+    """A file-name-safe stage name; a generated effect's name is replaced by a hash of its terms
+    and search box (a different proposal is a different stage)."""
+    for e in effects:
+        if e.name.startswith(DISCOVERED_PREFIX) and e.name in name:
+            h = hashlib.sha256(e.name.encode())
+            h.update(json.dumps(e.bounds).encode())
+            name = name.replace(e.name, f"discovered-{h.hexdigest()[:10]}")
+    return name
 
 
 def _data_fingerprint(recordings: Sequence[Recording], start: Parameters) -> str:

@@ -1,0 +1,373 @@
+"""Discovery: propose a term nobody wrote down, from the equation-level residuals.
+
+Equation error proposes, output error decides (``design/discovery.md``): this module does the
+proposing; the proposed terms become a generated effect (:mod:`mmg.discovered`) that the
+diagnosis fits jointly with the 57 base parameters on trajectories, in two folds, and ranks with
+the catalog's effects by the same rules (:mod:`sweep.diagnose.run`).
+
+1. **Equation-level residuals.** In every training window the recorded states are smoothed and
+   differentiated (Savitzky-Golay, cubic, ``sg_window_s``): recorded accelerations (u_dot,
+   v_m_dot, r_dot). The model's accelerations at the smoothed states with the controls smoothed
+   by the same filter and the recorded wind are subtracted: the residual of Eq. (1), every
+   ``stride``-th sample.
+2. **Regressors.** Each library term (:mod:`mmg.library`) adds a force; its column is the
+   acceleration that force with a unit coefficient causes (through the same mass matrix, added
+   masses and x_G coupling as the model: the columns are computed by the model's own kernel, with
+   the term as an effect). The base model's own regressors are the derivatives of its
+   accelerations with respect to the 57 parameters.
+3. **Cancellation.** Refitting the base can reproduce part of any term. Residual and term columns
+   are projected onto the complement of the base regressors (Frisch-Waugh-Lovell: equivalent to
+   a joint refit of base and term, linearised); the *absorbed fraction* of a term is the share of
+   its column the base can imitate. Terms absorbed beyond ``max_absorbed`` are not new physics.
+4. **Selection.** Forward stepwise: the term that most reduces the residual on *held-out
+   windows* (cross-validation over whole windows, which are nearly independent, whereas
+   neighbouring samples are not), then the next, up to ``max_terms``, while each step adds at
+   least ``min_gain`` times the held-out R^2 reached so far. The statistic is the held-out R^2
+   of the selection.
+5. **Calibration on a null.** The base model is simulated on the same windows with noise of the
+   estimated level and colour (:mod:`sweep.diagnose.floor`) and the *same* procedure run on
+   each such recording set: the statistic's distribution when nothing is missing. The terms are
+   proposed only if the statistic exceeds the null's ``1 - alpha`` quantile.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import savgol_filter
+
+from mmg import Effect, Parameters, bounds, derivatives, get_effect
+from mmg.discovered import discovered_effect
+from mmg.library import TERMS, term
+from mmg.params import N_THETA
+from sweep.diagnose.floor import NoiseModel, _simulate
+from sweep.recordings import Recording
+
+FloatArray = NDArray[np.float64]
+
+ACC = (1, 3, 5)  # u_dot, v_m_dot, r_dot in the state derivative
+
+
+@dataclass(frozen=True)
+class DiscoverySettings:
+    """Rules of the proposal."""
+
+    max_terms: int = 3
+    min_gain: float = 0.15  # share of the held-out R^2 reached so far a further term must add
+    max_absorbed: float = 0.97
+    sg_window_s: float = 2.1
+    stride: int = 3  # every stride-th sample of the smoothed series
+    folds: int = 4
+    null_draws: int = 19
+    alpha: float = 0.05
+    terms: tuple[str, ...] = ()  # library terms searched (empty: all)
+
+
+@dataclass
+class EquationData:
+    """Stacked, weighted equation residuals and regressors of a set of windows."""
+
+    y: FloatArray  # (3M,) residual
+    C: FloatArray  # (3M, T) term columns
+    B: FloatArray  # (3M, 57) base regressors
+    groups: NDArray[np.int64]  # (3M,) window of each row
+    term_ids: list[str]
+    scale: FloatArray  # (3,) channel weights applied (1 / RMS of the residual)
+
+
+def _effect_values(params: Parameters, effects: Sequence[Effect]) -> FloatArray:
+    vals = [params.effect_values(e.name).get(q.name, q.neutral) for e in effects for q in e.params]
+    return np.asarray(vals, dtype=np.float64)
+
+
+def _smooth(a: FloatArray, m: int) -> FloatArray:
+    return np.asarray(savgol_filter(a, m, 3, axis=0))
+
+
+def equation_data(
+    params: Parameters, windows: Sequence[Recording], settings: DiscoverySettings
+) -> EquationData:
+    """Residuals and regressors (see the module docstring, steps 1-2)."""
+    ids = list(settings.terms or TERMS)
+    lib = discovered_effect(ids)
+    base_effects = tuple(get_effect(n) for n, _ in params.effects)
+    effects = (*base_effects, lib)
+    ys, Cs, Bs, gs = [], [], [], []
+    lo, hi = bounds()
+    steps = 1e-3 * (hi - lo)
+    theta0 = params.vector()
+    extra0 = np.concatenate(
+        [
+            [params.effect_values(e.name).get(q.name, q.neutral) for q in e.params]
+            for e in base_effects
+        ]
+        + [np.zeros(len(ids))]
+    )
+    for g, w in enumerate(windows):
+        dt = w.dt
+        m = max(7, round(settings.sg_window_s / dt) | 1)
+        if w.n_samples < 2 * m:
+            continue
+        x = np.asarray(w.x, dtype=np.float64).copy()
+        x[:, 4] = np.unwrap(x[:, 4])
+        xs = _smooth(x, m)
+        acc = np.asarray(savgol_filter(x[:, list(ACC)], m, 3, deriv=1, delta=dt, axis=0))
+        us = _smooth(np.asarray(w.u, dtype=np.float64), m)  # the controls averaged alike
+        wind = np.asarray(w.w)
+        sl = slice(m // 2, x.shape[0] - m // 2, settings.stride)  # away from the filter's edges
+        xs, acc, us, wind = xs[sl], acc[sl], us[sl], wind[sl]
+        n = xs.shape[0]
+        # parameter rows: the base, each base parameter stepped, each term at coefficient 1
+        rows = [np.concatenate([theta0, extra0])]
+        for j in range(N_THETA):
+            r = rows[0].copy()
+            r[j] += steps[j]
+            rows.append(r)
+        for k in range(len(ids)):
+            r = rows[0].copy()
+            r[N_THETA + len(extra0) - len(ids) + k] = 1.0
+            rows.append(r)
+        P = np.stack(rows)  # (R, n_params)
+        R = P.shape[0]
+        d = derivatives(
+            np.broadcast_to(xs, (R, n, 6)),
+            np.broadcast_to(us, (R, n, 2)),
+            np.broadcast_to(wind, (R, n, 2)),
+            np.broadcast_to(P[:, None, :], (R, n, P.shape[1])),
+            effects,
+        )[..., ACC]
+        d = np.moveaxis(d, 1, 0)  # (n, R, 3)
+        base = d[:, 0]
+        ys.append(acc - base)
+        Bs.append((d[:, 1 : 1 + N_THETA] - base[:, None]) / steps[None, :, None])
+        Cs.append(d[:, 1 + N_THETA :] - base[:, None])
+        gs.append(np.full(ys[-1].shape[0], g))
+    if not ys:
+        raise ValueError("no window is long enough for the equation-level residuals")
+    y = np.concatenate(ys)  # (M, 3)
+    Bm = np.concatenate(Bs)  # (M, 57, 3)
+    Cm = np.concatenate(Cs)  # (M, T, 3)
+    grp = np.concatenate(gs)
+    scale = 1.0 / np.maximum(np.sqrt(np.mean(y * y, axis=0)), 1e-12)
+    y = y * scale
+    Bm = Bm * scale[None, None, :]
+    Cm = Cm * scale[None, None, :]
+    M = y.shape[0]
+    return EquationData(
+        y=y.T.reshape(3 * M),
+        C=np.moveaxis(Cm, 2, 0).reshape(3 * M, len(ids)),
+        B=np.moveaxis(Bm, 2, 0).reshape(3 * M, N_THETA),
+        groups=np.tile(grp, 3),
+        term_ids=ids,
+        scale=scale,
+    )
+
+
+@dataclass
+class Selection:
+    """The outcome of steps 3-4 on one data set."""
+
+    terms: list[str]
+    coefficients: list[float]  # joint (projected) least-squares estimates
+    cv_r2: float
+    path: list[dict[str, float | str]]
+    absorbed: dict[str, float]
+    single: list[dict[str, float | str]]  # every term alone: held-out R^2, absorbed fraction
+
+
+def _cv_r2(y: FloatArray, X: FloatArray, folds: list[NDArray[np.bool_]]) -> float:
+    sse = 0.0
+    for test in folds:
+        train = ~test
+        beta, *_ = np.linalg.lstsq(X[train], y[train], rcond=None)
+        e = y[test] - X[test] @ beta
+        sse += float(e @ e)
+    return 1.0 - sse / max(float(y @ y), 1e-300)
+
+
+def select(data: EquationData, settings: DiscoverySettings) -> Selection:
+    """Project out the base regressors, then forward stepwise selection by held-out R^2."""
+    U, s, _ = np.linalg.svd(data.B, full_matrices=False)
+    Q = U[:, s > 1e-8 * s[0]] if s.size and s[0] > 0 else U[:, :0]
+    y = data.y - Q @ (Q.T @ data.y)
+    C = data.C - Q @ (Q.T @ data.C)
+    norm0 = np.sum(data.C * data.C, axis=0)
+    norm = np.sum(C * C, axis=0)
+    absorbed = np.where(norm0 > 0, 1.0 - norm / np.maximum(norm0, 1e-300), 1.0)
+    usable = [k for k in range(C.shape[1]) if norm0[k] > 0 and absorbed[k] <= settings.max_absorbed]
+    windows = np.unique(data.groups)
+    F = max(2, min(settings.folds, windows.size))
+    folds = [np.isin(data.groups, windows[f::F]) for f in range(F)]
+    single: list[dict[str, float | str]] = []
+    for k in usable:
+        single.append(
+            {
+                "term": data.term_ids[k],
+                "cv_r2": _cv_r2(y, C[:, [k]], folds),
+                "absorbed": float(absorbed[k]),
+            }
+        )
+    single.sort(key=lambda r: r["cv_r2"], reverse=True)
+    chosen: list[int] = []
+    path: list[dict[str, float | str]] = []
+    best = 0.0
+    for _ in range(settings.max_terms):
+        trials = [(_cv_r2(y, C[:, [*chosen, k]], folds), k) for k in usable if k not in chosen]
+        if not trials:
+            break
+        r2, k = max(trials)
+        if r2 <= 0.0 or (chosen and r2 - best < settings.min_gain * best):
+            break
+        chosen.append(k)
+        best = r2
+        path.append({"term": data.term_ids[k], "cv_r2": r2})
+    coefs: list[float] = []
+    if chosen:
+        beta, *_ = np.linalg.lstsq(C[:, chosen], y, rcond=None)
+        coefs = [float(b) for b in beta]
+    return Selection(
+        terms=[data.term_ids[k] for k in chosen],
+        coefficients=coefs,
+        cv_r2=best,
+        path=path,
+        absorbed={data.term_ids[k]: float(absorbed[k]) for k in chosen},
+        single=single[:12],
+    )
+
+
+@dataclass
+class Proposal:
+    """What discovery proposes for the trajectory fits (or why nothing)."""
+
+    selection: Selection
+    threshold: float
+    null: list[float]
+    alpha: float
+    proposed: bool
+    seconds: float = 0.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def terms(self) -> list[str]:
+        return self.selection.terms if self.proposed else []
+
+    def effect(self, widen: float = 4.0) -> Effect:
+        """The generated effect of the proposed terms, its box +-``widen`` x the estimate."""
+        from mmg.discovered import with_bounds
+
+        eff = discovered_effect(self.selection.terms)
+        half = [max(widen * abs(c), 1e-6) for c in self.selection.coefficients]
+        return with_bounds(eff, half)
+
+
+def null_sets(
+    params: Parameters,
+    windows: Sequence[Recording],
+    noise: NoiseModel,
+    rng: np.random.Generator,
+    draws: int,
+) -> list[list[Recording]]:
+    """``draws`` synthetic copies of the windows: the model's simulation plus noise."""
+    sims = _simulate(params, windows)
+    out = []
+    for _ in range(draws):
+        out.append(
+            [
+                Recording(w.name, None, w.t, x + noise.draw(rng, x.shape[0]), w.u, w.w)
+                for w, x in zip(windows, sims, strict=True)
+            ]
+        )
+    return out
+
+
+def discover(
+    params: Parameters,
+    windows: Sequence[Recording],
+    noise: NoiseModel,
+    rng: np.random.Generator,
+    settings: DiscoverySettings | None = None,
+    log: Any = None,
+) -> Proposal:
+    """Steps 1-5 of the module docstring on the training windows."""
+    import time
+
+    s = settings or DiscoverySettings()
+    for t in s.terms:
+        term(t)  # unknown ids fail here, naming the library
+    t0 = time.perf_counter()
+    sel = select(equation_data(params, windows, s), s)
+    null: list[float] = []
+    for recs in null_sets(params, windows, noise, rng, s.null_draws):
+        null.append(select(equation_data(params, recs, s), s).cv_r2)
+    threshold = float(np.quantile(null, 1.0 - s.alpha)) if null else 0.0
+    proposed = bool(sel.terms) and sel.cv_r2 > threshold
+    if log is not None:
+        log(
+            f"discovery: {' + '.join(sel.terms) or 'no term'} explains {100 * sel.cv_r2:.1f} % of "
+            f"the held-out equation residual (null {1 - s.alpha:.0%} quantile "
+            f"{100 * threshold:.1f} %) -> {'proposed' if proposed else 'not proposed'}"
+        )
+    return Proposal(sel, threshold, null, s.alpha, proposed, time.perf_counter() - t0)
+
+
+def force_pattern(
+    params: Parameters,
+    windows: Sequence[Recording],
+    effect: Effect,
+    values: Sequence[float],
+    stride: int = 5,
+) -> FloatArray:
+    """(3M,) the accelerations (u_dot, v_m_dot, r_dot) that ``effect`` at ``values`` adds to the
+    model at the recorded states, every ``stride``-th sample, each channel divided by the
+    model's own acceleration RMS (an effect acting only on controls or the measurement adds
+    none here)."""
+    base_effects = tuple(get_effect(n) for n, _ in params.effects)
+    effects = (*base_effects, effect)
+    extra0 = [
+        params.effect_values(e.name).get(q.name, q.neutral) for e in base_effects for q in e.params
+    ]
+    p0 = np.concatenate([params.vector(), extra0, effect.neutral()])
+    p1 = np.concatenate([params.vector(), extra0, np.asarray(values, dtype=np.float64)])
+    x = np.concatenate([np.asarray(w.x)[::stride] for w in windows])
+    u = np.concatenate([np.asarray(w.u)[::stride] for w in windows])
+    wind = np.concatenate([np.asarray(w.w)[::stride] for w in windows])
+    n = x.shape[0]
+    d = derivatives(
+        np.broadcast_to(x, (2, n, 6)),
+        np.broadcast_to(u, (2, n, 2)),
+        np.broadcast_to(wind, (2, n, 2)),
+        np.broadcast_to(np.stack([p0, p1])[:, None, :], (2, n, p0.size)),
+        effects,
+    )
+    a0 = d[0][:, list(ACC)]
+    da = d[1][:, list(ACC)] - a0
+    scale = 1.0 / np.maximum(np.sqrt(np.mean(a0 * a0, axis=0)), 1e-12)
+    return np.asarray((da * scale).T.reshape(-1))
+
+
+def resemblance(
+    params: Parameters,
+    windows: Sequence[Recording],
+    chosen: Effect,
+    scores: Sequence[Any],
+    effects: Sequence[Effect],
+) -> dict[str, float]:
+    """Correlation of the chosen (discovered) effect's force pattern with each catalog
+    candidate's, both at their fitted values; catalog effects that add no force are left out."""
+    by_name = {e.name: e for e in effects}
+    fitted = {c.effect: c.params for c in scores}
+    ref = force_pattern(params, windows, chosen, list(fitted[chosen.name].values()))
+    out: dict[str, float] = {}
+    for name, vals in fitted.items():
+        eff = by_name.get(name)
+        if eff is None or name == chosen.name or eff.name.startswith("discovered:"):
+            continue
+        pat = force_pattern(params, windows, eff, list(vals.values()))
+        den = float(np.linalg.norm(pat) * np.linalg.norm(ref))
+        if den > 0:
+            out[name] = float(pat @ ref / den)
+    return dict(sorted(out.items(), key=lambda kv: -abs(kv[1])))

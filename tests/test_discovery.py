@@ -1,0 +1,137 @@
+"""Missing physics beyond the catalog: generated effects, the noise floor, discovery end to end."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mmg import derivatives, efd_parameters, get_effect
+from mmg.discovered import discovered_effect, effect_name
+from sweep.diagnose.__main__ import main
+from sweep.diagnose.fit import with_effects
+from sweep.diagnose.floor import NoiseModel, calibrated_noise, misfit_test, noise_floor
+from sweep.diagnose.planted import (
+    PlantedSpec,
+    generate,
+    noise_levels,
+    perturbed_ship,
+    pick_windows,
+    write_case,
+)
+from sweep.diagnose.run import cut_windows
+from sweep.recordings import Recording, read_recordings
+
+KINDS = ("random", "turning", "zigzag")
+
+
+@pytest.fixture(scope="module")
+def runs(data_dir: Path) -> dict[str, list]:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return {k: read_recordings(data_dir / "data" / k) for k in KINDS}
+
+
+def test_generated_effect_adds_its_term_through_the_mass_matrix():
+    """Y += 0.5 rho L d C v_m|v_m|: the sway and yaw accelerations change exactly as a force Y
+    through the model's own mass matrix (x_G couples sway and yaw), surge not at all."""
+    eff = get_effect(effect_name(["Y_vav"]))
+    assert eff is discovered_effect(["Y_vav"]) or eff.name == "discovered:Y_vav"
+    assert eff.param_names == ("C_Y_vav",)
+    p = efd_parameters()
+    x = np.array([0.0, 0.4, 0.0, -0.06, 0.2, 0.01])
+    u = np.array([0.1, 10.0])
+    w = np.array([1.0, 0.3])
+    d0 = derivatives(x, u, w, with_effects(p, (eff,)), (eff,))
+    d1 = derivatives(x, u, w, with_effects(p, (eff,), [0.5]), (eff,))
+    d2 = derivatives(x, u, w, with_effects(p, (eff,), [1.0]), (eff,))
+    assert d1[1] == pytest.approx(d0[1], abs=1e-15)
+    assert d1[3] != pytest.approx(d0[3], abs=1e-9)
+    np.testing.assert_allclose(d2 - d0, 2.0 * (d1 - d0), rtol=1e-9, atol=1e-15)  # linear in C
+    with pytest.raises(KeyError, match="unknown library term"):
+        get_effect("discovered:Y_warp")
+
+
+def test_noise_model_recovers_coloured_noise_and_the_floor_of_a_true_model(runs):
+    """AR(1) noise (phi 0.7) on a simulated ship: sigma within 10 % on the channels that set J,
+    and the floor within 15 % of the J the true model reaches; the misfit test calls the true
+    model within the floor and the EFD model on a perturbed ship significant."""
+    rng = np.random.default_rng(1)
+    ship = perturbed_ship(rng, 0.15)
+    wins = pick_windows(runs, {"random": 3, "turning": 2, "zigzag": 1}, rng)
+    levels = noise_levels([r for v in runs.values() for r in v])
+    clean, _ = generate(wins, ship, PlantedSpec("none"), {k: 0.0 for k in levels}, rng)
+    true = NoiseModel(
+        {k: 5 * levels[k] for k in levels}, dict.fromkeys(levels, 0.7)
+    )  # 5 x: the floor is well above the model's own rounding
+    noisy = [
+        Recording(r.name, None, r.t, r.x + true.draw(rng, r.x.shape[0]), r.u, r.w) for r in clean
+    ]
+    windows = cut_windows(noisy)
+    est = calibrated_noise(windows, ship, rng)
+    for c in ("x0", "y0", "u", "v_m", "psi"):
+        assert est.sigma[c] == pytest.approx(true.sigma[c], rel=0.10), c
+        assert est.phi[c] == pytest.approx(0.7, abs=0.08), c
+    test = misfit_test(noise_floor(ship, windows, est, rng, 8))
+    assert test.ratio == pytest.approx(1.0, abs=0.15)
+    assert not test.significant
+    off = misfit_test(noise_floor(efd_parameters(), windows, est, rng, 8))
+    assert off.significant and off.ratio > 3.0
+
+
+def _case(runs: dict, spec: PlantedSpec, directory: Path) -> None:
+    rng = np.random.default_rng(3)
+    wins = pick_windows(runs, {"random": 3, "turning": 1, "zigzag": 1}, rng)
+    noise = noise_levels([r for v in runs.values() for r in v])
+    recs, diverged = generate(wins, efd_parameters(), spec, noise, rng, phi=0.5)
+    assert not diverged
+    write_case(directory, recs[1:], recs[:1], spec, efd_parameters())
+
+
+def _diagnose(case: Path, out: Path) -> dict:
+    code = main(
+        [
+            "--params", "efd",
+            "--train", str(case / "train"),
+            "--test", str(case / "test"),
+            "--out", str(out),
+            "--budget", "200",
+            "--candidates", "rudder_offset,current",
+            "--no-tracking",
+        ]
+    )  # fmt: skip
+    assert code == 0
+    return json.loads((out / "report.json").read_text())
+
+
+def test_unlisted_wave_resistance_is_flagged_and_a_term_proposed(runs, tmp_path):
+    """A resistance growing with u^4 is in no catalog entry: the misfit is significantly above
+    the floor, discovery proposes library terms, and their trajectory fit helps held-out windows;
+    the verdict is a discovery or, failing acceptance, `unexplained` - never `none`."""
+    _case(runs, PlantedSpec("wave_resistance", {"C_w": 0.3}), tmp_path / "case")
+    report = _diagnose(tmp_path / "case", tmp_path / "out")
+    assert report["misfit"]["significant"] and report["misfit"]["ratio"] > 1.3
+    assert report["discovery"]["proposed"]
+    assert report["discovery"]["heldout_r2"] > report["discovery"]["threshold"]
+    assert report["verdict"] in ("discovered", "unexplained")
+    found = [c for c in report["candidates"] if c["effect"].startswith("discovered:")]
+    assert found and found[0]["improvement"] > 0.1
+    if report["verdict"] == "unexplained":
+        assert (
+            "Unexplained misfit" in report["statement"]
+            and " x what measurement" in (report["statement"])
+        )
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "noise floor" in md and "Discovery" in md
+
+
+def test_no_effect_with_coloured_noise_gives_none_and_no_proposal(runs, tmp_path):
+    _case(runs, PlantedSpec("none"), tmp_path / "case")
+    report = _diagnose(tmp_path / "case", tmp_path / "out")
+    assert report["verdict"] == "none"
+    assert not report["misfit"]["significant"]
+    assert report["misfit"]["ratio"] < 1.15
+    assert not report["discovery"]["proposed"]

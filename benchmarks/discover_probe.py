@@ -1,7 +1,7 @@
 """Discovery alone on planted windows, with the true ship as base (no identification): what the
 noise floor says and which library terms the equation-level regression proposes, per form.
 
-    python benchmarks/discover_probe.py [--null-draws 9] [--phi 0.6]
+    python -m benchmarks.discover_probe [--null-draws 9] [--phi 0.6]
 
 Twelve 100-s windows of the real runs (5 random, 3 turning, 2 zigzag, 2 berthing) simulated by a
 perturbed ship with one unlisted form planted, AR(1) noise (``--phi``) at the real recordings'

@@ -41,10 +41,11 @@ from numpy.typing import NDArray
 from scipy.signal import savgol_filter
 
 from mmg import Effect, Parameters, bounds, derivatives, get_effect
-from mmg.discovered import discovered_effect
+from mmg.discovered import discovered_effect, with_bounds
 from mmg.library import TERMS, term
 from mmg.params import N_THETA
-from sweep.diagnose.floor import NoiseModel, _simulate
+from sweep.diagnose.fit import effect_values
+from sweep.diagnose.floor import NoiseModel, simulate_windows
 from sweep.recordings import Recording
 
 FloatArray = NDArray[np.float64]
@@ -79,11 +80,6 @@ class EquationData:
     scale: FloatArray  # (3,) channel weights applied (1 / RMS of the residual)
 
 
-def _effect_values(params: Parameters, effects: Sequence[Effect]) -> FloatArray:
-    vals = [params.effect_values(e.name).get(q.name, q.neutral) for e in effects for q in e.params]
-    return np.asarray(vals, dtype=np.float64)
-
-
 def _smooth(a: FloatArray, m: int) -> FloatArray:
     return np.asarray(savgol_filter(a, m, 3, axis=0))
 
@@ -100,13 +96,13 @@ def equation_data(
     lo, hi = bounds()
     steps = 1e-3 * (hi - lo)
     theta0 = params.vector()
-    extra0 = np.concatenate(
-        [
-            [params.effect_values(e.name).get(q.name, q.neutral) for q in e.params]
-            for e in base_effects
-        ]
-        + [np.zeros(len(ids))]
-    )
+    extra0 = np.concatenate([effect_values(params, base_effects), np.zeros(len(ids))])
+    # parameter rows: the base, each base parameter stepped, each term at coefficient 1
+    p0 = np.concatenate([theta0, extra0])
+    P = np.repeat(p0[None, :], 1 + N_THETA + len(ids), axis=0)  # (R, n_params)
+    P[1 + np.arange(N_THETA), np.arange(N_THETA)] += steps
+    P[1 + N_THETA + np.arange(len(ids)), p0.size - len(ids) + np.arange(len(ids))] = 1.0
+    R = P.shape[0]
     for g, w in enumerate(windows):
         dt = w.dt
         m = max(7, round(settings.sg_window_s / dt) | 1)
@@ -121,18 +117,6 @@ def equation_data(
         sl = slice(m // 2, x.shape[0] - m // 2, settings.stride)  # away from the filter's edges
         xs, acc, us, wind = xs[sl], acc[sl], us[sl], wind[sl]
         n = xs.shape[0]
-        # parameter rows: the base, each base parameter stepped, each term at coefficient 1
-        rows = [np.concatenate([theta0, extra0])]
-        for j in range(N_THETA):
-            r = rows[0].copy()
-            r[j] += steps[j]
-            rows.append(r)
-        for k in range(len(ids)):
-            r = rows[0].copy()
-            r[N_THETA + len(extra0) - len(ids) + k] = 1.0
-            rows.append(r)
-        P = np.stack(rows)  # (R, n_params)
-        R = P.shape[0]
         d = derivatives(
             np.broadcast_to(xs, (R, n, 6)),
             np.broadcast_to(us, (R, n, 2)),
@@ -257,8 +241,6 @@ class Proposal:
 
     def effect(self, widen: float = 4.0) -> Effect:
         """The generated effect of the proposed terms, its box +-``widen`` x the estimate."""
-        from mmg.discovered import with_bounds
-
         eff = discovered_effect(self.selection.terms)
         half = [max(widen * abs(c), 1e-6) for c in self.selection.coefficients]
         return with_bounds(eff, half)
@@ -272,7 +254,7 @@ def null_sets(
     draws: int,
 ) -> list[list[Recording]]:
     """``draws`` synthetic copies of the windows: the model's simulation plus noise."""
-    sims = _simulate(params, windows)
+    sims = simulate_windows(params, windows)
     out = []
     for _ in range(draws):
         out.append(
@@ -327,9 +309,7 @@ def force_pattern(
     none here)."""
     base_effects = tuple(get_effect(n) for n, _ in params.effects)
     effects = (*base_effects, effect)
-    extra0 = [
-        params.effect_values(e.name).get(q.name, q.neutral) for e in base_effects for q in e.params
-    ]
+    extra0 = effect_values(params, base_effects)
     p0 = np.concatenate([params.vector(), extra0, effect.neutral()])
     p1 = np.concatenate([params.vector(), extra0, np.asarray(values, dtype=np.float64)])
     x = np.concatenate([np.asarray(w.x)[::stride] for w in windows])

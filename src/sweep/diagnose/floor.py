@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.signal import lfilter
 
 from mmg import Parameters, get_effect, simulate_batch
 from mmg.integrate import OBSERVABLES as OBSERVABLES_J
@@ -45,6 +46,17 @@ MARGIN = 0.10
 Z_CRIT = 3.0
 
 
+def ar1(e: FloatArray, phi: float) -> FloatArray:
+    """Unit-variance white noise e (n, ...) turned into stationary AR(1) noise of unit variance
+    along axis 0: x_0 = e_0, x_k = phi x_{k-1} + sqrt(1 - phi^2) e_k (a first-order low-pass)."""
+    if phi == 0.0:
+        return e
+    x = np.empty_like(e)
+    x[0] = e[0]
+    x[1:] = lfilter([np.sqrt(1.0 - phi * phi)], [1.0, -phi], e[1:], axis=0, zi=phi * e[:1])[0]
+    return x
+
+
 @dataclass(frozen=True)
 class NoiseModel:
     """AR(1) measurement noise per state channel: standard deviation and lag-1 correlation."""
@@ -58,18 +70,7 @@ class NoiseModel:
         """(n, 6) noise samples of the six state channels (stationary AR(1) each)."""
         out = np.empty((n, len(STATES)))
         for j, c in enumerate(STATES):
-            s, phi = self.sigma[c], self.phi[c]
-            e = rng.normal(0.0, 1.0, n)
-            x = np.empty(n)
-            x[0] = e[0]
-            innov = np.sqrt(1.0 - phi * phi)
-            if phi == 0.0:
-                x[:] = e
-            else:
-                from scipy.signal import lfilter
-
-                x[1:], _ = lfilter([innov], [1.0, -phi], e[1:], zi=[phi * e[0]])
-            out[:, j] = s * x
+            out[:, j] = self.sigma[c] * ar1(rng.normal(0.0, 1.0, n), self.phi[c])
         return out
 
     def as_dict(self) -> dict[str, Any]:
@@ -167,7 +168,7 @@ def calibrated_noise(
     first = estimate_noise(recordings, params)
     synthetic = [
         Recording(r.name, None, r.t, x + first.draw(rng, x.shape[0]), r.u, r.w)
-        for r, x in zip(recordings, _simulate(params, recordings), strict=True)
+        for r, x in zip(recordings, simulate_windows(params, recordings), strict=True)
     ]
     second = estimate_noise(synthetic, params)
     sigma = {
@@ -177,9 +178,10 @@ def calibrated_noise(
     return NoiseModel(sigma, dict(first.phi), first.window_s, True)
 
 
-def _simulate(params: Parameters, windows: Sequence[Recording]) -> list[FloatArray]:
-    """The model's states (n_i, 6) on each recording, from its first recorded state; a window
-    whose simulation diverges is replaced by its recording."""
+def simulate_windows(params: Parameters, windows: Sequence[Recording]) -> list[FloatArray]:
+    """The model's states (n_i, 6) [m, m/s, m, m/s, rad, rad/s] on each recording, from its first
+    recorded state with its controls and wind; a diverged simulation is replaced by the recording.
+    """
     effects = tuple(get_effect(n) for n, _ in params.effects)
     x0 = np.stack([np.asarray(w.x[0]) for w in windows])
     K = max(w.n_samples for w in windows) - 1
@@ -223,7 +225,7 @@ def noise_floor(
 ) -> Floor:
     """Floor of J on ``windows`` (each one subsequence of the objective) for ``params``."""
     effects = tuple(get_effect(n) for n, _ in params.effects)
-    sims = _simulate(params, windows)
+    sims = simulate_windows(params, windows)
     actual, _ = Objective(windows, effects=effects, ship=params.ship).costs(params)
     out = []
     for _ in range(draws):

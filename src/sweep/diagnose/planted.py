@@ -28,7 +28,6 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-from scipy.signal import lfilter
 
 from mmg import Effect, EffectParam, Parameters, bounds, efd_parameters, get_effect, simulate_batch
 from mmg._jit import subfunction
@@ -37,6 +36,7 @@ from mmg.params import N_THETA, Ship, Theta
 from mmg.propeller import wake_factor
 from mmg.rudder import lift_gradient
 from mmg.trig import atan2, sincos
+from sweep.diagnose.floor import ar1
 from sweep.recordings import Recording
 
 # --------------------------------------------------------------------------- other forms
@@ -493,8 +493,7 @@ def generate(
     out = []
     for i, w in enumerate(windows):
         e = rng.normal(0.0, 1.0, sim.states[i].shape)
-        if phi > 0.0:
-            e = lfilter([math.sqrt(1.0 - phi * phi)], [1.0, -phi], e, axis=0, zi=phi * e[:1])[0]
+        e = ar1(e, phi)
         x = sim.states[i] + e * sigma
         x[0] = sim.states[i][0]  # the first logged state is the real one (the simulation's start)
         sl = slice(w.start, w.start + w.n)

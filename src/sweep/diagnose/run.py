@@ -592,6 +592,7 @@ def diagnose(
         log,
         lambda: refit(windows, base.params, (), final_settings, "final base"),
     )
+    resembles: dict[str, float] = {}
     if not verdict_effect:
         after = before
     else:
@@ -616,6 +617,8 @@ def diagnose(
         after = _staged(
             store, stage_label(f"final-{verdict_effect}", chosen_eff), chosen_eff, log, final_after
         )
+        if verdict == "discovered":  # which catalog effect's force pattern it is most like
+            resembles = resemblance(base.params, windows, chosen_eff[0], scores, effects)
     labels = list(test_labels) if test_labels is not None else [r.name for r in test]
     test_before = test_table(before.params, test, labels) if test else {}
     test_after = test_table(after.params, test, labels) if test else {}
@@ -648,11 +651,7 @@ def diagnose(
         extra={
             "J_heldout_control": J_ho_control,
             "noise": noise.as_dict(),
-            "resemblance": (
-                resemblance(base.params, windows, chosen_eff[0], scores, effects)
-                if verdict == "discovered"
-                else {}
-            ),
+            "resemblance": resembles,
         },
     )
 

@@ -11,7 +11,11 @@ on the no-effect cases, parameter errors, and the test-set J2 before / after / o
 
     python benchmarks/diagnose_planted.py [--cases all|quick|N,M,...] [--repeats R]
         [--base-budget 6000] [--candidate-budget 0] [--final-budget 0] [--scale 1] [--out DIR]
-        [--markdown]
+        [--weak] [--markdown]
+
+``--weak`` sets each case's magnitude (by bisection on the scale, same ship, windows and noise)
+so that the effect raises the true ship's test J2 by only 20-35 % over the true model's, the
+noise floor: the detection limit.
 
 ``--scale s`` plants every effect s times as strong (its strength parameters times s; the onset
 angle of the tanh stall and of the piecewise a_H divided by s) in the same ships, windows and
@@ -35,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from mmg import efd_parameters
+from mmg import Parameters, efd_parameters
 from sweep.datasets import data_root
 from sweep.diagnose.planted import (
     PlantedSpec,
@@ -118,6 +122,11 @@ STRENGTH: dict[str, tuple[str, ...]] = {
 ONSET: dict[str, tuple[str, ...]] = {"stall_tanh": ("alpha_s",), "a_h_piecewise": ("beta_0",)}
 
 
+#: ``--weak``: each effect's magnitude is set so that it raises the test J2 of the true ship by
+#: this much over the true model's (the noise floor): 20 to 35 %
+WEAK = (0.20, 0.35)
+
+
 def scaled(spec: PlantedSpec, scale: float) -> PlantedSpec:
     """``spec`` with its effect made ``scale`` times as strong (shape parameters unchanged)."""
     values = dict(spec.values)
@@ -154,15 +163,15 @@ def planted_value(spec: PlantedSpec, name: str) -> float:
     return spec.values[name]
 
 
-def run_case(
+def make_case(
     index: int,
     spec: PlantedSpec,
     repeat: int,
     runs: dict[str, list[Recording]],
     noise: dict[str, float],
-    settings: DiagnoseSettings,
-    out: Path,
-) -> dict[str, Any]:
+) -> tuple[Parameters, list[Recording], list[Recording], bool]:
+    """(true ship, training windows, test windows, diverged) of a case: the ship, the windows
+    and the noise depend on (index, repeat) only, not on the planted magnitude."""
     seed = 1000 * repeat + index
     rng = np.random.default_rng(seed)
     ship = perturbed_ship(rng, 0.15)
@@ -177,6 +186,64 @@ def run_case(
         test += recs[i : i + TEST.get(k, 0)]
         train += recs[i + TEST.get(k, 0) : i + n]
         i += n
+    return ship, train, test, diverged
+
+
+def excess(
+    index: int,
+    spec: PlantedSpec,
+    repeat: int,
+    runs: dict[str, list[Recording]],
+    noise: dict[str, float],
+) -> float:
+    """How much the planted effect raises the test J2 over the noise floor: J2 of the true ship
+    without the effect over J2 of the true model (ship and effect), both on the noisy test set."""
+    ship, _, test, diverged = make_case(index, spec, repeat, runs, noise)
+    if diverged:
+        return math.inf
+    truth = true_model(ship, spec)
+    J_true = float(Objective(test, "J2", effects=truth[1]).evaluate(truth[0])[0])
+    J_without = float(Objective(test, "J2").evaluate(ship)[0])
+    return J_without / J_true - 1.0
+
+
+def weak_scale(
+    index: int,
+    spec: PlantedSpec,
+    repeat: int,
+    runs: dict[str, list[Recording]],
+    noise: dict[str, float],
+    target: tuple[float, float] = WEAK,
+) -> tuple[float, float]:
+    """(scale, excess): the magnitude scale that puts the case's excess test J2 inside
+    ``target`` (bisection in log-scale; the excess grows with the magnitude)."""
+    if spec.form == "none":
+        return 1.0, 0.0
+    mid = 0.5 * (target[0] + target[1])
+    lo, hi = 1e-3, 10.0
+    scale, e = 1.0, excess(index, scaled(spec, 1.0), repeat, runs, noise)
+    for _ in range(30):
+        if target[0] <= e <= target[1]:
+            break
+        if e > mid:
+            hi = scale
+        else:
+            lo = scale
+        scale = math.sqrt(lo * hi)
+        e = excess(index, scaled(spec, scale), repeat, runs, noise)
+    return scale, e
+
+
+def run_case(
+    index: int,
+    spec: PlantedSpec,
+    repeat: int,
+    runs: dict[str, list[Recording]],
+    noise: dict[str, float],
+    settings: DiagnoseSettings,
+    out: Path,
+) -> dict[str, Any]:
+    ship, train, test, diverged = make_case(index, spec, repeat, runs, noise)
     case_dir = out / f"case-{index:02d}-{repeat}"
     write_case(case_dir, train, test, spec, ship)
     blind_train = read_recordings(case_dir / "train")
@@ -266,6 +333,17 @@ def summarise(results: list[dict[str, Any]]) -> str:
             f"unlisted cases explained (discovered, test J2 within 1.5 x the true model): "
             f"{explained}/{len(unlisted)}; named or flagged unexplained: {flagged}/{len(unlisted)}"
         )
+    if eff:
+        named = sum(r["correct"] or r["verdict"] == "unexplained" for r in eff)
+        lines.append(
+            f"all planted cases named (right family) or flagged unexplained: {named}/{len(eff)}"
+        )
+    if any("excess" in r for r in eff):
+        ex = [100 * r["excess"] for r in eff if "excess" in r]
+        lines.append(
+            f"excess of the true ship's test J2 over the true model's: {min(ex):.0f} to "
+            f"{max(ex):.0f} % (median {np.median(ex):.0f} %)"
+        )
     errs = [v for r in results for k, v in r["param_errors"].items() if "candidate" not in k]
     if errs:
         within = sum(e <= 0.2 for e in errs)
@@ -321,6 +399,12 @@ def main(argv: list[str] | None = None) -> int:
         help="planted effects this many times as strong (same ships, windows and noise)",
     )
     ap.add_argument(
+        "--weak",
+        action="store_true",
+        help=f"each effect only as strong as raises the true ship's test J2 by "
+        f"{100 * WEAK[0]:.0f}-{100 * WEAK[1]:.0f} %% over the noise floor (scale per case)",
+    )
+    ap.add_argument(
         "--markdown", action="store_true", help="also print the per-case table in Markdown"
     )
     args = ap.parse_args(argv)
@@ -351,8 +435,16 @@ def main(argv: list[str] | None = None) -> int:
             if path.exists():
                 results.append(json.loads(path.read_text()))
                 continue
-            r = run_case(
-                index, scaled(SPECS[index], args.scale), repeat, runs, noise, settings, out
+            scale = args.scale
+            if args.weak:
+                scale, e = weak_scale(index, SPECS[index], repeat, runs, noise)
+                print(f"case {index:2d}.{repeat}: scale {scale:.3g} -> excess {100 * e:.0f} %")
+            r = run_case(index, scaled(SPECS[index], scale), repeat, runs, noise, settings, out)
+            r["scale"] = scale
+            r["excess"] = (
+                excess(index, scaled(SPECS[index], scale), repeat, runs, noise)
+                if SPECS[index].form != "none"
+                else 0.0
             )
             path.write_text(json.dumps(r, indent=2, default=float) + "\n")
             results.append(r)

@@ -141,9 +141,10 @@ def get_effect(name: str) -> Effect:
 
 
 def catalog() -> dict[str, Effect]:
-    """All registered effects by name."""
+    """The catalog's effects by name (registered effects except generated ``discovered:`` ones,
+    which exist only once something asked for them)."""
     _load_catalog()
-    return dict(_REGISTRY)
+    return {n: e for n, e in _REGISTRY.items() if not n.startswith(DISCOVERED_PREFIX)}
 
 
 def _load_catalog() -> None:

@@ -114,7 +114,7 @@ def statement(d: Diagnosis) -> str:
         text = (
             "Nothing significant was found: the model fits to the noise floor and no candidate "
             "effect, fitted jointly with the base "
-            f"parameters, reached dBIC <= {s.max_delta_bic:.0f} against the base model refitted "
+            f"parameters, reached dBIC <= {d.threshold:.1f} against the base model refitted "
             "by the same procedure with a held-out change of J of at least "
             f"{100 * s.min_improvement:+.0f} %."
         )
@@ -145,7 +145,7 @@ def statement(d: Diagnosis) -> str:
     text += (
         f"Fitted jointly with the 57 base parameters: {values}. "
         f"Against the base model refitted by the same procedure: dBIC = {c.delta_bic:.1f} "
-        f"(accepted at <= {s.max_delta_bic:.0f}); J on the held-out training windows changes by "
+        f"(accepted at <= {d.threshold:.1f}); J on the held-out training windows changes by "
         f"{100 * c.improvement:+.1f} %."
     )
     J = s.objective
@@ -184,6 +184,8 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
             if prop is not None
             else None
         ),
+        "acceptance": d.extra.get("acceptance"),
+        "trajectory_discovery": d.extra.get("trajectory_discovery"),
         "candidates": [asdict(c) for c in d.candidates],
         "fitted_effect_params": fitted.get(d.verdict_effect, {}),
         "candidate_fit_params": chosen.params if chosen else {},
@@ -218,6 +220,16 @@ def _binned_energy(frame: pd.DataFrame, var: str, group: str = "velocity") -> pd
     return e.groupby(labels, observed=True).mean()
 
 
+def _threshold_origin(d: Diagnosis) -> str:
+    acc = d.extra.get("acceptance")
+    if d.settings.max_delta_bic is not None or not acc:
+        return "set by --max-delta-bic"
+    return (
+        f"the {100 * acc['alpha']:.0f} % quantile of the best candidate's dBIC over "
+        f"{acc['draws']} noise-only copies, {acc['quantile']:.1f}, capped at {acc['ceiling']:.0f}"
+    )
+
+
 def plot_candidates(d: Diagnosis, path: Path) -> None:
     """dBIC (the ranking) and held-out change (the veto) of every candidate."""
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(9, 3.2), sharey=True)
@@ -225,7 +237,7 @@ def plot_candidates(d: Diagnosis, path: Path) -> None:
     colors = ["tab:green" if c.accepted else "tab:gray" for c in d.candidates][::-1]
     bic = [c.delta_bic for c in d.candidates][::-1]
     ax1.barh(names, bic, color=colors)
-    ax1.axvline(d.settings.max_delta_bic, color="k", ls="--", lw=1, label="threshold")
+    ax1.axvline(d.threshold, color="k", ls="--", lw=1, label="threshold")
     ax1.set_xscale("symlog", linthresh=10.0)
     ax1.set_xlabel("dBIC vs refitted base (lower: better)")
     ax1.legend(loc="lower left", fontsize=8)
@@ -307,12 +319,62 @@ def _table_md(before: dict[str, dict[str, float]], after: dict[str, dict[str, fl
     return "\n".join(lines) + "\n"
 
 
+def _acceptance_md(d: Diagnosis) -> list[str]:
+    acc = d.extra.get("acceptance")
+    if not acc:
+        return []
+    b = acc["best_dbic"]
+    lines = [
+        f"A candidate is accepted at dBIC <= {d.threshold:.1f}: {_threshold_origin(d)}. "
+        f"Null of the best candidate's dBIC (linearised fits of every candidate on "
+        f"{acc['draws']} copies of the training windows simulated by the base model with the "
+        f"estimated noise): min {b['min']:.1f}, 5 % {b['q05']:.1f}, median {b['median']:.1f}, "
+        f"95 % {b['q95']:.1f}, max {b['max']:.1f}.",
+        "",
+        f"| candidate | null median dBIC | null {100 * acc['alpha']:.0f} % quantile | this data |",
+        "|---|---:|---:|---:|",
+    ]
+    seen = {c.effect: c.delta_bic for c in d.candidates}
+    for name, v in acc["per_candidate"].items():
+        here = seen.get(name)
+        if name == "discovered":
+            here = next(
+                (c.delta_bic for c in d.candidates if c.effect.startswith("discovered:")), None
+            )
+        shown = f"{here:.1f}" if here is not None else "(not proposed)"
+        lines.append(f"| {name} | {v['median']:.1f} | {v['quantile']:.1f} | {shown} |")
+    return lines
+
+
+def _trajectory_md(d: Diagnosis) -> list[str]:
+    tr = d.extra.get("trajectory_discovery")
+    acc = d.extra.get("acceptance") or {}
+    if not tr:
+        return []
+    q = acc.get("per_candidate", {}).get("discovered", {}).get("quantile")
+    limit = min(q, acc.get("ceiling", -10.0)) if q is not None else float("nan")
+    path = ", ".join(
+        f"{t} ({100 * v:+.1f} %)" for t, v in zip(tr["terms"], tr["heldout_gain"], strict=False)
+    )
+    chosen = " + ".join(tr["terms"]) or "no term"
+    verdict = "proposed" if tr["terms"] and tr["dbic"] <= limit else "not proposed"
+    return [
+        f"Trajectory residuals (linearised output error, the base's 57 parameters refitted): "
+        f"forward selection by held-out gain {path or '(none)'}; chosen {chosen} at "
+        f"linearised dBIC {tr['dbic']:.1f} "
+        f"against the null's {100 * acc.get('alpha', 0.05):.0f} % quantile {limit:.1f} -> "
+        f"{verdict}.",
+        "",
+    ]
+
+
 def _discovery_md(d: Diagnosis) -> list[str]:
     p = d.proposal
     if p is None:
         return ["(discovery switched off)"]
     sel = p.selection
     lines = [
+        *_trajectory_md(d),
         f"Selected: {' + '.join(sel.terms) or 'no term'}; held-out R^2 of the equation residual "
         f"{100 * sel.cv_r2:.2f} % against the null's {100 * (1 - p.alpha):.0f} % quantile "
         f"{100 * p.threshold:.2f} % ({len(p.null)} noise-only copies of the windows: "
@@ -377,6 +439,10 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
         "",
         *_discovery_md(d),
         "",
+        "## Acceptance threshold, calibrated on these windows",
+        "",
+        *_acceptance_md(d),
+        "",
         "## Where the base model misses (training windows)",
         "",
         "| regime variable | channels | eta^2 | worst bin | worst / mean |",
@@ -438,7 +504,7 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
         "dBIC from both fits. Re-identification on all training windows (up to "
         f"{d.settings.final_polish_iterations} iterations); objective {d.settings.objective}, "
         f"seed {d.settings.seed}; {d.seconds:.0f} s in all. Ranking: lowest dBIC; accepted if "
-        f"dBIC <= {d.settings.max_delta_bic:.0f} and held-out change >= "
+        f"dBIC <= {d.threshold:.1f} ({_threshold_origin(d)}) and held-out change >= "
         f"{100 * d.settings.min_improvement:.0f} %.",
         "",
     ]

@@ -36,13 +36,20 @@ Procedure (:func:`diagnose`), all on the training recordings unless said otherwi
    ``N_eff = channels x T / TAU`` (trajectory residuals decorrelate over about ``TAU`` = 10 s),
    and the held-out improvement ``(J_ho(control) - J_ho(effect)) / J_ho(control)``.
 5. Verdict: the candidate with the lowest dBIC (among candidates tied with it, see
-   :data:`TIE_MARGIN`, the one with the best held-out improvement), if dBIC <= ``max_delta_bic``
-   and its held-out improvement >= ``min_improvement``; otherwise ``none``. Both thresholds are
-   calibrated on planted data (``benchmarks/diagnose_planted.py``): dBIC separates cleanly
-   (no-effect cases stayed above 0, planted effects mostly far below -100); the held-out
+   :data:`TIE_MARGIN`, the one with the best held-out improvement), if dBIC is at most the
+   acceptance threshold and its held-out improvement >= ``min_improvement``; otherwise
+   ``unexplained`` when the misfit test (:mod:`sweep.diagnose.floor`) finds the base model
+   significantly above the noise floor, ``none`` when it does not. The threshold is calibrated
+   on the data at hand (:mod:`sweep.diagnose.threshold`): the ``alpha`` quantile of the best
+   candidate's dBIC over noise-only copies of the training windows, with the fold fits
+   linearised, capped at -10 (``--max-delta-bic`` sets it by hand instead). The held-out
    improvement is noisy, because refitting 57 parameters on half the windows moves them along
    directions that half does not constrain, so it is a veto against an effect that makes unseen
    windows clearly worse and a tie-breaker, not the ranking.
+   Discovery adds up to two candidates before the fits: terms of the library proposed from
+   the equation-level residuals (:mod:`sweep.diagnose.discover`) and terms selected on the
+   trajectory residuals by the same linearised fits (:meth:`Linearised.select`), each only
+   beyond its own null at ``alpha``.
 6. Re-identification on all training windows (``final_budget`` CMA-ES evaluations, then the
    refinement) of the base model plus the chosen effect (from the candidate's better fold fit
    and from the base plus the effect's values; the better end wins), and of the base model
@@ -67,6 +74,7 @@ from typing import Any
 import numpy as np
 
 from mmg import Effect, Parameters, catalog, get_effect
+from mmg.discovered import discovered_effect, with_bounds
 from mmg.effects import DISCOVERED_PREFIX
 from mmg.params import N_THETA
 from sweep.diagnose.discover import DiscoverySettings, Proposal, discover, resemblance
@@ -79,6 +87,12 @@ from sweep.diagnose.locate import (
     rank_windows,
     residual_frame,
 )
+from sweep.diagnose.threshold import (
+    CEILING,
+    Linearised,
+    TrajectorySelection,
+    acceptance_null,
+)
 from sweep.objective import CHANNELS, OBJECTIVES, T_F, Objective, split_recording
 from sweep.polish import PolishSettings
 from sweep.recordings import Recording
@@ -88,9 +102,9 @@ TAU = 10.0
 #: held-out improvement a candidate needs (a veto: the held-out windows may get at most 25 % worse;
 #: on the planted benchmark refitting alone changed held-out J by -89 % to +36 %, see docs/)
 MIN_IMPROVEMENT = -0.25
-#: information criterion a candidate must reach (dBIC <= this); calibrated on the no-effect cases
-#: of the planted benchmark (best candidate -3 to 7) against -299 to -5,014 for planted effects
-MAX_DELTA_BIC = -100.0
+#: draws of the acceptance null (:mod:`sweep.diagnose.threshold`): linear algebra on one
+#: simulation of the windows per draw, so a few hundred cost seconds
+THRESHOLD_DRAWS = 200
 #: candidates whose dBIC is within TIE_MARGIN x |best dBIC| (at least TIE_ABSOLUTE) of the best are
 #: tied, and the held-out improvement decides between them: N_eff is an estimate, so differences of
 #: a few per cent of dBIC are within its uncertainty (e.g. a rudder offset and a propeller walk
@@ -119,7 +133,10 @@ class DiagnoseSettings:
     final_budget: int = 0
     polish_iterations: int = 30  # Levenberg-Marquardt iterations of control and candidates
     effect_only_budget: int = 300  # evaluations of an effect's grid with the base held fixed
-    max_delta_bic: float = MAX_DELTA_BIC
+    #: dBIC a candidate must reach; None: calibrated on the data at hand at false-alarm rate
+    #: ``alpha`` (:mod:`sweep.diagnose.threshold`)
+    max_delta_bic: float | None = None
+    threshold_draws: int = THRESHOLD_DRAWS
     tie_margin: float = TIE_MARGIN
     refine_top: int = 3  # leading candidates (by dBIC) refined before the verdict
     refine_iterations: int = 70  # further Levenberg-Marquardt iterations of their fold fits
@@ -140,7 +157,8 @@ class DiagnoseSettings:
     discover: bool = True
     discover_terms: int = DiscoverySettings.max_terms
     null_draws: int = DiscoverySettings.null_draws
-    alpha: float = DiscoverySettings.alpha  # false-alarm rate of the discovery's proposal
+    #: false-alarm rate of the discovery's proposal and of the acceptance threshold
+    alpha: float = DiscoverySettings.alpha
     floor_draws: int = 12  # noise draws of the J floor
     floor_margin: float = 0.10  # the misfit must exceed the floor by this share (and z > 3)
 
@@ -150,7 +168,14 @@ class DiagnoseSettings:
 
     def fingerprint(self) -> str:
         # thresholds decide the verdict only: stages fitted under other thresholds are reused
-        skip = ("workers", "min_improvement", "max_delta_bic", "tie_margin", "floor_margin")
+        skip = (
+            "workers",
+            "min_improvement",
+            "max_delta_bic",
+            "threshold_draws",
+            "tie_margin",
+            "floor_margin",
+        )
         data = {k: v for k, v in asdict(self).items() if k not in skip}
         data["procedure"] = PROCEDURE_VERSION  # stages of an older procedure are not reused
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]
@@ -296,6 +321,13 @@ class Diagnosis:
     #: the chosen candidate's effect name (the verdict is ``discovered`` for a generated one)
     verdict_effect: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def threshold(self) -> float:
+        """The dBIC a candidate had to reach."""
+        acc = self.extra.get("acceptance", {})
+        used = acc.get("used", self.settings.max_delta_bic)
+        return float(used) if used is not None else float("nan")
 
     @property
     def chosen(self) -> CandidateScore | None:
@@ -463,6 +495,43 @@ def diagnose(
         )
         if proposal.proposed:
             extra_effects.append(proposal.effect())
+    n_eff = n_effective(windows, s.objective)
+    # the acceptance threshold: the null of the best candidate's dBIC on these windows, from
+    # the fold fits linearised at the base (with the library: the discovered candidate's null)
+    lin = Linearised(
+        base.params,
+        windows,
+        (range(0, len(windows), 2), range(1, len(windows), 2)),
+        s.candidate_effects(),
+        objective=s.objective,
+        prior_weight=s.prior_weight,
+        library_terms=s.discover_terms if s.discover else 0,
+    )
+    null = acceptance_null(
+        lin,
+        noise,
+        np.random.default_rng(s.seed + 11),
+        n_eff=n_eff,
+        draws=s.threshold_draws,
+        alpha=s.alpha,
+    )
+    trajectory: TrajectorySelection | None = None
+    if s.discover:
+        # discovery in trajectory space: the library terms that explain most of the base's
+        # trajectory residual (linearised), proposed beyond the null of the same selection
+        trajectory = lin.select(lin.residuals(windows), n_eff)
+        limit = min(null.per_candidate["discovered"]["quantile"], CEILING)
+        proposed = bool(trajectory.terms) and trajectory.dbic <= limit
+        log(
+            f"discovery (trajectories): {' + '.join(trajectory.terms) or 'no term'}, linearised "
+            f"dBIC {trajectory.dbic:.1f} against the null's {s.alpha:.0%} quantile {limit:.1f} "
+            f"-> {'proposed' if proposed else 'not proposed'}"
+        )
+        if proposed:
+            half = [max(4.0 * abs(c), 1e-6) for c in trajectory.coefficients]
+            eff = with_bounds(discovered_effect(trajectory.terms), half)
+            if all(e.name != eff.name for e in extra_effects):
+                extra_effects.append(eff)
 
     # two folds: fit on one half, judge on the other, and the other way round; every fit is the
     # same deterministic procedure from the base fitted on all windows (the effect alone on a
@@ -507,8 +576,6 @@ def diagnose(
             ho = Objective(held_half, s.objective, effects=effs, ship=start.ship)
             J_ho += float(ho.evaluate(res.params)[0])
         return out_fits, J_ho
-
-    n_eff = n_effective(windows, s.objective)
 
     def score(
         eff: Effect, cand: list[Fit], J_ho: float, control: list[Fit], J_ho_control: float
@@ -562,11 +629,22 @@ def diagnose(
             refined.append(c)
         others = [c for c in scores if c.effect not in leaders]
         scores = refined + others
+    threshold = null.threshold if s.max_delta_bic is None else s.max_delta_bic
+    log(
+        f"acceptance: dBIC <= {threshold:.1f} ("
+        + (
+            f"the {s.alpha:.0%} quantile of the best candidate's dBIC over {null.draws} "
+            f"noise-only copies, {null.quantile:.1f}, capped at {CEILING:.0f}"
+            if s.max_delta_bic is None
+            else "set by --max-delta-bic"
+        )
+        + ")"
+    )
     for c in scores:
         c.accepted = (
             c.refined == (s.refine_top > 0 and s.refine_iterations > 0)
             and c.improvement >= s.min_improvement
-            and c.delta_bic <= s.max_delta_bic
+            and c.delta_bic <= threshold
         )
     top = rank([c for c in scores if c.effect in leaders], s.tie_margin)
     scores = top + sorted([c for c in scores if c.effect not in leaders], key=lambda c: c.delta_bic)
@@ -652,6 +730,8 @@ def diagnose(
             "J_heldout_control": J_ho_control,
             "noise": noise.as_dict(),
             "resemblance": resembles,
+            "acceptance": {**null.as_dict(), "used": threshold},
+            "trajectory_discovery": asdict(trajectory) if trajectory is not None else None,
         },
     )
 

@@ -61,3 +61,34 @@ def test_equation_residuals_locate_a_planted_propeller_walk(data_dir):
     clean = [Recording(r.name, None, r.t, r.x, r.u, r.w) for r in recs]
     honest = locate_bias(equation_residuals(planted, clean, effects=(walk,)))
     assert abs(honest[0].t) < abs(top.t) / 2
+
+
+def test_heading_time_and_position_are_regime_variables():
+    """A residual that grows with the time in the run (a slow drift of the basin, say) is
+    located by ``t_run`` (quintile bins) ahead of every other variable; heading is binned too."""
+    import pandas as pd
+
+    rng = np.random.default_rng(0)
+    n = 5000
+    frame = pd.DataFrame(
+        {
+            "beta_deg": rng.uniform(0, 180, n),
+            "quadrant": rng.integers(1, 5, n),
+            "delta_deg": rng.uniform(0, 40, n),
+            "gamma_A_deg": rng.uniform(0, 180, n),
+            "U": rng.uniform(0, 0.5, n),
+            "n_p": rng.uniform(-20, 20, n),
+            "psi_deg": rng.uniform(0, 360, n),
+            "x0": rng.uniform(-10, 10, n),
+            "y0": rng.uniform(-5, 5, n),
+            "t_run": rng.uniform(0, 900, n),
+            "u_dot": rng.normal(0, 0.01, n),
+            "r_dot": rng.normal(0, 0.1, n),
+        }
+    )
+    for c in CHANNELS:
+        frame[f"res_{c}"] = rng.normal(0, 1, n) * (1 + 3 * (frame["t_run"] > 700))
+    scores = locate(frame)
+    assert scores[0].variable == "t_run" and scores[0].eta2 > 0.2
+    assert {"psi_deg", "x0", "y0", "u_dot", "r_dot"} <= {s.variable for s in scores}
+    assert max(s.eta2 for s in scores if s.variable != "t_run") < 0.05

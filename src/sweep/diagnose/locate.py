@@ -11,7 +11,12 @@ the regime it was in:
   4 (u < 0, n < 0);
 - ``delta_deg``: |rudder angle| [deg];
 - ``gamma_A_deg``: apparent wind direction from the bow [deg], folded to [0, 180];
-- ``U``: speed over ground [m/s]; ``n_p`` [rev/s]; ``x0``, ``y0`` [m] position.
+- ``U``: speed over ground [m/s]; ``n_p`` [rev/s];
+- ``psi_deg``: heading in the basin [deg], 0 to 360;
+- ``x0``, ``y0`` [m]: position in the basin; ``t_run`` [s]: time since the run's start;
+  ``u_dot`` [m/s^2], ``r_dot`` [deg/s^2]: the recorded accelerations (central differences),
+  binned at their quintiles (a force tied to the basin, to the run's history or to
+  accelerations, such as a mis-estimated added mass, concentrates in one of these).
 
 :func:`locate` bins each regime variable and measures how much of the residual energy the bins
 explain (the between-bin share of the sum of squares, eta^2, and the worst bin's mean square
@@ -41,11 +46,30 @@ BINS: dict[str, np.ndarray] = {
     "gamma_A_deg": np.array([0, 30, 60, 90, 120, 150, 180.0001]),
     "U": np.array([0, 0.05, 0.1, 0.2, 0.3, 1.0]),
     "n_p": np.array([-25, -10, -0.5, 0.5, 5, 10, 25]),
+    "psi_deg": np.arange(0.0, 361.0, 45.0),
 }
+#: regime variables binned at their quintiles in the data at hand
+QUANTILE_VARS = ("x0", "y0", "t_run", "u_dot", "r_dot")
 
 
-def regimes(x: np.ndarray, u: np.ndarray, w: np.ndarray) -> dict[str, np.ndarray]:
-    """The regime variables of samples: states x (N, 6), controls u (N, 2), wind w (N, 2)."""
+def bin_edges(frame: pd.DataFrame) -> dict[str, list[float]]:
+    """Bin edges of every regime variable present in ``frame``."""
+    out = {v: list(e) for v, e in BINS.items() if v in frame}
+    for v in QUANTILE_VARS:
+        if v not in frame:
+            continue
+        edges = np.unique(np.nanquantile(frame[v], np.linspace(0.0, 1.0, 6)))
+        if edges.size >= 3:
+            edges[-1] = np.nextafter(edges[-1], np.inf)
+            out[v] = [float(e) for e in edges]
+    return out
+
+
+def regimes(
+    x: np.ndarray, u: np.ndarray, w: np.ndarray, dt: float | None = None
+) -> dict[str, np.ndarray]:
+    """The regime variables of samples: states x (N, 6), controls u (N, 2), wind w (N, 2);
+    with the sample interval ``dt`` [s] also the recorded accelerations."""
     uA = w[:, 0] * np.cos(w[:, 1] - x[:, 4]) + x[:, 1]  # apparent wind, see mmg.wind
     vA = w[:, 0] * np.sin(w[:, 1] - x[:, 4]) + x[:, 3]
     ahead = u[:, 1] >= 0
@@ -59,6 +83,15 @@ def regimes(x: np.ndarray, u: np.ndarray, w: np.ndarray) -> dict[str, np.ndarray
         "n_p": u[:, 1],
         "x0": x[:, 0],
         "y0": x[:, 2],
+        "psi_deg": np.mod(np.degrees(x[:, 4]), 360.0),
+        **(
+            {
+                "u_dot": np.gradient(x[:, 1], dt),
+                "r_dot": np.degrees(np.gradient(x[:, 5], dt)),
+            }
+            if dt is not None and x.shape[0] > 1
+            else {}
+        ),
     }
 
 
@@ -87,8 +120,9 @@ def residual_frame(
             res = (z_sim - z_rec) / sigma
             if sim.diverged[0]:
                 res[:] = np.nan
-            data = {"run": rec.name, "window": w, "t": np.asarray(rec.t[sl])}
-            data.update(regimes(x, u, wind))
+            t = np.asarray(rec.t[sl])
+            data = {"run": rec.name, "window": w, "t": t, "t_run": t - float(rec.t[0])}
+            data.update(regimes(x, u, wind, rec.dt))
             for j, c in enumerate(CHANNELS):
                 data[f"res_{c}"] = res[:, j]
             frames.append(pd.DataFrame(data))
@@ -123,8 +157,8 @@ def locate(frame: pd.DataFrame, min_share: float = 0.02) -> list[RegimeScore]:
     for group in GROUPS:
         e = _energy(clean, group)
         total_mean = float(e.mean())
-        for var, edges in BINS.items():
-            labels = pd.cut(clean[var], list(edges), right=False)
+        for var, edges in bin_edges(clean).items():
+            labels = pd.cut(clean[var], edges, right=False)
             counts = labels.value_counts()
             keep = counts[counts >= min_share * len(clean)].index
             mask = labels.isin(keep)
@@ -194,8 +228,9 @@ def equation_residuals(
             [np.convolve(acc_rec[:, j] - acc_mod[:, j], kernel, mode="same") for j in range(3)],
             axis=1,
         )
-        data = {"run": rec.name, "t": np.asarray(rec.t)}
-        data.update(regimes(x, u, w))
+        t = np.asarray(rec.t)
+        data = {"run": rec.name, "t": t, "t_run": t - float(t[0])}
+        data.update(regimes(x, u, w, rec.dt))
         for j, name in enumerate(ACCELERATIONS):
             data[f"eq_{name}"] = res[:, j]
         frames.append(pd.DataFrame(data))
@@ -223,8 +258,8 @@ def locate_bias(frame: pd.DataFrame, min_share: float = 0.02) -> list[BiasScore]
     """
     scores: list[BiasScore] = []
     per_second = max(1, round(1.0 / float(np.median(np.diff(frame["t"][:100])))))
-    for var, edges in BINS.items():
-        labels = pd.cut(frame[var], list(edges), right=False)
+    for var, edges in bin_edges(frame).items():
+        labels = pd.cut(frame[var], edges, right=False)
         for channel in ACCELERATIONS:
             col = frame[f"eq_{channel}"]
             grouped = col.groupby(labels, observed=True)

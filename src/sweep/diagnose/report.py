@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from mmg import Parameters, get_effect, simulate_batch
-from sweep.diagnose.locate import BINS, GROUPS, residual_frame
+from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
 from sweep.diagnose.run import Diagnosis
 from sweep.recordings import Recording
 
@@ -216,7 +216,7 @@ def _binned_energy(frame: pd.DataFrame, var: str, group: str = "velocity") -> pd
     cols = [f"res_{c}" for c in GROUPS[group]]
     clean = frame.dropna(subset=cols)
     e = (clean[cols] ** 2).sum(axis=1)
-    labels = pd.cut(clean[var], list(BINS[var]), right=False)
+    labels = pd.cut(clean[var], bin_edges(clean)[var], right=False)
     return e.groupby(labels, observed=True).mean()
 
 
@@ -414,7 +414,8 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
             variables.append(str(d.regimes[0]["variable"]))
         if d.verdict in EFFECT_REGIME_VARIABLE:
             variables.append(EFFECT_REGIME_VARIABLE[d.verdict])
-        variables = list(dict.fromkeys(v for v in variables if v in BINS)) or ["delta_deg"]
+        known = bin_edges(fb)
+        variables = list(dict.fromkeys(v for v in variables if v in known)) or ["delta_deg"]
         plot_regimes(fb, fa, variables, out / "residual_vs_regime.png")
         plot_trajectories(d, test, out / "trajectories.png")
         figures += ["residual_vs_regime.png", "trajectories.png"]

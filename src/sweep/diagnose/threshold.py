@@ -44,8 +44,9 @@ from mmg import Effect, Parameters, bounds, get_effect
 from mmg.discovered import discovered_effect
 from mmg.library import TERMS
 from mmg.params import N_THETA
+from sweep.diagnose.discover import null_sets
 from sweep.diagnose.fit import effect_values
-from sweep.diagnose.floor import NoiseModel, simulate_windows
+from sweep.diagnose.floor import NoiseModel
 from sweep.objective import Objective
 from sweep.polish import residual_vectors
 from sweep.recordings import Recording
@@ -222,8 +223,9 @@ class _Fold:
     def __init__(self, ix: list[int], A: FloatArray, mu: float) -> None:
         self.ix = ix
         Aa = np.vstack([self.rows(A), np.sqrt(mu) * np.eye(N_THETA)])
-        self.Q = _orth(Aa)
         self.Qr, self.Rr = np.linalg.qr(Aa)
+        # with the prior's rows the stacked Jacobian has full column rank: Q of the QR spans it
+        self.Q = self.Qr if mu > 0 else _orth(Aa)
 
     def base_coef(self, X: FloatArray) -> FloatArray:
         """(57, c) least-squares base coefficients of stacked columns X (with the prior)."""
@@ -438,14 +440,7 @@ def acceptance_null(
     t0 = time.perf_counter()
     params, windows = lin.params, lin.windows
     # null residual vectors of the base model on noisy copies of the windows
-    sims = simulate_windows(params, windows)
-    cols = []
-    for _ in range(draws):
-        noisy = [
-            Recording(w.name, None, w.t, x + noise.draw(rng, x.shape[0]), w.u, w.w)
-            for w, x in zip(windows, sims, strict=True)
-        ]
-        cols.append(lin.residuals(noisy))
+    cols = [lin.residuals(recs) for recs in null_sets(params, windows, noise, rng, draws)]
     per = lin.dbic(np.stack(cols, axis=-1), n_eff)
     best = np.min(np.stack(list(per.values())), axis=0)
     q = float(np.quantile(best, alpha))

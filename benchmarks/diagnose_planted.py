@@ -435,17 +435,19 @@ def main(argv: list[str] | None = None) -> int:
             if path.exists():
                 results.append(json.loads(path.read_text()))
                 continue
-            scale = args.scale
+            spec = SPECS[index]
             if args.weak:
-                scale, e = weak_scale(index, SPECS[index], repeat, runs, noise)
+                scale, e = weak_scale(index, spec, repeat, runs, noise)
                 print(f"case {index:2d}.{repeat}: scale {scale:.3g} -> excess {100 * e:.0f} %")
-            r = run_case(index, scaled(SPECS[index], scale), repeat, runs, noise, settings, out)
-            r["scale"] = scale
-            r["excess"] = (
-                excess(index, scaled(SPECS[index], scale), repeat, runs, noise)
-                if SPECS[index].form != "none"
-                else 0.0
-            )
+            else:
+                scale = args.scale
+                e = (
+                    excess(index, scaled(spec, scale), repeat, runs, noise)
+                    if spec.form != "none"
+                    else 0.0
+                )
+            r = run_case(index, scaled(spec, scale), repeat, runs, noise, settings, out)
+            r["scale"], r["excess"] = scale, e
             path.write_text(json.dumps(r, indent=2, default=float) + "\n")
             results.append(r)
             top = ", ".join(

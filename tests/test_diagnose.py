@@ -167,6 +167,30 @@ def test_windows_alternate_and_short_tails_are_dropped(runs):
     assert all(w.duration >= 20.0 for w in short)
 
 
+def test_several_runs_are_held_out_whole_balanced_by_recorded_time(runs):
+    """With several training runs a fold holds whole runs (a term must carry over to other
+    runs), the longest first to the lighter fold; one dominant run falls back to alternation."""
+    recs = runs["random"][:4]
+    windows = cut_windows(recs)
+    fit_w, held = split_windows(windows)
+    run_of = {w.name: w.name.rsplit("@", 1)[0] for w in windows}
+    fit_runs = {run_of[w.name] for w in fit_w}
+    held_runs = {run_of[w.name] for w in held}
+    assert fit_runs and held_runs and not fit_runs & held_runs
+    assert len(fit_w) + len(held) == len(windows)
+    t_fit, t_held = (sum(w.duration for w in f) for f in (fit_w, held))
+    longest = max(r.duration for r in recs)
+    assert abs(t_fit - t_held) <= longest + 1e-9
+    # one 672-s run beside a 100-s one: the big run holds most of the time, windows alternate
+    r1 = recs[1]
+    short_run = type(r1)(r1.name, None, r1.t[:1001], r1.x[:1001], r1.u[:1001], r1.w[:1001])
+    mixed = cut_windows([recs[0], short_run])
+    assert len(mixed) == 8
+    f, h = split_windows(mixed)
+    assert [w.name for w in f] == [w.name for w in mixed[0::2]]
+    assert [w.name for w in h] == [w.name for w in mixed[1::2]]
+
+
 def test_delta_bic_trades_fit_against_parameters():
     assert delta_bic(90.0, 100.0, 2, 1000.0) == pytest.approx(
         1000.0 * math.log(0.9) + 2 * math.log(1000.0)

@@ -55,6 +55,32 @@ def test_generated_effect_adds_its_term_through_the_mass_matrix():
         get_effect("discovered:Y_warp")
 
 
+def test_earth_fixed_force_terms_are_a_basin_force_resolved_through_the_heading():
+    """E_x0 and E_y0 (one coefficient each, entering X and Y) reproduce a steady force of any
+    direction fixed to the basin (the planted earth_force form) at every heading."""
+    from mmg import ESSO_OSAKA
+    from sweep.diagnose.planted import UNLISTED
+
+    eff = get_effect(effect_name(["E_x0", "E_y0"]))
+    assert eff.param_names == ("C_E_x0", "C_E_y0")
+    assert "X += 0.5 rho L_pp d C_E_x0 U_ref^2 cos(psi)" in eff.description
+    planted = UNLISTED["earth_force"]
+    F, chi = 0.05, 2.2
+    q = 0.5 * ESSO_OSAKA.rho * ESSO_OSAKA.L_pp * ESSO_OSAKA.d  # the terms' U_ref^2 is 1 m^2/s^2
+    p = efd_parameters()
+    u = np.array([0.1, 10.0])
+    w = np.array([1.0, 0.3])
+    for psi in (0.0, 0.7, -2.5, 4.0):
+        x = np.array([0.0, 0.4, 0.0, -0.06, psi, 0.01])
+        d0 = derivatives(x, u, w, with_effects(p, (eff,)), (eff,))
+        d_terms = derivatives(
+            x, u, w, with_effects(p, (eff,), [F * np.cos(chi) / q, F * np.sin(chi) / q]), (eff,)
+        )
+        d_true = derivatives(x, u, w, with_effects(p, (planted,), [F, chi]), (planted,))
+        assert d_true[1] != pytest.approx(d0[1], abs=1e-9)
+        np.testing.assert_allclose(d_terms, d_true, rtol=1e-9, atol=1e-14)
+
+
 def test_noise_model_recovers_coloured_noise_and_the_floor_of_a_true_model(runs):
     """AR(1) noise (phi 0.7) on a simulated ship: sigma within 10 % on the channels that set J,
     and the floor within 15 % of the J the true model reaches; the misfit test calls the true

@@ -481,3 +481,62 @@ def test_constructor_checks_shapes() -> None:
         Recording("r", None, t, np.full((5, 6), np.nan), np.zeros((5, 2)), np.zeros((5, 2)))
     rec = Recording("r", None, t, np.zeros((5, 6)), np.zeros((5, 2)), np.zeros((5, 2)))
     assert rec.duration == pytest.approx(0.4)
+
+
+def _scale_columns(names: tuple[str, ...], factor: float) -> Callable[[list[str], Rows], None]:
+    def edit(header: list[str], rows: Rows) -> None:
+        for name in names:
+            j = _col(header, name)
+            for row in rows:
+                row[j] = repr(factor * float(row[j]))
+
+    return edit
+
+
+def _swap_columns(a: str, b: str) -> Callable[[list[str], Rows], None]:
+    def edit(header: list[str], rows: Rows) -> None:
+        i, j = _col(header, a), _col(header, b)
+        for row in rows:
+            row[i], row[j] = row[j], row[i]
+
+    return edit
+
+
+@pytest.mark.parametrize(
+    ("edit", "reading"),
+    [
+        (_scale_columns(("u_velo [m/s]", "vm_velo [m/s]"), 100.0), "in cm/s"),
+        (_swap_columns("x_position_mid [m]", "y_position_mid [m]"), "position columns swapped"),
+        (_scale_columns(("vm_velo [m/s]",), -1.0), "v_m of the opposite sign"),
+    ],
+    ids=["cm_per_s", "x_y_swapped", "v_sign"],
+)
+@pytest.mark.parametrize("rel", [ZIGZAG, TURN_TEST])
+def test_velocities_that_do_not_integrate_to_the_track_are_rejected(
+    data_dir: Path, tmp_path: Path, edit: Callable[[list[str], Rows], None], reading: str, rel: str
+) -> None:
+    """u in cm/s, swapped x and y columns, a v_m of the wrong sign: the error names the file,
+    the columns, the misfit found and the reading under which the columns would agree."""
+    path = _variant(data_dir, tmp_path, edit, rel=rel, n=1200)
+    with pytest.raises(RecordingError) as err:
+        read_recording(path)
+    text = str(err.value)
+    assert text.startswith(str(path))
+    assert "'u_velo [m/s]'" in text and "'x_position_mid [m]'" in text
+    assert "do not integrate to the track" in text and "ratio" in text
+    assert reading in text, text
+
+
+def test_every_real_recording_integrates_to_its_track(data_dir: Path) -> None:
+    """The check's tolerance leaves a wide margin on the real data (misfit 3-5 %, ratio ~1)."""
+    from sweep.recordings import TRACK_TOLERANCE, _track_misfit
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        recs = read_recordings(data_dir / "data")
+    assert len(recs) == 13
+    for rec in recs:
+        x = np.asarray(rec.x)
+        misfit, ratio, corr, rms = _track_misfit(x[:, 0], x[:, 1], x[:, 2], x[:, 3], x[:, 4])
+        assert misfit < TRACK_TOLERANCE / 2.5 and abs(ratio - 1.0) < 0.01 and corr > 0.99, rec.name
+        assert rms > 0.25

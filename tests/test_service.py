@@ -119,3 +119,107 @@ def test_an_interrupted_job_resumes_from_its_checkpoint(tmp_path, data_dir, efd)
     assert a[0]["metrics"]["best_f"] == b[0]["metrics"]["best_f"]
     assert a[0]["metrics"]["test/J2/total"] == pytest.approx(b[0]["metrics"]["test/J2/total"])
     assert np.isfinite(a[0]["metrics"]["test/J2/total"])
+
+
+class _LostError(RuntimeError):
+    """Stands for Ray's ActorDiedError in these tests (a double: the real one is in test_faults)."""
+
+
+class LosingExecutor(LocalExecutor):
+    """Loses the first ``times`` submissions of each job in ``lose`` after two generations of
+    progress (leaving the checkpoint a killed node would leave), then runs it normally."""
+
+    def __init__(self, lose: set[str], times: int, data_dir) -> None:
+        super().__init__(plots=False)
+        self.lose, self.times, self.data_dir = lose, times, data_dir
+        self.submissions: dict[str, int] = {}
+
+    def submit(self, spec: JobSpec) -> int:
+        n = self.submissions[spec.key] = self.submissions.get(spec.key, 0) + 1
+        if spec.key in self.lose and n <= self.times:
+            train = load_split(spec.train).load(self.data_dir)
+            obj = Objective(list(train.values()), spec.objective)
+            lo, hi = bounds()
+            spec.job_dir.mkdir(parents=True, exist_ok=True)
+            optimise(
+                InProcess(obj), Box(lo, hi), efd_parameters().vector(),
+                settings_of(spec.config, spec.seed), checkpoint=spec.checkpoint_location,
+                stop_after_generations=2,
+            )  # fmt: skip
+            handle = self._next
+            self._next += 1
+            self._done[handle] = _LostError(f"the node of {spec.key} died")
+            return handle
+        return super().submit(spec)
+
+    def lost(self, error: BaseException) -> bool:
+        return isinstance(error, _LostError)
+
+
+def test_a_lost_job_is_resubmitted_resumes_and_ends_as_an_uninterrupted_one(
+    tmp_path, data_dir, efd
+):
+    """Lost twice (two generations each time), the job is resubmitted, resumes from its
+    checkpoint, and ends bit for bit where an uninterrupted run ends; the retries are counted
+    and shown; a job that is lost more often than max_retries fails with the loss named."""
+    lost_spec, other = _specs(tmp_path / "a", data_dir, budget=100)
+    fresh = _specs(tmp_path / "b", data_dir, budget=100)
+    executor = LosingExecutor({lost_spec.key}, 2, data_dir)
+    stream = io.StringIO()
+    tracker = NullTracker()
+    summary = run_sweep(
+        "lossy", [lost_spec, other], executor, tracker, efd, tmp_path / "a",
+        progress=Progress(stream), max_retries=3,
+    )  # fmt: skip
+    assert summary.ok and sorted(summary.finished) == sorted([lost_spec.key, other.key])
+    assert summary.retries == {lost_spec.key: 2}
+    assert executor.submissions == {lost_spec.key: 3, other.key: 1}
+    assert stream.getvalue().count("resubmitted") == 2 and "_LostError" in stream.getvalue()
+    t_fresh = NullTracker()
+    run_sweep("clean", fresh, LocalExecutor(plots=False), t_fresh, efd, tmp_path / "b",
+              progress=Progress(io.StringIO()))  # fmt: skip
+    got = {r["job_key"]: r for r in tracker.job_outcomes(summary.parent_id)}
+    ref = {r["job_key"]: r for r in t_fresh.job_outcomes(next(iter(t_fresh.runs)))}
+    for key in got:
+        assert got[key]["metrics"]["best_f"] == ref[key]["metrics"]["best_f"]
+        assert got[key]["metrics"]["test/J2/total"] == ref[key]["metrics"]["test/J2/total"]
+    assert got[lost_spec.key]["metrics"]["retries"] == 2.0
+    child = next(r for r in tracker.runs.values() if r.tags.get("job_key") == lost_spec.key)
+    assert child.tags["retries"] == "2"
+    assert got[other.key]["metrics"]["retries"] == 0.0
+    # lost more often than allowed: failed, with the loss in the message
+    again = _specs(tmp_path / "c", data_dir, budget=100, objectives=("J1",))
+    summary = run_sweep(
+        "hopeless", again, LosingExecutor({again[0].key}, 5, data_dir), NullTracker(), efd,
+        tmp_path / "c", progress=Progress(io.StringIO()), max_retries=1,
+    )  # fmt: skip
+    assert not summary.ok and "_LostError" in summary.failed[again[0].key]
+
+
+def test_an_error_of_the_job_itself_is_not_retried(tmp_path, data_dir, efd):
+    _, bad = _specs(tmp_path, data_dir)
+    broken_cfg = dict(bad.config)
+    broken_cfg["train"] = {"key": "R", "name": "Train-R", "files": ["data/random/missing.csv"]}
+    bad = JobSpec(bad.key, bad.objective, bad.train, bad.seed, broken_cfg, bad.job_dir,
+                  bad.data_root)  # fmt: skip
+    executor = LosingExecutor(set(), 0, data_dir)
+    summary = run_sweep("mixed", [bad], executor, NullTracker(), efd, tmp_path,
+                        progress=Progress(io.StringIO()), max_retries=3)  # fmt: skip
+    assert executor.submissions == {bad.key: 1} and not summary.retries
+    assert list(summary.failed) == [bad.key]
+
+
+def test_checkpoints_go_to_the_storage_uri_and_a_job_resumes_from_there(tmp_path, data_dir, efd):
+    """sweep.storage: the checkpoint lives at storage/<sweep>/<job key>/checkpoint.pkl (a
+    file:// URI here), not in the job directory; a lost job resumes from it."""
+    cfg = _cfg("J2", 0, 100)
+    cfg["data"]["root"] = str(data_dir)
+    cfg["sweep"] = {"name": "stored", "storage": f"file://{tmp_path / 'store'}"}
+    spec = spec_from_config(cfg, tmp_path / "job")
+    assert spec.checkpoint == f"file://{tmp_path}/store/stored/{spec.key}/checkpoint.pkl"
+    executor = LosingExecutor({spec.key}, 1, data_dir)
+    summary = run_sweep("stored", [spec], executor, NullTracker(), efd, tmp_path,
+                        progress=Progress(io.StringIO()))  # fmt: skip
+    assert summary.ok and summary.retries == {spec.key: 1}
+    assert (tmp_path / "store" / "stored" / spec.key / "checkpoint.pkl").is_file()
+    assert not (tmp_path / "job" / "checkpoint.pkl").exists()

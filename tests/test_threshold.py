@@ -51,7 +51,7 @@ def _planted(case, value: float, seed: int = 8):
 
 
 def test_trajectory_discovery_finds_the_planted_term(case):
-    """Selection by held-out gain over the whole library (88 terms) on the trajectory
+    """Selection by held-out gain over the whole library on the trajectory
     residuals picks the constant sway force first, with its coefficient within 25 %, and its
     linearised dBIC is far below the null of the same selection on noise-only copies."""
     ship, _, data = _planted(case, 2e-4)

@@ -71,7 +71,8 @@ def _source(name: str, terms: Sequence[Term], key: str) -> str:
     lines = []
     for t in terms:
         # terms without a velocity (heading, position, constant) carry U_ref^2 = 1 m^2/s^2
-        lines.append(f"    {t.equation} += e.{t.coefficient} * ({t.expr})  # {t.formula}")
+        for eq, expr, formula in t.components:
+            lines.append(f"    {eq} += e.{t.coefficient} * ({expr})  # {formula}")
     return _TEMPLATE.format(
         name=name,
         ptype=f"DiscoveredParams_{key}",

@@ -19,6 +19,11 @@ Each term is one scalar Python expression, compiled into the hook of a generated
     Ue = sqrt(U2 + U_0^2), rL = r L_pp, nD = n_p D_p [m/s], uA, vA (apparent wind [m/s], see
     :func:`mmg.wind.apparent_wind`), wT = rho_A A_T / (rho L_pp d), wL = rho_A A_L / (rho L_pp d),
     Lp = L_pp, ast = 1 if u < 0 (astern) else 0, rev = 1 if n_p < 0 else 0, abs and math.
+
+A term may enter more than one equation with its one coefficient (``parts``): ``E_x0`` and
+``E_y0`` are a steady force along the basin's x0 or y0 axis, resolved on the ship's axes through
+the heading (what a current's push, a slope or a steady wind in the basin does), which the
+single-equation heading terms could only approximate with separate coefficients.
 """
 
 from __future__ import annotations
@@ -33,17 +38,26 @@ U_REF = 1.0
 
 @dataclass(frozen=True)
 class Term:
-    """One library term: ``id`` (equation_name), its expression g, formula and kind."""
+    """One library term: ``id`` (equation_name), its expression g, formula and kind.
+
+    ``parts``, when given, are the (equation, expression, formula) of a term that enters several
+    equations with one coefficient (then ``expr`` and ``formula`` describe it as a whole)."""
 
     id: str
     expr: str
     formula: str  # g in the paper's notation
     kind: str  # hull, propeller, rudder, wind, quadrant, heading, position
+    parts: tuple[tuple[str, str, str], ...] = ()
+
+    @property
+    def components(self) -> tuple[tuple[str, str, str], ...]:
+        """(equation, expression, formula) of every equation the term enters."""
+        return self.parts or ((self.id[0], self.expr, self.formula),)
 
     @property
     def equation(self) -> str:
-        """``X``, ``Y`` or ``N``."""
-        return self.id[0]
+        """The equations the term enters: ``X``, ``Y``, ``N`` or several (``XY``)."""
+        return "".join(e for e, _, _ in self.components)
 
     @property
     def coefficient(self) -> str:
@@ -52,9 +66,12 @@ class Term:
 
     def force_formula(self) -> str:
         """The term as a force in the paper's notation, with units."""
-        scale = "0.5 rho L_pp^2 d" if self.equation == "N" else "0.5 rho L_pp d"
-        unit = "N m" if self.equation == "N" else "N"
-        return f"{self.equation} += {scale} {self.coefficient} {self.formula}  [{unit}]"
+        out = []
+        for eq, _, formula in self.components:
+            scale = "0.5 rho L_pp^2 d" if eq == "N" else "0.5 rho L_pp d"
+            unit = "N m" if eq == "N" else "N"
+            out.append(f"{eq} += {scale} {self.coefficient} {formula}  [{unit}]")
+        return ", ".join(out)
 
 
 def _t(eqs: str, name: str, expr: str, formula: str, kind: str) -> list[Term]:
@@ -108,6 +125,21 @@ _TERMS: list[Term] = [
     *_t("XYN", "y", "y0 / Lp", "U_ref^2 y0 / L_pp", "position"),
     *_t("XYN", "Uy", "U2 * y0 / Lp", "U^2 y0 / L_pp", "position"),
     *_t("XYN", "Ux", "U2 * x0 / Lp", "U^2 x0 / L_pp", "position"),
+    # a steady force fixed to the basin, along x0 or y0, on the ship's axes (Eq. (1)'s rotation)
+    Term(
+        "E_x0",
+        "",
+        "U_ref^2 along x0",
+        "heading",
+        (("X", "math.cos(psi)", "U_ref^2 cos(psi)"), ("Y", "-math.sin(psi)", "-U_ref^2 sin(psi)")),
+    ),
+    Term(
+        "E_y0",
+        "",
+        "U_ref^2 along y0",
+        "heading",
+        (("X", "math.sin(psi)", "U_ref^2 sin(psi)"), ("Y", "math.cos(psi)", "U_ref^2 cos(psi)")),
+    ),
 ]
 
 #: every library term by id

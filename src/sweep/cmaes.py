@@ -38,7 +38,6 @@ history, so that a resumed run ends exactly where an uninterrupted one would.
 from __future__ import annotations
 
 import math
-import os
 import pickle
 import time
 from collections.abc import Callable
@@ -49,6 +48,8 @@ from typing import Any, Literal
 import cma
 import numpy as np
 from numpy.typing import NDArray
+
+from sweep import storage
 
 FloatArray = NDArray[np.float64]
 BoundHandling = Literal["penalty", "transform", "none"]
@@ -188,15 +189,13 @@ def _new_strategy(state: State, y0: FloatArray) -> cma.CMAEvolutionStrategy:
 
 
 def save_checkpoint(state: State, path: str | Path) -> None:
-    """Write atomically (a crash mid-write leaves the previous checkpoint intact)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
-    tmp.write_bytes(pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
-    os.replace(tmp, path)
+    """Write atomically (a crash mid-write leaves the previous checkpoint intact); ``path`` is
+    a file or a storage URI (:mod:`sweep.storage`)."""
+    storage.write_bytes(path, pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
 
 
 def load_checkpoint(path: str | Path) -> State:
-    state = pickle.loads(Path(path).read_bytes())
+    state = pickle.loads(storage.read_bytes(path))
     if not isinstance(state, State):
         raise ValueError(f"{path}: not a checkpoint of sweep.cmaes")
     return state
@@ -222,7 +221,7 @@ def optimise(
     after that many generations of this call (for tests of resume), leaving a checkpoint.
     """
     state: State | None = None
-    if checkpoint is not None and Path(checkpoint).exists():
+    if checkpoint is not None and storage.exists(checkpoint):
         state = load_checkpoint(checkpoint)
         if state.settings != settings or state.n != box.n:
             raise ValueError(

@@ -9,6 +9,7 @@ from contextlib import contextmanager
 from mmg.params import ParameterError
 from sweep.datasets import DataNotFoundError, SplitError
 from sweep.recordings import RecordingError
+from sweep.schema import ConfigError
 
 #: exceptions that report a mistake in the user's input or set-up, not a bug
 USER_ERRORS: tuple[type[BaseException], ...] = (
@@ -16,6 +17,7 @@ USER_ERRORS: tuple[type[BaseException], ...] = (
     SplitError,
     RecordingError,
     ParameterError,
+    ConfigError,
 )
 
 

@@ -50,6 +50,12 @@ class JobSpec:
     job_dir: Path
     data_root: str | None = None
     extra: Mapping[str, Any] = field(default_factory=dict)
+    #: where the checkpoint lives: a path or storage URI (``sweep.storage``); None: job_dir
+    checkpoint: str | None = None
+
+    @property
+    def checkpoint_location(self) -> str | Path:
+        return self.checkpoint or self.job_dir / "checkpoint.pkl"
 
     @property
     def config_hash(self) -> str:
@@ -134,7 +140,8 @@ def run_job(
     status: Status | None = None,
     plots: bool = True,
 ) -> tuple[JobOutcome, dict[str, bytes]]:
-    """Identify, evaluate on the test set, plot. Resumes from ``spec.job_dir/checkpoint.pkl``."""
+    """Identify, evaluate on the test set, plot. Resumes from the spec's checkpoint (in its
+    job directory, or in the sweep's storage), written after every generation."""
     cfg = spec.config
     train = split_from_mapping(dict(cfg["train"]), f"train={spec.train}").load(spec.data_root)
     test = split_from_mapping(dict(cfg["test"]), "test").load(spec.data_root)
@@ -155,7 +162,7 @@ def run_job(
             box,
             efd_parameters().vector(),
             settings,
-            checkpoint=spec.job_dir / "checkpoint.pkl",
+            checkpoint=spec.checkpoint_location,
             progress=progress,
         )
     finally:

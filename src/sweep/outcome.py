@@ -75,6 +75,7 @@ class JobOutcome:
     history: list[dict[str, float]] = field(default_factory=list)  # one row per generation
     test: ScoreTable = field(default_factory=dict)  # {J: {subset: value}}
     sim_seconds: float = 0.0  # time spent evaluating the objective (simulator), all workers
+    retries: int = 0  # resubmissions after the job was lost to the infrastructure
 
 
 def _plain(value: Any) -> Any:

@@ -6,7 +6,8 @@ and evaluate chunks of the population with the batched simulator (one Numba thre
 (cluster CPUs) // workers_per_job jobs run at once, so every running job's workers fit.
 
 A dead worker (a crash, a lost node) does not lose the generation: its chunk is evaluated in the
-coordinator and the worker is replaced.
+coordinator and the worker is replaced. A lost coordinator (its node died) is reported as lost
+(:func:`is_lost`); the sweep resubmits the job, which resumes from its checkpoint on any node.
 """
 
 from __future__ import annotations
@@ -26,6 +27,30 @@ from sweep.workers import safe_evaluate
 
 log = logging.getLogger(__name__)
 _remote: Any = ray.remote  # Ray's decorator overloads do not type actor classes
+
+#: Ray's exceptions that mean "lost to the infrastructure", not "raised by our code": an actor
+#: died or is unreachable (its node lost), a worker process crashed or was killed for memory,
+#: an object's owner or its copies are gone, the local raylet died
+LOST: tuple[type[BaseException], ...] = (
+    ray.exceptions.RayActorError,  # ActorDiedError, ActorUnavailableError
+    ray.exceptions.NodeDiedError,
+    ray.exceptions.WorkerCrashedError,
+    ray.exceptions.OutOfMemoryError,
+    ray.exceptions.ObjectLostError,  # OwnerDiedError, ObjectReconstructionFailedError
+    ray.exceptions.LocalRayletDiedError,
+    ray.exceptions.RaySystemError,
+)
+
+
+_EVAL_FAILURES: tuple[type[BaseException], ...] = (*LOST, ray.exceptions.RayTaskError)
+
+
+def is_lost(error: BaseException) -> bool:
+    """Whether ``error`` means lost to the infrastructure (also when a task re-raised it)."""
+    if isinstance(error, LOST):
+        return True
+    cause = getattr(error, "cause", None)  # a RayTaskError carries the original exception
+    return isinstance(cause, LOST)
 
 
 class _EvalWorker:
@@ -66,8 +91,11 @@ class RayEvaluator:
         for i, (ref, chunk) in enumerate(zip(refs, chunks, strict=True)):
             try:
                 out.append(np.asarray(ray.get(ref), dtype=np.float64))
-            except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError) as exc:
-                log.warning("evaluation worker failed (%s); evaluating its chunk here", exc)
+            except _EVAL_FAILURES as exc:
+                log.warning(
+                    "evaluation worker lost (%s); evaluating its chunk here",
+                    type(exc).__name__,
+                )
                 out.append(safe_evaluate(self.objective, chunk))
                 ray.kill(self.workers[i], no_restart=True)
                 self.workers[i] = self._start()
@@ -130,7 +158,9 @@ class RayExecutor:
         if address:
             ray.init(address=address, **kwargs)
         else:
-            ray.init(num_cpus=num_cpus, **kwargs)
+            # "local": a fresh private instance, never a cluster that `ray start` left registered
+            # on this machine (running or stopped); "auto" keeps Ray's own discovery
+            ray.init(address="local", num_cpus=num_cpus, **kwargs)
         self.workers_per_job = max(1, workers_per_job)
         self.plots = plots
         self._actors: dict[Any, Any] = {}
@@ -139,8 +169,12 @@ class RayExecutor:
         cpus = int(ray.cluster_resources().get("CPU", 1))
         return max(1, cpus // self.workers_per_job)
 
+    def lost(self, error: BaseException) -> bool:
+        return is_lost(error)
+
     def submit(self, spec: JobSpec) -> Any:
-        actor = JobActor.remote()
+        # coordinators spread over the nodes: a lost node takes as few of them as it can
+        actor = JobActor.options(scheduling_strategy="SPREAD").remote()
         ref = actor.run.remote(spec, self.workers_per_job, self.plots)
         self._actors[ref] = actor
         return ref

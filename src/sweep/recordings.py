@@ -43,6 +43,14 @@ line k + 1 of a CSV file.
   10-100 s segment of the recordings, >= 6 for r in deg/s (which ``|r| > 3`` alone misses for
   this slow model, whose |r| stays below 0.07 rad/s = 4 deg/s) and <= 0.025 for a heading in
   degrees (which ``|psi| > pi`` misses while the heading stays within +-3 deg);
+- velocities against the track (``_check_track``): the ship's displacement over every 5 s
+  (``TRACK_SPAN``) from the recorded x0, y0 against the same displacement integrated from the
+  recorded u, v_m and psi (x0_dot = u cos psi - v_m sin psi, y0_dot = u sin psi + v_m cos psi).
+  On the 13 recordings their rms difference is 3-5 % of the rms displacement and the
+  least-squares ratio 0.997-1.006; velocities in cm/s give a ratio of 0.01, swapped x0 and y0
+  columns 95-176 %, a v_m of the wrong sign 20-123 %, a heading of the wrong sense 51-152 %.
+  Above ``TRACK_TOLERANCE`` = 15 % the file is rejected with the ratio, the correlation and
+  the reading (units, swapped columns, sign) that would make the columns agree, if one does;
 - too short a run: fewer than ``MIN_SAMPLES`` = 101 samples (10 s).
 
 Rows at the end of a file whose fields are all empty (a known defect of
@@ -92,6 +100,12 @@ MIN_YAW_RATE_RMS_LOW = 0.02
 """rms heading rate from which a too small ratio is reported (heading in degrees) [rad/s]."""
 MIN_YAW_RATE_RMS = 0.005
 """rms heading rate below which the r-against-heading unit check is skipped [rad/s]."""
+TRACK_SPAN = 50
+"""Span of the velocities-against-track check [samples] (5 s)."""
+TRACK_TOLERANCE = 0.15
+"""Largest accepted rms misfit of the 5-s displacements, relative to their rms [-]."""
+TRACK_MIN_RMS = 0.05
+"""rms 5-s displacement below which the velocities-against-track check is skipped [m]."""
 
 TIME_COLUMN = "t [s]"
 STATE_COLUMNS: tuple[str, ...] = (
@@ -456,6 +470,70 @@ def _check_values(data: Mapping[str, FloatArray], source: str) -> None:
                 f"{source}: column {col!r}, row {i + 1}: negative wind speed {data[col][i]:.6g}"
             )
     _check_yaw_rate(data[_PSI], data["r_angvelo [rad/s]"], source)
+    x0, u, y0, v_m, psi = (data[c] for c in STATE_COLUMNS[:5])
+    _check_track(x0, u, y0, v_m, psi, source)
+
+
+def _track_misfit(
+    x0: FloatArray, u: FloatArray, y0: FloatArray, v_m: FloatArray, psi: FloatArray
+) -> tuple[float, float, float, float]:
+    """(relative rms misfit, ratio, correlation, rms displacement) of the recorded 5-s
+    displacements against those integrated from the velocities and heading."""
+    psi = np.unwrap(psi)
+    vx = u * np.cos(psi) - v_m * np.sin(psi)
+    vy = u * np.sin(psi) + v_m * np.cos(psi)
+    cx = np.concatenate([[0.0], np.cumsum(0.5 * (vx[1:] + vx[:-1]) * DT)])  # trapezoid
+    cy = np.concatenate([[0.0], np.cumsum(0.5 * (vy[1:] + vy[:-1]) * DT)])
+    i = np.arange(0, x0.size - TRACK_SPAN, TRACK_SPAN)
+    j = i + TRACK_SPAN
+    rec = np.concatenate([x0[j] - x0[i], y0[j] - y0[i]])
+    pred = np.concatenate([cx[j] - cx[i], cy[j] - cy[i]])
+    rms = float(np.sqrt(np.mean(rec * rec))) if rec.size else 0.0
+    if rms == 0.0 or not np.any(pred):
+        return (0.0 if rms == 0.0 else 1.0), 0.0, 0.0, rms
+    misfit = float(np.sqrt(np.mean((rec - pred) ** 2))) / rms
+    ratio = float(rec @ pred / (pred @ pred))
+    corr = float(np.corrcoef(rec, pred)[0, 1]) if np.std(rec) > 0 and np.std(pred) > 0 else 0.0
+    return misfit, ratio, corr, rms
+
+
+def _check_track(
+    x0: FloatArray, u: FloatArray, y0: FloatArray, v_m: FloatArray, psi: FloatArray, source: str
+) -> None:
+    """Raise RecordingError if the recorded velocities and heading do not integrate to the
+    recorded track (see the module docstring); the message names the reading that would fit."""
+    misfit, ratio, corr, rms = _track_misfit(x0, u, y0, v_m, psi)
+    if rms < TRACK_MIN_RMS or misfit <= TRACK_TOLERANCE:
+        return
+    readings = {
+        "u and v_m in cm/s (or the positions in m while the velocities are 100x too large)": (
+            x0,
+            0.01 * u,
+            y0,
+            0.01 * v_m,
+            psi,
+        ),
+        "u and v_m in mm/s": (x0, 0.001 * u, y0, 0.001 * v_m, psi),
+        "u and v_m in knots": (x0, 0.5144 * u, y0, 0.5144 * v_m, psi),
+        "the x and y position columns swapped": (y0, u, x0, v_m, psi),
+        "v_m of the opposite sign (positive to port)": (x0, u, y0, -v_m, psi),
+        "the heading of the opposite sense (anticlockwise)": (x0, u, y0, v_m, -psi),
+        "the u and v_m columns swapped": (x0, v_m, y0, u, psi),
+    }
+    fits = [(_track_misfit(*cols)[0], what) for what, cols in readings.items()]
+    best, what = min(fits)
+    hint = (
+        f"; with {what} they would agree within {100 * best:.0f} %"
+        if best <= TRACK_TOLERANCE
+        else ""
+    )
+    raise RecordingError(
+        f"{source}: columns 'u_velo [m/s]', 'vm_velo [m/s]' and 'psi_hat [rad]' do not "
+        f"integrate to the track 'x_position_mid [m]', 'y_position_mid [m]': the 5-s "
+        f"displacements differ by {100 * misfit:.0f} % rms (expected <= "
+        f"{100 * TRACK_TOLERANCE:.0f} %; recorded / integrated ratio {ratio:.3g}, correlation "
+        f"{corr:.2f}){hint}"
+    )
 
 
 def _check_yaw_rate(psi: FloatArray, r: FloatArray, source: str) -> None:

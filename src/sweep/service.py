@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any, Protocol, TextIO
 
 from mmg import efd_parameters
+from sweep import storage
 from sweep.datasets import split_from_mapping
 from sweep.job import JobSpec, job_key, run_job, test_metrics
 from sweep.outcome import JobOutcome
@@ -43,6 +44,12 @@ class Executor(Protocol):
     def cancel(self, handles: Sequence[Any]) -> None: ...
 
     def capacity(self) -> int: ...
+
+    def lost(self, error: BaseException) -> bool:
+        """Whether ``error`` means the job was lost to the infrastructure (a node, an actor, a
+        worker killed for memory) rather than raised by the job's own code: then it is
+        resubmitted, and resumes from its checkpoint."""
+        ...
 
 
 class LocalExecutor:
@@ -83,6 +90,10 @@ class LocalExecutor:
     def capacity(self) -> int:
         return 1
 
+    def lost(self, error: BaseException) -> bool:
+        """In this process a failure is always the job's own."""
+        return False
+
 
 @dataclass
 class SweepSummary:
@@ -93,6 +104,7 @@ class SweepSummary:
     skipped: list[str] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)
     files: dict[str, Path] = field(default_factory=dict)
+    retries: dict[str, int] = field(default_factory=dict)  # resubmissions per job key
     seconds: float = 0.0
 
     @property
@@ -114,14 +126,23 @@ def spec_from_config(cfg: Mapping[str, Any], job_dir: Path) -> JobSpec:
         "seed": seed,
     }
     root = cfg.get("data", {}).get("root")
+    sweep_cfg = cfg.get("sweep") or {}
+    store = sweep_cfg.get("storage")
+    key = job_key(objective, train, seed)
+    checkpoint = (
+        storage.join(str(store), str(sweep_cfg.get("name", "default")), key, "checkpoint.pkl")
+        if store
+        else None
+    )
     return JobSpec(
-        key=job_key(objective, train, seed),
+        key=key,
         objective=objective,
         train=train,
         seed=seed,
         config=config,
         job_dir=Path(job_dir),
         data_root=str(root) if root else None,
+        checkpoint=checkpoint,
     )
 
 
@@ -154,6 +175,15 @@ class Progress:
         self.stream.flush()
         self._lines = text.count("\n") + 1 if self.tty else 0
 
+    def note(self, text: str) -> None:
+        """A line that stays above the live display (an event: a retry, a warning)."""
+        if self.tty and self._lines:
+            self.stream.write(f"\x1b[{self._lines}F\x1b[J")
+        self.stream.write(text + "\n")
+        self.stream.flush()
+        self._lines = 0
+        self._last = 0.0  # redraw the display below it at the next update
+
 
 def _eta(done_evals: float, total_evals: float, elapsed: float) -> str:
     if done_evals <= 0 or elapsed <= 0:
@@ -173,8 +203,13 @@ def run_sweep(
     max_concurrent: int | None = None,
     progress: Progress | None = None,
     on_outcome: Callable[[JobOutcome], None] | None = None,
+    max_retries: int = 3,
 ) -> SweepSummary:
-    """Run the jobs; log each to the tracker; write and log the summary tables at the end."""
+    """Run the jobs; log each to the tracker; write and log the summary tables at the end.
+
+    A job lost to the infrastructure (``executor.lost``) is resubmitted, up to ``max_retries``
+    times, and resumes from its last checkpoint wherever it lands; an error of the job's own
+    code fails the job at once."""
     from sweep import report
 
     t0 = time.perf_counter()
@@ -200,6 +235,19 @@ def run_sweep(
                 running[executor.submit(spec)] = spec
             for handle, result in executor.wait(list(running), timeout=0.5):
                 spec = running.pop(handle)
+                if (
+                    isinstance(result, BaseException)
+                    and executor.lost(result)
+                    and summary.retries.get(spec.key, 0) < max_retries
+                ):
+                    n = summary.retries[spec.key] = summary.retries.get(spec.key, 0) + 1
+                    progress.note(
+                        f"{spec.key}: lost ({type(result).__name__}: "
+                        f"{str(result).splitlines()[0][:160] if str(result) else ''}); "
+                        f"resubmitted ({n}/{max_retries}), resumes from its checkpoint"
+                    )
+                    todo.insert(0, spec)
+                    continue
                 done_evals += budget[spec.key]
                 if isinstance(result, BaseException):
                     error = "".join(traceback.format_exception(result))
@@ -213,6 +261,7 @@ def run_sweep(
                     summary.failed[spec.key] = f"{type(result).__name__}: {result}"
                 else:
                     outcome, files = result
+                    outcome.retries = summary.retries.get(spec.key, 0)
                     plots = spec.job_dir / "plots"
                     plots.mkdir(parents=True, exist_ok=True)
                     for fname, data in files.items():
@@ -236,6 +285,11 @@ def run_sweep(
                         f"pop {int(st.get('popsize', 0))} "
                         f"evals {int(st.get('evaluations', 0))}/{int(budget[spec.key])} "
                         f"best {st.get('best_so_far', float('nan')):.1f}"
+                        + (
+                            f" (retry {summary.retries[spec.key]})"
+                            if summary.retries.get(spec.key)
+                            else ""
+                        )
                     )
                 else:
                     lines.append(f"  {spec.key}: starting")

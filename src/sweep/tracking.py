@@ -193,6 +193,7 @@ def outcome_tags(outcome: JobOutcome, parent_id: str) -> dict[str, str]:
         "config_hash": outcome.config_hash,
         "stop_reason": outcome.stop_reason,
         "rejected": "true" if outcome.rejected else "false",
+        "retries": str(outcome.retries),
         "mmg_sweep_version": source_version()["version"],
         "git_commit": source_version()["commit"],
         PARENT_TAG: parent_id,
@@ -215,6 +216,7 @@ def outcome_metrics(outcome: JobOutcome) -> dict[str, float]:
         rejected=1.0 if outcome.rejected else 0.0,
         restarts=float(len(outcome.restarts)),
         sim_seconds=float(outcome.sim_seconds),
+        retries=float(outcome.retries),
     )
     return metrics
 

@@ -74,6 +74,7 @@ class MmgRayLauncher(Launcher):
         global LAST_SUMMARY
         from sweep.job import JobSpec
         from sweep.raycluster import RayExecutor
+        from sweep.schema import validate
         from sweep.service import Progress, efd_reference, run_sweep, spec_from_config
         from sweep.tracking import MlflowTracker
 
@@ -87,7 +88,9 @@ class MmgRayLauncher(Launcher):
                 cfg.hydra.job.num = initial_job_idx + idx
             HydraConfig.instance().set_config(cfg)
             job_dir = Path(cfg.hydra.sweep.dir) / str(cfg.hydra.sweep.subdir)
-            specs.append(spec_from_config(job_config(cfg), job_dir))
+            plain = job_config(cfg)
+            validate(plain)  # every job's configuration, before Ray or MLflow start
+            specs.append(spec_from_config(plain, job_dir))
             job_cfgs.append(cfg)
         first = job_cfgs[0]
         sweep_dir = Path(first.hydra.sweep.dir)
@@ -118,6 +121,7 @@ class MmgRayLauncher(Launcher):
                 },
                 max_concurrent=first.ray.max_concurrent_jobs,
                 progress=Progress(every=float(first.sweep.progress_seconds)),
+                max_retries=int(first.sweep.get("max_retries", 3)),
             )
         finally:
             executor.shutdown()

@@ -118,7 +118,7 @@ TIE_ABSOLUTE = 10.0
 #: ``a_h_drift``, see the README); on the real recordings (J2 of thousands) it is negligible
 PRIOR_WEIGHT = 1.0
 #: version of the fitting procedure; raise it when a change alters what a stage computes
-PROCEDURE_VERSION = 5
+PROCEDURE_VERSION = 6
 #: shortest window kept [s] (the last window of a run may be short)
 MIN_WINDOW = 20.0
 
@@ -204,13 +204,32 @@ def cut_windows(recordings: Sequence[Recording], t_f: float = T_F) -> list[Recor
 
 
 def split_windows(windows: Sequence[Recording]) -> tuple[list[Recording], list[Recording]]:
-    """Alternate windows into (fit, held-out); needs at least two windows."""
+    """(fit, held-out) windows; needs at least two windows.
+
+    Whole runs are held out when there are several: the windows of one recording share its
+    conditions (the day's wind, the basin's region, the run's manoeuvre), so a term must carry
+    over to other runs to count as better. The runs go, longest first, to the fold with less
+    recorded time so far. From a single run (or when one run holds nearly all the time) the
+    windows alternate between the folds instead."""
     if len(windows) < 2:
         raise ValueError(
             f"the training recordings give {len(windows)} window(s) of up to {T_F:.0f} s; "
             "the diagnosis needs at least 2 (one to fit, one held out)"
         )
-    return list(windows[0::2]), list(windows[1::2])
+    runs: dict[str, list[Recording]] = {}
+    for w in windows:
+        runs.setdefault(w.name.rsplit("@", 1)[0], []).append(w)
+    total = sum(w.duration for w in windows)
+    longest = max(sum(w.duration for w in ws) for ws in runs.values())
+    if len(runs) < 2 or longest > (2.0 / 3.0) * total:
+        return list(windows[0::2]), list(windows[1::2])
+    folds: tuple[list[Recording], list[Recording]] = ([], [])
+    time_in = [0.0, 0.0]
+    for ws in sorted(runs.values(), key=lambda ws: -sum(w.duration for w in ws)):
+        j = 0 if time_in[0] <= time_in[1] else 1
+        folds[j].extend(ws)
+        time_in[j] += sum(w.duration for w in ws)
+    return folds
 
 
 @dataclass

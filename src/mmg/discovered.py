@@ -18,7 +18,7 @@ import threading
 from collections.abc import Sequence
 
 from mmg.effects import DISCOVERED_PREFIX, Effect, EffectParam, register
-from mmg.library import U_0, Term, term
+from mmg.library import U_0, U_REF, Term, term
 
 #: default search interval of a coefficient (the diagnosis narrows it around its estimate)
 DEFAULT_BOUND = 1.0
@@ -40,6 +40,7 @@ class {ptype}(NamedTuple):
 def {func}(x0, y0, u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh):
     """Forces of the terms {ids} (u, v_m through the water)."""
     Lp = sh.L_pp
+    U_ref = {U_REF!r}
     q = 0.5 * sh.rho * Lp * sh.d
     U2 = u * u + v_m * v_m
     Ue = math.sqrt(U2 + {U_0!r} * {U_0!r})
@@ -81,6 +82,7 @@ def _source(name: str, terms: Sequence[Term], key: str) -> str:
         ids=", ".join(t.id for t in terms),
         lines="\n".join(lines),
         U_0=U_0,
+        U_REF=U_REF,
     )
 
 

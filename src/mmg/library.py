@@ -18,7 +18,7 @@ Each term is one scalar Python expression, compiled into the hook of a generated
     u, v_m [m/s], r [rad/s], psi [rad], delta [rad], n_p [rev/s], x0, y0 [m], U2 = u^2 + v_m^2,
     Ue = sqrt(U2 + U_0^2), rL = r L_pp, nD = n_p D_p [m/s], uA, vA (apparent wind [m/s], see
     :func:`mmg.wind.apparent_wind`), wT = rho_A A_T / (rho L_pp d), wL = rho_A A_L / (rho L_pp d),
-    Lp = L_pp, ast = 1 if u < 0 (astern) else 0, rev = 1 if n_p < 0 else 0, abs and math.
+    Lp = L_pp, ast = 1 if u < 0 (astern) else 0, rev = 1 if n_p < 0 else 0, U_ref, abs and math.
 
 A term may enter more than one equation with its one coefficient (``parts``): ``E_x0`` and
 ``E_y0`` are a steady force along the basin's x0 or y0 axis, resolved on the ship's axes through
@@ -82,6 +82,9 @@ _TERMS: list[Term] = [
     # hull: second order (u, v_m, r L) with |.| forms, and third order / U_e
     *_t("X", "uau", "u * abs(u)", "u|u|", "hull"),
     *_t("X", "uuu", "u * u * u / Ue", "u^3 / U_e", "hull"),
+    # resistance beyond the quadratic law (a resistance curve in u: wave making grows with speed)
+    *_t("X", "uuau", "u * u * abs(u) / U_ref", "u^2 |u| / U_ref", "hull"),
+    *_t("X", "uuuau", "u * u * u * abs(u) / (U_ref * U_ref)", "u^3 |u| / U_ref^2", "hull"),
     *_t("XYN", "vv", "v_m * v_m", "v_m^2", "hull"),
     *_t("XYN", "vr", "v_m * rL", "v_m r L_pp", "hull"),
     *_t("XYN", "rr", "rL * rL", "(r L_pp)^2", "hull"),
@@ -131,7 +134,10 @@ _TERMS: list[Term] = [
         "",
         "U_ref^2 along x0",
         "heading",
-        (("X", "math.cos(psi)", "U_ref^2 cos(psi)"), ("Y", "-math.sin(psi)", "-U_ref^2 sin(psi)")),
+        (
+            ("X", "math.cos(psi)", "U_ref^2 cos(psi)"),
+            ("Y", "-math.sin(psi)", "U_ref^2 (-sin(psi))"),
+        ),
     ),
     Term(
         "E_y0",

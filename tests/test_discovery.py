@@ -158,6 +158,14 @@ def test_unlisted_wave_resistance_is_discovered_reidentified_and_improves_the_te
     assert all(t["formula"] and np.isfinite(t["value"]) for t in report["discovered"]["terms"])
     md = (tmp_path / "out" / "report.md").read_text()
     assert "noise floor" in md and "Discovery" in md and "Acceptance threshold" in md
+    # the regression view: the surge residual is what the proposed terms explain
+    view = report["discovery"]["regression"]
+    assert view["terms"] == report["discovery"]["terms"]
+    r2 = {c["channel"]: c["r2"] for c in view["channels"]}
+    # (the differentiated recordings are noisy: a few per cent of the residual is signal)
+    assert r2["surge (X)"] > 0.02 and r2["surge (X)"] > 3 * max(r2["sway (Y)"], r2["yaw (N)"]), r2
+    assert (tmp_path / "out" / "equation_residuals.png").stat().st_size > 10_000
+    assert "Regression view" in md
 
 
 def test_no_effect_with_coloured_noise_gives_none_and_no_proposal(runs, tmp_path):

@@ -176,6 +176,7 @@ def _best(cwd: Path, name: str) -> dict[str, float]:
         [exp.experiment_id],
         f"tags.mlflow.parentRunId = '{parent.info.run_id}' and attributes.status = 'FINISHED'",
     )
+    assert len(runs) == len(JOBS), "a job finished twice, or not at all"
     return {r.data.tags["job_key"]: r.data.metrics["best_f"] for r in runs}
 
 

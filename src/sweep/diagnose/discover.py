@@ -173,12 +173,58 @@ def _cv_r2(y: FloatArray, X: FloatArray, folds: list[NDArray[np.bool_]]) -> floa
     return 1.0 - sse / max(float(y @ y), 1e-300)
 
 
-def select(data: EquationData, settings: DiscoverySettings) -> Selection:
-    """Project out the base regressors, then forward stepwise selection by held-out R^2."""
+def _projected(data: EquationData) -> tuple[FloatArray, FloatArray]:
+    """(y, C) with the base regressors projected out (step 3)."""
     U, s, _ = np.linalg.svd(data.B, full_matrices=False)
     Q = U[:, s > 1e-8 * s[0]] if s.size and s[0] > 0 else U[:, :0]
-    y = data.y - Q @ (Q.T @ data.y)
-    C = data.C - Q @ (Q.T @ data.C)
+    return data.y - Q @ (Q.T @ data.y), data.C - Q @ (Q.T @ data.C)
+
+
+CHANNEL_NAMES = ("surge (X)", "sway (Y)", "yaw (N)")
+
+
+def regression_view(data: EquationData, terms: Sequence[str], bins: int = 10) -> dict[str, Any]:
+    """The equation residual regressed on ``terms``, per channel (surge, sway, yaw), after the
+    base model's own regressors are projected out: the share of each channel's residual the
+    terms explain jointly (R^2), each term's coefficient, and per channel and term the binned
+    partial-regression points (the term's fitted contribution against the residual left by the
+    other terms, both in units of the channel's residual RMS), for the report's figure."""
+    y, C = _projected(data)
+    ks = [data.term_ids.index(t) for t in terms if t in data.term_ids]
+    M = y.size // 3
+    beta = np.linalg.lstsq(C[:, ks], y, rcond=None)[0] if ks else np.zeros(0)
+    fit = C[:, ks] @ beta if ks else np.zeros_like(y)
+    out: dict[str, Any] = {"terms": [data.term_ids[k] for k in ks], "channels": []}
+    for c, name in enumerate(CHANNEL_NAMES):
+        rows = slice(c * M, (c + 1) * M)
+        yc, fc = y[rows], fit[rows]
+        ss = float(yc @ yc)
+        channel: dict[str, Any] = {
+            "channel": name,
+            "rms": float(np.sqrt(np.mean(yc * yc))) if yc.size else 0.0,
+            "r2": 1.0 - float((yc - fc) @ (yc - fc)) / ss if ss > 0 else 0.0,
+            "partial": [],
+        }
+        for j, k in enumerate(ks):
+            x = C[rows, k] * beta[j]
+            if not np.any(x):
+                continue
+            partial = yc - (fc - x)  # the residual left by the other terms
+            edges = np.unique(np.quantile(x, np.linspace(0.0, 1.0, bins + 1)))
+            idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, edges.size - 2)
+            pts = [
+                (float(x[idx == b].mean()), float(partial[idx == b].mean()), int((idx == b).sum()))
+                for b in range(edges.size - 1)
+                if np.any(idx == b)
+            ]
+            channel["partial"].append({"term": data.term_ids[k], "points": pts})
+        out["channels"].append(channel)
+    return out
+
+
+def select(data: EquationData, settings: DiscoverySettings) -> Selection:
+    """Project out the base regressors, then forward stepwise selection by held-out R^2."""
+    y, C = _projected(data)
     norm0 = np.sum(data.C * data.C, axis=0)
     norm = np.sum(C * C, axis=0)
     absorbed = np.where(norm0 > 0, 1.0 - norm / np.maximum(norm0, 1e-300), 1.0)
@@ -281,7 +327,11 @@ def discover(
     for t in s.terms:
         term(t)  # unknown ids fail here, naming the library
     t0 = time.perf_counter()
-    sel = select(equation_data(params, windows, s), s)
+    data = equation_data(params, windows, s)
+    sel = select(data, s)
+    # the regression view: the selected terms, or (none selected) the three best alone
+    shown = sel.terms or [str(r["term"]) for r in sel.single[:3]]
+    view = regression_view(data, shown)
     null: list[float] = []
     for recs in null_sets(params, windows, noise, rng, s.null_draws):
         null.append(select(equation_data(params, recs, s), s).cv_r2)
@@ -293,7 +343,9 @@ def discover(
             f"the held-out equation residual (null {1 - s.alpha:.0%} quantile "
             f"{100 * threshold:.1f} %) -> {'proposed' if proposed else 'not proposed'}"
         )
-    return Proposal(sel, threshold, null, s.alpha, proposed, time.perf_counter() - t0)
+    return Proposal(
+        sel, threshold, null, s.alpha, proposed, time.perf_counter() - t0, {"regression": view}
+    )
 
 
 def force_pattern(

@@ -179,6 +179,13 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
                 "absorbed": prop.selection.absorbed,
                 "path": prop.selection.path,
                 "single_terms": prop.selection.single,
+                "regression": {
+                    "terms": prop.extra.get("regression", {}).get("terms", []),
+                    "channels": [
+                        {"channel": c["channel"], "rms": c["rms"], "r2": c["r2"]}
+                        for c in prop.extra.get("regression", {}).get("channels", [])
+                    ],
+                },
                 "seconds": prop.seconds,
             }
             if prop is not None
@@ -395,6 +402,62 @@ def _discovery_md(d: Diagnosis) -> list[str]:
     return lines
 
 
+def plot_regression(view: dict[str, Any], path: Path) -> None:
+    """Partial-regression plots of the equation residual: one row per channel, one column per
+    term (binned means, the fitted line through the origin)."""
+    channels = view["channels"]
+    terms = view["terms"]
+    if not terms:
+        return
+    fig, axes = plt.subplots(
+        len(channels), len(terms), figsize=(3.6 * len(terms), 2.6 * len(channels)), squeeze=False
+    )
+    for i, ch in enumerate(channels):
+        by_term = {p["term"]: p["points"] for p in ch["partial"]}
+        for j, t in enumerate(terms):
+            ax = axes[i][j]
+            pts = by_term.get(t, [])
+            if pts:
+                x = np.array([q[0] for q in pts])
+                y = np.array([q[1] for q in pts])
+                ax.plot(x, y, "o", ms=4, color="C0")
+                lim = np.array([x.min(), x.max()])
+                ax.plot(lim, lim, "-", color="C3", lw=1)
+            else:
+                ax.text(0.5, 0.5, "term absent here", ha="center", transform=ax.transAxes)
+            ax.axhline(0.0, color="0.7", lw=0.6)
+            if i == 0:
+                ax.set_title(t, fontsize=9)
+            if j == 0:
+                ax.set_ylabel(f"{ch['channel']}\nresidual (R^2 {100 * ch['r2']:.0f} %)", fontsize=8)
+            if i == len(channels) - 1:
+                ax.set_xlabel("term's fitted contribution", fontsize=8)
+    fig.suptitle(
+        "equation residual (base regressors projected out, units of its RMS) against each term",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _regression_md(view: dict[str, Any]) -> list[str]:
+    terms = view.get("terms", [])
+    if not terms:
+        return []
+    lines = [
+        "",
+        f"Regression view of the equation residual on {' + '.join(terms)} (the base model's "
+        "own regressors projected out): the share of each channel's residual these terms "
+        "explain, and the partial-regression plots in `equation_residuals.png`.",
+        "",
+        "| channel | residual explained (R^2) |",
+        "|---|---:|",
+    ]
+    lines += [f"| {c['channel']} | {100 * c['r2']:.1f} % |" for c in view["channels"]]
+    return [*lines, "", "![equation residuals](equation_residuals.png)"]
+
+
 def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str, Any]:
     """Write report.json, report.md and the plots into ``out``; returns the report dict."""
     out.mkdir(parents=True, exist_ok=True)
@@ -406,6 +469,10 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
     )
     plot_candidates(d, out / "candidates.png")
     figures = ["candidates.png"]
+    view = d.proposal.extra.get("regression", {}) if d.proposal is not None else {}
+    if view.get("terms"):
+        plot_regression(view, out / "equation_residuals.png")
+        figures.append("equation_residuals.png")
     if test:
         fb = residual_frame(d.before.params, test, _effects(d.before.params))
         fa = residual_frame(d.after.params, test, _effects(d.after.params))
@@ -439,6 +506,7 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
         "## Discovery: equation-level residuals regressed on the term library",
         "",
         *_discovery_md(d),
+        *_regression_md(view),
         "",
         "## Acceptance threshold, calibrated on these windows",
         "",

@@ -540,3 +540,19 @@ def test_every_real_recording_integrates_to_its_track(data_dir: Path) -> None:
         misfit, ratio, corr, rms = _track_misfit(x[:, 0], x[:, 1], x[:, 2], x[:, 3], x[:, 4])
         assert misfit < TRACK_TOLERANCE / 2.5 and abs(ratio - 1.0) < 0.01 and corr > 0.99, rec.name
         assert rms > 0.25
+
+
+def test_a_heading_offset_is_not_mistaken_for_a_wrong_reading(data_dir: Path, tmp_path: Path) -> None:
+    """A constant heading error of 0.3 rad makes the velocities miss the track by about 30 %,
+    but no mistaken reading (units, swapped columns, a sign) explains it: it is physics or a
+    measurement error for the diagnosis to name (heading_bias), so the file is read."""
+    from sweep.recordings import TRACK_TOLERANCE, _track_misfit
+
+    def edit(header: list[str], rows: Rows) -> None:
+        j = _col(header, "psi_hat [rad]")
+        for row in rows:
+            row[j] = repr(float(wrap_angle(float(row[j]) + 0.3)))
+
+    rec = read_recording(_variant(data_dir, tmp_path, edit, rel=ZIGZAG, n=1200))
+    x = np.asarray(rec.x)
+    assert _track_misfit(x[:, 0], x[:, 1], x[:, 2], x[:, 3], x[:, 4])[0] > 2 * TRACK_TOLERANCE

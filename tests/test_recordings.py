@@ -542,7 +542,9 @@ def test_every_real_recording_integrates_to_its_track(data_dir: Path) -> None:
         assert rms > 0.25
 
 
-def test_a_heading_offset_is_not_mistaken_for_a_wrong_reading(data_dir: Path, tmp_path: Path) -> None:
+def test_a_heading_offset_is_not_mistaken_for_a_wrong_reading(
+    data_dir: Path, tmp_path: Path
+) -> None:
     """A constant heading error of 0.3 rad makes the velocities miss the track by about 30 %,
     but no mistaken reading (units, swapped columns, a sign) explains it: it is physics or a
     measurement error for the diagnosis to name (heading_bias), so the file is read."""

@@ -79,6 +79,7 @@ class Cluster:
             ["ray", "start", "--block", "--num-cpus=1", "--disable-usage-stats",
              "--node-ip-address=127.0.0.1", *args],
             env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+            cwd=self.logs,
         )  # fmt: skip
 
     def start(self) -> None:

@@ -149,7 +149,8 @@ def run_job(
     objective = Objective(list(train.values()), spec.objective)
     lo, hi = bounds()
     box = Box(lo, hi)
-    spec.job_dir.mkdir(parents=True, exist_ok=True)
+    if spec.checkpoint is None:  # with a storage URI the job needs no directory on its node
+        spec.job_dir.mkdir(parents=True, exist_ok=True)
 
     def progress(state: State, row: dict[str, float]) -> None:
         if status is not None:

@@ -31,7 +31,7 @@ import yaml
 
 from sweep.datasets import CONF_DIR
 from sweep.service import LocalExecutor, Progress, efd_reference, run_sweep, spec_from_config
-from sweep.tracking import NullTracker
+from tests.memory_tracker import NullTracker
 
 BUDGET = 1500
 JOBS = ("J1", "J2")

@@ -22,7 +22,8 @@ from sweep.report import (
     summary_tables,
     write_tables,
 )
-from sweep.tracking import MlflowTracker, NullTracker
+from sweep.tracking import MlflowTracker
+from tests.memory_tracker import NullTracker
 from tests.test_tracking import EFD, history, make_outcome, shared_store
 
 PNG = b"\x89PNG\r\n\x1a\n"

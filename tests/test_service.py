@@ -16,8 +16,9 @@ from sweep.job import JobSpec, settings_of
 from sweep.objective import Objective
 from sweep.outcome import SUBSETS
 from sweep.service import LocalExecutor, Progress, efd_reference, run_sweep, spec_from_config
-from sweep.tracking import ConfigChangedError, NullTracker
+from sweep.tracking import ConfigChangedError
 from sweep.workers import InProcess
+from tests.memory_tracker import NullTracker
 
 
 def _cfg(objective: str, seed: int, budget: int, train: str = "R") -> dict:
@@ -223,3 +224,24 @@ def test_checkpoints_go_to_the_storage_uri_and_a_job_resumes_from_there(tmp_path
     assert summary.ok and summary.retries == {spec.key: 1}
     assert (tmp_path / "store" / "stored" / spec.key / "checkpoint.pkl").is_file()
     assert not (tmp_path / "job" / "checkpoint.pkl").exists()
+
+
+def test_a_data_warning_is_said_once_by_the_driver(tmp_path, data_dir):
+    """zigzag_31-Jul-2020_13_50_28 ends in 327 empty rows: three jobs on Train-TZR read it, the
+    driver says it once; the jobs themselves stay quiet."""
+    import warnings
+
+    from sweep.recordings import RecordingWarning
+    from sweep.service import check_recordings
+
+    specs = []
+    for J in ("J1", "J2", "J3"):
+        cfg = _cfg(J, 0, 40, train="TZR")
+        cfg["data"]["root"] = str(data_dir)
+        specs.append(spec_from_config(cfg, tmp_path / J))
+    stream = io.StringIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RecordingWarning)  # nothing may escape as a warning
+        check_recordings(specs, stream)
+    lines = [ln for ln in stream.getvalue().splitlines() if ln.strip()]
+    assert len(lines) == 1 and "327" in lines[0] and lines[0].startswith("warning: ")

@@ -77,6 +77,41 @@ def test_mlflow_holds_parent_children_metrics_and_tables(smoke):
     assert "EFD" in table and "J1-R" in table and "J2-R" in table
 
 
+def test_the_comparison_is_on_the_first_screens(smoke):
+    """The experiment opens as a model-training one; the parent's description holds the J
+    tables and the answer (best pair); each child's description its test row beside EFD, its
+    stop reason and restarts; objective, train and seed are params; the sweep figure is on
+    the parent; the terminal prints the J2 table at the end."""
+    import mlflow
+
+    from sweep.tracking import EXPERIMENT_KIND, NOTE_TAG
+
+    cwd, first = smoke
+    client = mlflow.MlflowClient(f"sqlite:///{cwd}/mlflow.db")
+    exp = client.get_experiment_by_name("mmg-sweep")
+    assert exp is not None and exp.tags[EXPERIMENT_KIND[0]] == EXPERIMENT_KIND[1]
+    runs = client.search_runs([exp.experiment_id])
+    parent = next(r for r in runs if r.data.tags.get("sweep") == "true")
+    note = parent.data.tags[NOTE_TAG]
+    assert "Best generalisation (J2, whole test set): J" in note
+    for J in ("J1", "J2", "J3"):
+        assert f"### {J} on the test set" in note
+    assert "| EFD " in note and "| J1-R " in note and "| J2-R " in note and "**" in note
+    children = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id]
+    for child in children:
+        params = child.data.params
+        assert params["objective"] == child.data.tags["objective"]
+        assert params["train"] == "R" and params["seed"] == "0"
+        text = child.data.tags[NOTE_TAG]
+        assert "| this job |" in text and "| EFD |" in text and "stopped by budget" in text
+        assert "| restart | population |" in text
+    summary = {a.path for a in client.list_artifacts(parent.info.run_id, "summary")}
+    assert "summary/sweep.png" in summary
+    assert (cwd / "multirun/ci-smoke/summary/sweep.png").stat().st_size > 20_000
+    out = first.stderr
+    assert "J2 on the test set" in out and "EFD" in out.split("J2 on the test set", 1)[1]
+
+
 def test_best_parameters_are_loadable_by_evaluate(smoke, data_dir):
     import mlflow
 

@@ -25,13 +25,13 @@ from sweep.outcome import (
 from sweep.tracking import (
     ConfigChangedError,
     MlflowTracker,
-    NullTracker,
     Tracker,
     TrackingError,
     default_tracking_uri,
     flatten_config,
     sqlite_path,
 )
+from tests.memory_tracker import NullTracker
 
 _STORE: dict[str, str] = {}
 

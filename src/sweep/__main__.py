@@ -28,13 +28,21 @@ def single_job(cfg: DictConfig) -> Any:
 
     from hydra_plugins.mmg_sweep_launcher.mmg_ray_launcher import job_config
     from sweep.schema import validate
-    from sweep.service import LocalExecutor, Progress, efd_reference, run_sweep, spec_from_config
+    from sweep.service import (
+        LocalExecutor,
+        Progress,
+        check_recordings,
+        efd_reference,
+        run_sweep,
+        spec_from_config,
+    )
     from sweep.tracking import MlflowTracker
 
     plain = job_config(cfg)
     validate(plain)  # before an MLflow run is created
     job_dir = Path(HydraConfig.get().runtime.output_dir)
     spec = spec_from_config(plain, job_dir)
+    check_recordings([spec])
     tracker = MlflowTracker(
         str(cfg.tracking.uri), str(cfg.tracking.experiment), bool(cfg.sweep.allow_config_change)
     )

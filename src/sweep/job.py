@@ -10,6 +10,7 @@ that a job on another machine can hand them to the driver).
 from __future__ import annotations
 
 import tempfile
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +23,7 @@ from sweep.cmaes import Box, Settings, State, optimise, restart_table
 from sweep.datasets import split_from_mapping
 from sweep.objective import OBJECTIVES, Objective, split_recording
 from sweep.outcome import SUBSETS, JobOutcome, complete_subsets, config_hash, make_job_key
-from sweep.recordings import Recording
+from sweep.recordings import Recording, RecordingWarning
 
 #: test-set labels of conf/test/paper.yaml -> metric suffixes
 SUBSET_OF_LABEL = {
@@ -143,8 +144,12 @@ def run_job(
     """Identify, evaluate on the test set, plot. Resumes from the spec's checkpoint (in its
     job directory, or in the sweep's storage), written after every generation."""
     cfg = spec.config
-    train = split_from_mapping(dict(cfg["train"]), f"train={spec.train}").load(spec.data_root)
-    test = split_from_mapping(dict(cfg["test"]), "test").load(spec.data_root)
+    with warnings.catch_warnings():
+        # data warnings (dropped trailing rows, ...) are said once, by the driver
+        # (check_recordings), not by every job that reads the file
+        warnings.simplefilter("ignore", RecordingWarning)
+        train = split_from_mapping(dict(cfg["train"]), f"train={spec.train}").load(spec.data_root)
+        test = split_from_mapping(dict(cfg["test"]), "test").load(spec.data_root)
     settings = settings_of(cfg, spec.seed)
     objective = Objective(list(train.values()), spec.objective)
     lo, hi = bounds()

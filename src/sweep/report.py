@@ -243,7 +243,175 @@ def write_tables(tables: Mapping[str, pd.DataFrame], out_dir: str | Path) -> dic
     return files
 
 
+# ---------------------------------------------------------------- run descriptions (MLflow notes)
+
+
+def _num(v: Any) -> str:
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        return "-"
+    return f"{x:.1f}" if np.isfinite(x) else "-"
+
+
+def job_note(outcome: JobOutcome, efd: ScoreTable) -> str:
+    """A child run's description (Markdown): its test row beside EFD for J1-J3, the stop
+    reason and the restarts."""
+    head = "| | " + " | ".join(COLUMNS[s] for s in SUBSETS) + " |"
+    rule = "|---|" + "---:|" * len(SUBSETS)
+    lines = [
+        f"**{outcome.objective} on Train-{outcome.train}, seed {outcome.seed}**: best training "
+        f"{outcome.objective} = {outcome.f:.4g} after {outcome.evaluations:,} evaluations "
+        f"({outcome.seconds:.0f} s); stopped by {outcome.stop_reason}; "
+        f"{len(outcome.restarts)} restart(s)"
+        + ("; **rejected** by the paper's post-filter" if outcome.rejected else "")
+        + (f"; resubmitted {outcome.retries} time(s) after a loss" if outcome.retries else ""),
+        "",
+    ]
+    for J in OBJECTIVE_NAMES:
+        if J not in outcome.test:
+            continue
+        mine = complete_subsets(outcome.test[J])
+        ref = complete_subsets(efd.get(J, {}))
+        lines += [
+            f"{J} on the test set:",
+            "",
+            head,
+            rule,
+            "| this job | " + " | ".join(_num(mine.get(s)) for s in SUBSETS) + " |",
+            "| EFD | " + " | ".join(_num(ref.get(s)) for s in SUBSETS) + " |",
+            "",
+        ]
+    if outcome.restarts:
+        lines += [
+            "| restart | population | generations | evaluations | best f | stop |",
+            "|---:|---:|---:|---:|---:|---|",
+        ]
+        for r in outcome.restarts:
+            stop = ", ".join(str(k) for k in (r.get("stop") or {})) or "-"
+            lines.append(
+                f"| {r.get('index', '')} | {r.get('popsize', '')} | {r.get('generations', '')} "
+                f"| {r.get('evaluations', '')} | {float(r.get('best_f', math.nan)):.4g} | {stop} |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def best_case(table: pd.DataFrame, column: str = "Total") -> tuple[str, float, float] | None:
+    """(case, mean, std) of the lowest mean in ``column`` (EFD excluded), or None."""
+    mean = column_name(column, "mean")
+    if mean not in table.columns:
+        return None
+    rows = table.drop(index=EFD_ROW, errors="ignore")
+    rows = rows[np.isfinite(rows[mean].to_numpy(dtype=np.float64, na_value=np.nan))]
+    if rows.empty:
+        return None
+    case = str(rows[mean].astype("float64").idxmin())
+    std = float(rows.loc[case, column_name(column, "std")])
+    return case, float(rows.loc[case, mean]), std
+
+
+def sweep_note(name: str, tables: Mapping[str, pd.DataFrame], settings: Mapping[str, Any]) -> str:
+    """The parent run's description (Markdown): which objective and training set generalise
+    best, then the J1, J2 and J3 tables (mean (std) over seeds, EFD row, best in bold) and the
+    sweep's settings."""
+    lines = [f"## Sweep {name}", ""]
+    if "J2" in tables:
+        best = best_case(tables["J2"])
+        efd = tables["J2"].get(column_name("Total", "mean"))
+        if best is not None:
+            case, mean, std = best
+            ref = float(efd.get(EFD_ROW, math.nan)) if efd is not None else math.nan
+            spread = f" (std {std:.1f} over seeds)" if np.isfinite(std) else ""
+            lines += [
+                f"**Best generalisation (J2, whole test set): {case}**, {mean:.1f}{spread}"
+                + (f"; EFD {ref:.1f}" if np.isfinite(ref) else "")
+                + ".",
+                "",
+            ]
+    for J in OBJECTIVE_NAMES:
+        if J not in tables:
+            continue
+        paper_layout = column_name("Total", "rank") in tables[J].columns
+        md = display_table(tables[J], "markdown") if paper_layout else tables[J]
+        align = ("left",) + ("right",) * md.shape[1]
+        lines += [
+            f"### {J} on the test set: mean (std) over seeds; **best**, <u>second</u>",
+            "",
+            md.to_markdown(colalign=align),
+            "",
+        ]
+    if settings:
+        lines += ["### Settings", ""]
+        lines += [f"- `{k}`: {v}" for k, v in settings.items()]
+    return "\n".join(lines) + "\n"
+
+
 # ---------------------------------------------------------------- figures
+
+
+def plot_sweep(
+    tables: Mapping[str, pd.DataFrame],
+    histories: Mapping[str, Sequence[tuple[float, float]]],
+    path: str | Path,
+) -> Path:
+    """The sweep at a glance: for J1, J2 and J3, bars per test subset for every
+    objective-training pair (mean over seeds, the seeds' standard deviation as error bars) with
+    the EFD value as a line; below, the convergence of every job (best J so far against
+    evaluations, log scale), coloured by objective."""
+    Js = [J for J in OBJECTIVE_NAMES if J in tables]
+    fig = Figure(figsize=(5.2 * max(1, len(Js)), 8.0))
+    gs = fig.add_gridspec(2, max(1, len(Js)), height_ratios=[1.2, 1.0])
+    subsets = [s for s in SUBSETS if s not in ("B", "total")]
+    for i, J in enumerate(Js):
+        ax = fig.add_subplot(gs[0, i])
+        table = tables[J]
+        cases = [c for c in table.index if c != EFD_ROW]
+        width = 0.8 / max(1, len(cases))
+        x = np.arange(len(subsets))
+        for k, case in enumerate(cases):
+            row = table.loc[case]
+            means = row[[column_name(COLUMNS[s], "mean") for s in subsets]].to_numpy(
+                dtype=np.float64, na_value=np.nan
+            )
+            stds = np.nan_to_num(
+                row[[column_name(COLUMNS[s], "std") for s in subsets]].to_numpy(
+                    dtype=np.float64, na_value=np.nan
+                )
+            )
+            ax.bar(x + (k - (len(cases) - 1) / 2) * width, means, width, yerr=stds,
+                   label=case, capsize=2)  # fmt: skip
+        if EFD_ROW in table.index:
+            refs = table.loc[EFD_ROW, [column_name(COLUMNS[s], "mean") for s in subsets]]
+            for j, ref in enumerate(refs.to_numpy(dtype=np.float64)):
+                ax.hlines(ref, j - 0.45, j + 0.45, colors="k", linestyles="--", lw=1)
+            ax.plot([], [], "k--", lw=1, label="EFD")
+        ax.set_xticks(x, [COLUMNS[s] for s in subsets], rotation=30, fontsize=8)
+        ax.set_yscale("log")
+        ax.set_title(f"{J} on the test set (mean, seed std)", fontsize=10)
+        if i == 0:
+            ax.legend(fontsize=7, ncol=2)
+    ax = fig.add_subplot(gs[1, :])
+    colours = {J: f"C{k}" for k, J in enumerate(OBJECTIVE_NAMES)}
+    for key, rows in sorted(histories.items()):
+        if not rows:
+            continue
+        J = next((J for J in OBJECTIVE_NAMES if f"objective={J}" in key), "")
+        ev = [r[0] for r in rows]
+        best = [r[1] for r in rows]
+        ax.plot(ev, best, lw=0.9, color=colours.get(J, "0.4"), alpha=0.8)
+    for J, c in colours.items():
+        ax.plot([], [], color=c, label=f"objective {J}")
+    ax.set_yscale("log")
+    ax.set_xlabel("evaluations")
+    ax.set_ylabel("best training J so far")
+    ax.set_title("convergence of every job", fontsize=10)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    return Path(path)
+
+
+# ---------------------------------------------------------------- figures (per job)
 
 
 def plot_convergence(

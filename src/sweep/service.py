@@ -19,6 +19,7 @@ from __future__ import annotations
 import sys
 import time
 import traceback
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,6 +30,7 @@ from sweep import storage
 from sweep.datasets import split_from_mapping
 from sweep.job import JobSpec, job_key, run_job, test_metrics
 from sweep.outcome import JobOutcome
+from sweep.recordings import RecordingWarning
 from sweep.workers import InProcess
 
 
@@ -105,6 +107,7 @@ class SweepSummary:
     failed: dict[str, str] = field(default_factory=dict)
     files: dict[str, Path] = field(default_factory=dict)
     retries: dict[str, int] = field(default_factory=dict)  # resubmissions per job key
+    tables: dict[str, Any] = field(default_factory=dict)  # {J: summary table} (sweep.report)
     seconds: float = 0.0
 
     @property
@@ -146,11 +149,38 @@ def spec_from_config(cfg: Mapping[str, Any], job_dir: Path) -> JobSpec:
     )
 
 
+def check_recordings(specs: Sequence[JobSpec], stream: TextIO = sys.stderr) -> None:
+    """Read every recording the jobs will use, once, in the driver: a bad file fails here,
+    before anything runs (RecordingError, a user error), and each data warning (trailing empty
+    rows dropped, ...) is printed once instead of by every job that reads the file."""
+    seen: set[str] = set()
+    loaded: set[tuple[str, str | None]] = set()
+    for spec in specs:
+        for what, cfg in (
+            ("train=" + spec.train, spec.config["train"]),
+            ("test", spec.config["test"]),
+        ):
+            key = (repr(sorted(dict(cfg).items())), spec.data_root)
+            if key in loaded:
+                continue
+            loaded.add(key)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", RecordingWarning)
+                split_from_mapping(dict(cfg), what).load(spec.data_root)
+            for w in caught:
+                text = str(w.message)
+                if issubclass(w.category, RecordingWarning) and text not in seen:
+                    seen.add(text)
+                    print(f"warning: {text}", file=stream)
+
+
 def efd_reference(
     test_cfg: Mapping[str, Any], data_root: str | None
 ) -> dict[str, dict[str, float]]:
     """J1, J2, J3 of the EFD model on the test set (the reference row of the tables)."""
-    test = split_from_mapping(dict(test_cfg), "test").load(data_root)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RecordingWarning)  # said once by check_recordings
+        test = split_from_mapping(dict(test_cfg), "test").load(data_root)
     return test_metrics(efd_parameters(), test)
 
 
@@ -301,6 +331,11 @@ def run_sweep(
     if outcomes:
         tables = report.summary_tables(outcomes, efd_table)
         summary.files = report.write_tables(tables, out_dir / "summary")
+        figure = report.plot_sweep(
+            tables, tracker.job_histories(parent), out_dir / "summary" / "sweep.png"
+        )
+        summary.files[figure.name] = figure
+        summary.tables = tables
         tracker.finish_sweep(parent, tables, summary.files)
     summary.seconds = time.perf_counter() - t0
     return summary

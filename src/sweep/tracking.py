@@ -14,10 +14,10 @@ the same job_key whose config_hash differs raises :class:`ConfigChangedError`, u
 was created with ``allow_config_change=True``: then the job counts as not done and runs again;
 the report uses the newest finished run per job_key.
 
-Two implementations meet the same contract: :class:`MlflowTracker` (any tracking URI; use SQLite,
-``sqlite:///path/mlflow.db``, never the file store) and :class:`NullTracker` (in memory, for tests
-of the sweep logic). :class:`MlflowTracker` pickles without its client, so it can be sent to Ray
-workers.
+:class:`MlflowTracker` meets the contract on any tracking URI (use SQLite,
+``sqlite:///path/mlflow.db``, never the file store); the tests keep an in-memory double of it
+(``tests/memory_tracker.py``). :class:`MlflowTracker` pickles without its client, so it can be
+sent to Ray workers.
 """
 
 from __future__ import annotations
@@ -27,11 +27,9 @@ import csv
 import json
 import os
 import tempfile
-import threading
 import time
-import uuid
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -49,6 +47,7 @@ from sweep.outcome import (
     metric_name,
     source_version,
 )
+from sweep.report import job_note, sweep_note
 
 #: longest error text stored in the ``error`` tag (MLflow allows 8000 characters)
 MAX_ERROR_TAG = 5000
@@ -129,8 +128,32 @@ class Tracker(Protocol):
         """The sweep's EFD reference values {J: {subset: value}}."""
         ...
 
+    def job_histories(self, parent_id: str) -> dict[str, list[tuple[float, float]]]:
+        """{job_key: [(evaluations, best J so far) per generation]} of the FINISHED children."""
+        ...
+
 
 # ---------------------------------------------------------------- shared, backend-free helpers
+
+#: MLflow's run description (the note on a run's overview page)
+NOTE_TAG = "mlflow.note.content"
+#: MLflow 3's experiment kind: a model-training experiment opens on its runs table
+EXPERIMENT_KIND = ("mlflow.experimentKind", "custom_model_development")
+
+
+def job_params(outcome: JobOutcome) -> dict[str, str]:
+    """The child run's params: the flattened job config, and objective, train and seed as
+    plain params (so that compare, group-by and parallel coordinates can use them)."""
+    params = flatten_config(outcome.config)
+    params.update(objective=outcome.objective, train=outcome.train, seed=str(outcome.seed))
+    return params
+
+
+def _pairs(
+    evaluations: Sequence[tuple[int, float]], best: Sequence[tuple[int, float]]
+) -> list[tuple[float, float]]:
+    by_step = dict(evaluations)
+    return [(float(by_step[k]), float(v)) for k, v in sorted(best) if k in by_step]
 
 
 def default_tracking_uri(cwd: str | os.PathLike[str] | None = None) -> str:
@@ -355,6 +378,8 @@ class MlflowTracker:
         self._experiment_id: str | None = None
         self._sweep_id: str | None = None
         self._run_experiments: dict[str, str] = {}
+        self._efd: dict[str, ScoreTable] = {}
+        self._settings: dict[str, dict[str, Any]] = {}
 
     def __getstate__(self) -> dict[str, Any]:
         keep = ("uri", "experiment", "allow_config_change", "_experiment_id", "_sweep_id")
@@ -364,6 +389,8 @@ class MlflowTracker:
         self.__dict__.update(state)
         self._client = None
         self._run_experiments = {}
+        self._efd = {}
+        self._settings = {}
 
     def __repr__(self) -> str:
         return f"MlflowTracker({self.uri!r}, experiment={self.experiment!r})"
@@ -397,9 +424,14 @@ class MlflowTracker:
                 # another process may make it meanwhile: then read it back
                 with contextlib.suppress(MlflowException):
                     self.client.create_experiment(
-                        self.experiment, artifact_location=self._artifact_location()
+                        self.experiment,
+                        artifact_location=self._artifact_location(),
+                        tags=dict([EXPERIMENT_KIND]),
                     )
                 exp = self.client.get_experiment_by_name(self.experiment)
+            if exp is not None and create and exp.tags.get(EXPERIMENT_KIND[0]) is None:
+                # an experiment made before (or by plain MLflow): open it on the runs table
+                self.client.set_experiment_tag(exp.experiment_id, *EXPERIMENT_KIND)
         if exp is None:
             return None
         if exp.lifecycle_stage != "active":
@@ -504,6 +536,8 @@ class MlflowTracker:
                 self.client.log_artifact(run_id, str(path))
         self._sweep_id = run_id
         self._run_experiments[run_id] = exp
+        self._efd[run_id] = efd
+        self._settings[run_id] = dict(config)
         return run_id
 
     def find_finished(
@@ -528,16 +562,18 @@ class MlflowTracker:
         """Child run of a finished job: tags, params, metrics, history, artifacts; FINISHED."""
         exp = self._experiment_of(parent_id)
         name = f"{outcome.objective}-{outcome.train}-seed{outcome.seed}"
+        efd = self._efd.get(parent_id)
+        if efd is None:
+            efd = self._efd[parent_id] = self.efd_reference(parent_id)
+        tags = {**outcome_tags(outcome, parent_id), NOTE_TAG: job_note(outcome, efd)}
         with self._mlflow_errors():
-            run_id = self.client.create_run(
-                exp, tags=outcome_tags(outcome, parent_id), run_name=name
-            ).info.run_id
+            run_id = self.client.create_run(exp, tags=tags, run_name=name).info.run_id
         try:
             now = _now_ms()
             self.client.log_batch(
                 run_id,
                 metrics=[Metric(k, v, now, 0) for k, v in outcome_metrics(outcome).items()],
-                params=[Param(k, v) for k, v in flatten_config(outcome.config).items()],
+                params=[Param(k, v) for k, v in job_params(outcome).items()],
             )
             self.client.log_batch(
                 run_id,
@@ -601,6 +637,10 @@ class MlflowTracker:
                 self._log_table(parent_id, _table_frame(table), f"summary/{name}.json")
             for path in files.values():
                 self.client.log_artifact(parent_id, str(path), artifact_path="summary")
+            run = self.client.get_run(parent_id)
+            name = run.data.tags.get("sweep_name", run.info.run_name or parent_id)
+            settings = self._settings.get(parent_id) or dict(run.data.params)
+            self.client.set_tag(parent_id, NOTE_TAG, sweep_note(name, tables, settings))
             if terminate:
                 self.client.set_terminated(parent_id, "FINISHED")
 
@@ -631,6 +671,19 @@ class MlflowTracker:
     def efd_reference(self, parent_id: str) -> ScoreTable:
         """The EFD metrics of the sweep's parent run as {J: {subset: value}}."""
         return scores_from_metrics(self._run(parent_id).data.metrics, "efd")
+
+    def job_histories(self, parent_id: str) -> dict[str, list[tuple[float, float]]]:
+        """{job_key: [(evaluations, best J so far)]} of the newest FINISHED child per job."""
+        out: dict[str, list[tuple[float, float]]] = {}
+        with self._mlflow_errors():
+            for record in self.job_outcomes(parent_id):
+                run_id = record["run_id"]
+                ev = self.client.get_metric_history(run_id, "history/evaluations")
+                best = self.client.get_metric_history(run_id, "history/best_so_far")
+                out[record["job_key"]] = _pairs(
+                    [(m.step, m.value) for m in ev], [(m.step, m.value) for m in best]
+                )
+        return out
 
     def log_diagnosis(
         self,
@@ -663,174 +716,3 @@ def source_tags() -> dict[str, str]:
     """git commit and package version of the running source."""
     v = source_version()
     return {"git_commit": v["commit"], "mmg_sweep_version": v["version"]}
-
-
-# ---------------------------------------------------------------- in memory
-
-
-@dataclass
-class NullRun:
-    """A run kept by :class:`NullTracker`."""
-
-    run_id: str
-    name: str
-    start_time: int
-    tags: dict[str, str]
-    params: dict[str, str] = field(default_factory=dict)
-    metrics: dict[str, float] = field(default_factory=dict)
-    history: dict[str, list[tuple[int, float]]] = field(default_factory=dict)
-    artifacts: dict[str, Any] = field(default_factory=dict)  # path -> bytes or DataFrame
-    status: str = "RUNNING"
-
-
-class NullTracker:
-    """The Tracker contract in memory (no MLflow): for tests of the sweep logic.
-
-    ``runs`` maps run ids to :class:`NullRun`; artifacts are kept as bytes (files) or DataFrames
-    (tables) under the same paths as in MLflow.
-    """
-
-    def __init__(self, allow_config_change: bool = False) -> None:
-        self.allow_config_change = allow_config_change
-        self.runs: dict[str, NullRun] = {}
-        self._sweep_id: str | None = None
-        self._lock = threading.RLock()
-
-    def _new_run(self, name: str, tags: dict[str, str]) -> NullRun:
-        # strictly increasing start times, also when ``runs`` is shared with another tracker
-        start = max((r.start_time for r in self.runs.values()), default=0) + 1
-        run = NullRun(uuid.uuid4().hex, name, start, dict(tags))
-        self.runs[run.run_id] = run
-        return run
-
-    def _get(self, run_id: str) -> NullRun:
-        if run_id not in self.runs:
-            raise TrackingError(f"no run {run_id}")
-        return self.runs[run_id]
-
-    def _children(self, parent_id: str | None, status: str = "FINISHED") -> list[NullRun]:
-        return [
-            r
-            for r in self.runs.values()
-            if r.status == status
-            and "job_key" in r.tags
-            and (parent_id is None or r.tags.get(PARENT_TAG) == parent_id)
-        ]
-
-    def find_sweep(self, name: str | None = None) -> str | None:
-        """Id of the newest sweep called ``name`` (any name if None)."""
-        with self._lock:
-            sweeps = [
-                r
-                for r in self.runs.values()
-                if r.tags.get("sweep") == "true" and name in (None, r.tags.get("sweep_name"))
-            ]
-            return max(sweeps, key=lambda r: r.start_time).run_id if sweeps else None
-
-    def start_sweep(self, name: str, config: dict[str, Any], efd: ScoreTable) -> str:
-        """Create the parent run, or resume the existing one of the same name."""
-        with self._lock:
-            run_id = self.find_sweep(name)
-            if run_id is None:
-                run = self._new_run(name, {"sweep": "true", "sweep_name": name})
-            else:
-                run = self.runs[run_id]
-                run.status = "RUNNING"
-                run.tags["resumed"] = str(int(run.tags.get("resumed", "0")) + 1)
-            run.tags["config_hash"] = config_hash(config)
-            for k, v in flatten_config(config).items():
-                run.params.setdefault(k, v)
-            run.metrics.update(efd_metrics(efd))
-            run.artifacts["config.json"] = json.dumps(config, default=str).encode()
-            self._sweep_id = run.run_id
-            return run.run_id
-
-    def find_finished(
-        self, job_key: str, config_hash: str, parent_id: str | None = None
-    ) -> str | None:
-        """Id of the newest FINISHED child run of ``job_key``, or None (see Tracker)."""
-        with self._lock:
-            runs = [
-                _Finished(r.run_id, r.tags.get("config_hash", ""), r.start_time)
-                for r in self._children(parent_id or self._sweep_id)
-                if r.tags["job_key"] == job_key
-            ]
-        return choose_finished(job_key, config_hash, runs, self.allow_config_change)
-
-    def log_job(self, parent_id: str, outcome: JobOutcome, artifacts_dir: Path | None) -> str:
-        """Keep a finished job's tags, params, metrics, history and artifacts."""
-        with self._lock:
-            self._get(parent_id)
-            name = f"{outcome.objective}-{outcome.train}-seed{outcome.seed}"
-            run = self._new_run(name, outcome_tags(outcome, parent_id))
-            run.params.update(flatten_config(outcome.config))
-            run.metrics.update(outcome_metrics(outcome))
-            for key, value, step in history_metrics(outcome.history):
-                run.history.setdefault(key, []).append((step, value))
-                run.metrics[key] = value
-            with tempfile.TemporaryDirectory() as tmp:
-                for path in write_job_artifacts(outcome, Path(tmp)):
-                    run.artifacts[path.name] = path.read_bytes()
-            if artifacts_dir is not None and Path(artifacts_dir).is_dir():
-                for path in sorted(Path(artifacts_dir).rglob("*")):
-                    if path.is_file():
-                        rel = path.relative_to(artifacts_dir).as_posix()
-                        run.artifacts[f"plots/{rel}"] = path.read_bytes()
-            run.status = "FINISHED"
-            return run.run_id
-
-    def log_failure(
-        self,
-        parent_id: str,
-        job_key: str,
-        tags: dict[str, Any],
-        config: dict[str, Any],
-        error: str,
-    ) -> str:
-        """Keep a failed job (status FAILED, tag ``error``, artifact error.txt)."""
-        with self._lock:
-            self._get(parent_id)
-            all_tags = {str(k): str(v) for k, v in tags.items()}
-            all_tags.update(
-                job_key=job_key,
-                config_hash=config_hash(config),
-                error=error[:MAX_ERROR_TAG],
-                **{PARENT_TAG: parent_id},
-            )
-            run = self._new_run(job_key, all_tags)
-            run.params.update(flatten_config(config))
-            run.artifacts["error.txt"] = error.encode()
-            run.status = "FAILED"
-            return run.run_id
-
-    def finish_sweep(
-        self,
-        parent_id: str,
-        tables: Mapping[str, pd.DataFrame],
-        files: Mapping[str, Path],
-        terminate: bool = True,
-    ) -> None:
-        """Keep the tables (``summary/{name}.json``) and files (``summary/{file name}``)."""
-        with self._lock:
-            run = self._get(parent_id)
-            for name, table in tables.items():
-                run.artifacts[f"summary/{name}.json"] = _table_frame(table)
-            for path in files.values():
-                run.artifacts[f"summary/{Path(path).name}"] = Path(path).read_bytes()
-            if terminate:
-                run.status = "FINISHED"
-
-    def job_outcomes(self, parent_id: str) -> list[dict[str, Any]]:
-        """FINISHED child runs of ``parent_id`` (newest per job_key) as outcome records."""
-        with self._lock:
-            return newest_per_key(
-                [
-                    (r.start_time, outcome_record(r.run_id, r.tags, r.metrics))
-                    for r in self._children(parent_id)
-                ]
-            )
-
-    def efd_reference(self, parent_id: str) -> ScoreTable:
-        """The EFD reference values of the sweep."""
-        with self._lock:
-            return scores_from_metrics(self._get(parent_id).metrics, "efd")

@@ -8,6 +8,7 @@ directories are ``hydra.sweep.dir/hydra.sweep.subdir`` (stable names, so a rerun
 """
 
 import logging
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,7 +76,13 @@ class MmgRayLauncher(Launcher):
         from sweep.job import JobSpec
         from sweep.raycluster import RayExecutor
         from sweep.schema import validate
-        from sweep.service import Progress, efd_reference, run_sweep, spec_from_config
+        from sweep.service import (
+            Progress,
+            check_recordings,
+            efd_reference,
+            run_sweep,
+            spec_from_config,
+        )
         from sweep.tracking import MlflowTracker
 
         assert self.config is not None and self.hydra_context is not None
@@ -92,6 +99,7 @@ class MmgRayLauncher(Launcher):
             validate(plain)  # every job's configuration, before Ray or MLflow start
             specs.append(spec_from_config(plain, job_dir))
             job_cfgs.append(cfg)
+        check_recordings(specs)  # bad files fail here; data warnings are said once
         first = job_cfgs[0]
         sweep_dir = Path(first.hydra.sweep.dir)
         sweep_dir.mkdir(parents=True, exist_ok=True)
@@ -126,6 +134,13 @@ class MmgRayLauncher(Launcher):
         finally:
             executor.shutdown()
         LAST_SUMMARY = summary
+        if "J2" in summary.tables:
+            from sweep.report import format_table
+
+            # the user's question, answered in the terminal: the J2 table, the others' paths
+            print("\n" + format_table(summary.tables["J2"], "J2 on the test set"), file=sys.stderr)
+            others = sorted(str(p) for n, p in summary.files.items() if n.endswith(".md"))
+            print(f"tables: {', '.join(others)}", file=sys.stderr)
         log.info(
             "sweep %s: %d finished, %d skipped, %d failed in %.0f s; tables in %s",
             first.sweep.name,

@@ -45,6 +45,5 @@ sweep:  ## the paper's grid: 3 objectives x 3 training sets x 3 seeds (default b
 smoke:  ## a two-job sweep at budget=smoke
 	$(PY) -m sweep -m objective=J1,J2 train=R seed=0 budget=smoke sweep.name=smoke
 
-ui:  ## the MLflow UI on 127.0.0.1:5000 for the sweep's store (./mlflow.db)
-	MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false mlflow ui \
-		--backend-store-uri sqlite:///$(CURDIR)/mlflow.db --host 127.0.0.1 --port 5000 --workers 1
+ui:  ## the MLflow UI on 127.0.0.1:5000 for ./mlflow.db, opened on the sweep's runs table
+	$(PY) -m sweep.ui --tracking-uri sqlite:///$(CURDIR)/mlflow.db --port 5000

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -33,3 +35,26 @@ def data_dir() -> Path:
             "`python -m sweep.download --root <dir>`"
         )
     return d
+
+
+#: the CI smoke sweep: two jobs at budget=smoke through Hydra, Ray and MLflow
+SMOKE_COMMAND = [
+    sys.executable, "-m", "sweep", "-m", "objective=J1,J2", "train=R", "seed=0",
+    "budget=smoke", "sweep.name=ci-smoke", "ray.num_cpus=2",
+]  # fmt: skip
+
+
+def run_smoke(cwd: Path, data_dir: Path) -> subprocess.CompletedProcess[str]:
+    env = dict(os.environ, MMG_DATA_DIR=str(data_dir), RAY_AUTH_MODE="disabled")
+    return subprocess.run(
+        SMOKE_COMMAND, cwd=cwd, env=env, capture_output=True, text=True, timeout=600
+    )
+
+
+@pytest.fixture(scope="session")
+def smoke(tmp_path_factory: pytest.TempPathFactory, data_dir: Path):
+    """(directory, completed process) of one smoke sweep, shared by the CLI and UI tests."""
+    cwd = tmp_path_factory.mktemp("sweep")
+    first = run_smoke(cwd, data_dir)
+    assert first.returncode == 0, first.stderr[-3000:]
+    return cwd, first

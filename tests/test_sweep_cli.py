@@ -10,29 +10,11 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
 from sweep.outcome import SUBSETS
-
-COMMAND = [
-    sys.executable, "-m", "sweep", "-m", "objective=J1,J2", "train=R", "seed=0",
-    "budget=smoke", "sweep.name=ci-smoke", "ray.num_cpus=2",
-]  # fmt: skip
-
-
-def _run(cwd: Path, data_dir: Path) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ, MMG_DATA_DIR=str(data_dir), RAY_AUTH_MODE="disabled")
-    return subprocess.run(COMMAND, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
-
-
-@pytest.fixture(scope="module")
-def smoke(tmp_path_factory, data_dir):
-    cwd = tmp_path_factory.mktemp("sweep")
-    first = _run(cwd, data_dir)
-    assert first.returncode == 0, first.stderr[-3000:]
-    return cwd, first
+from tests.conftest import run_smoke as _run
 
 
 def test_mlflow_holds_parent_children_metrics_and_tables(smoke):

@@ -207,8 +207,9 @@ def regression_view(data: EquationData, terms: Sequence[str], bins: int = 10) ->
         }
         for j, k in enumerate(ks):
             x = C[rows, k] * beta[j]
-            if not np.any(x):
-                continue
+            raw = [float(np.linalg.norm(data.C[c2 * M : (c2 + 1) * M, k])) for c2 in range(3)]
+            if not np.any(x) or raw[c] < 0.01 * max(raw):
+                continue  # the term does not act in this channel (only through the projection)
             partial = yc - (fc - x)  # the residual left by the other terms
             edges = np.unique(np.quantile(x, np.linspace(0.0, 1.0, bins + 1)))
             idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, edges.size - 2)

@@ -127,3 +127,10 @@ def test_null_of_the_best_candidate_on_noise_only_windows(case):
     assert -30.0 < null.quantile < 10.0
     d = null.as_dict()
     assert d["draws"] == 60 and d["best_dbic"]["min"] <= d["best_dbic"]["median"]
+    # the refit of the 57 parameters takes part of the noise out: the floor of a fitted model
+    assert 0.3 < null.refit_factor < 1.0
+    # ... and all of a residual that a change of the parameters explains (up to the prior)
+    A = lin.A  # (S, M, 57)
+    step = 1e-3 * np.ones(N_THETA)
+    R = (A @ step)[..., None]  # (S, M, 1): the residual of the parameters moved by 1e-3
+    assert lin.refit_factor(R) < 0.05

@@ -254,29 +254,41 @@ class MisfitTest:
     z_crit: float
     per_run: list[dict[str, Any]] = field(default_factory=list)
     per_channel: dict[str, float] = field(default_factory=dict)  # ratio per channel
+    refit_factor: float = 1.0  # share of the plain floor a model fitted to the windows keeps
 
 
 def misfit_test(
-    f: Floor, objective: str = "J2", margin: float = MARGIN, z_crit: float = Z_CRIT
+    f: Floor,
+    objective: str = "J2",
+    margin: float = MARGIN,
+    z_crit: float = Z_CRIT,
+    refit_factor: float = 1.0,
 ) -> MisfitTest:
-    """Total and per run and channel ratio of J to the floor; significance (module docstring)."""
+    """Total and per run and channel ratio of J to the floor; significance (module docstring).
+
+    ``refit_factor``: the share of the floor a model *fitted* to the windows keeps (its fit
+    takes part of the noise out; :meth:`sweep.diagnose.threshold.Linearised.refit_factor`);
+    the base model's J is compared with the floor times this factor."""
     ch = list(CHANNELS[objective])
     J = float(f.actual[:, ch].sum())
-    totals = f.draws[:, :, ch].sum(axis=(1, 2))
+    totals = refit_factor * f.draws[:, :, ch].sum(axis=(1, 2))
     floor = float(totals.mean())
     sd = float(totals.std(ddof=1)) if totals.size > 1 else 0.0
     sd = max(sd, 1e-12)
     z = (J - floor) / sd
     significant = bool((1.0 + margin) * floor < J and z > z_crit)
     per_channel = {
-        OBSERVABLES_J[c]: float(f.actual[:, c].sum() / max(f.mean[:, c].sum(), 1e-300)) for c in ch
+        OBSERVABLES_J[c]: float(
+            f.actual[:, c].sum() / max(refit_factor * f.mean[:, c].sum(), 1e-300)
+        )
+        for c in ch
     }
     per_run: list[dict[str, Any]] = []
     for run in dict.fromkeys(f.runs):
         idx = [i for i, r in enumerate(f.runs) if r == run]
         a = f.actual[np.ix_(idx, ch)].sum(axis=0)
-        b = f.mean[np.ix_(idx, ch)].sum(axis=0)
-        tot_d = f.draws[:, idx][:, :, ch].sum(axis=(1, 2))
+        b = refit_factor * f.mean[np.ix_(idx, ch)].sum(axis=0)
+        tot_d = refit_factor * f.draws[:, idx][:, :, ch].sum(axis=(1, 2))
         sd_r = max(float(tot_d.std(ddof=1)) if tot_d.size > 1 else 0.0, 1e-12)
         per_run.append(
             {
@@ -302,5 +314,6 @@ def misfit_test(
         margin=margin,
         z_crit=z_crit,
         per_run=per_run,
+        refit_factor=refit_factor,
         per_channel=per_channel,
     )

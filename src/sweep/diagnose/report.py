@@ -41,10 +41,16 @@ def misfit_text(d: Diagnosis) -> str:
     m = d.misfit
     if m is None:
         return ""
+    refit = (
+        f" The floor is that of a model fitted to these windows: refitting the 57 parameters "
+        f"to noise alone keeps {100 * m.refit_factor:.0f} % of the noise's J."
+        if m.refit_factor != 1.0
+        else ""
+    )
     return (
         f"The base model's {m.objective} on the training windows is {m.J:.3g}, {m.ratio:.2f} x "
         f"the floor that measurement noise alone gives ({m.floor:.3g}, z = {m.z:.1f}; "
-        f"significant above {1 + m.margin:.2f} x and z > {m.z_crit:.0f})."
+        f"significant above {1 + m.margin:.2f} x and z > {m.z_crit:.0f}).{refit}"
     )
 
 

@@ -517,10 +517,11 @@ def diagnose(
     n_eff = n_effective(windows, s.objective)
     # the acceptance threshold: the null of the best candidate's dBIC on these windows, from
     # the fold fits linearised at the base (with the library: the discovered candidate's null)
+    position = {id(w): i for i, w in enumerate(windows)}
     lin = Linearised(
         base.params,
         windows,
-        (range(0, len(windows), 2), range(1, len(windows), 2)),
+        ([position[id(w)] for w in fit_w], [position[id(w)] for w in held_w]),
         s.candidate_effects(),
         objective=s.objective,
         prior_weight=s.prior_weight,
@@ -533,6 +534,13 @@ def diagnose(
         n_eff=n_eff,
         draws=s.threshold_draws,
         alpha=s.alpha,
+    )
+    # the floor of a *fitted* model: the base's 57 parameters also fit part of the noise
+    misfit = misfit_test(floor, s.objective, margin=s.floor_margin, refit_factor=null.refit_factor)
+    log(
+        f"misfit against the floor of a fitted model (the refit keeps "
+        f"{100 * null.refit_factor:.0f} % of the noise's J): {misfit.ratio:.2f} x, "
+        f"z = {misfit.z:.1f}: " + ("significant" if misfit.significant else "within the floor")
     )
     trajectory: TrajectorySelection | None = None
     if s.discover:

@@ -78,6 +78,9 @@ class AcceptanceNull:
     best: list[float]  # best dBIC of each draw
     per_candidate: dict[str, dict[str, float]] = field(default_factory=dict)  # median, quantile
     seconds: float = 0.0
+    #: J of the base refitted on all windows over J before refitting, on the noise-only copies:
+    #: what fitting the 57 parameters (with the prior) takes out of pure noise
+    refit_factor: float = 1.0
 
     def as_dict(self) -> dict[str, Any]:
         b = np.asarray(self.best)
@@ -412,6 +415,16 @@ class Linearised:
                 out[f"discovered/{t + 1}"] = (lib_gain[t], t + 1)
         return J0, out
 
+    def refit_factor(self, R: FloatArray) -> float:
+        """Mean J of the base refitted (linearised, with the prior) on all windows over the mean
+        J before refitting, for residual vectors R (S, M, D): below 1 by what the refit fits of
+        the noise itself (the floor of a *fitted* model's J is this times the plain floor)."""
+        raw = float(np.sum(R * R))
+        if raw <= 0.0:
+            return 1.0
+        Rf = self.all.resid(self.all.stack(R))
+        return float(np.sum(Rf * Rf)) / raw
+
     def dbic(self, R: FloatArray, n_eff: float) -> dict[str, FloatArray]:
         """dBIC (D,) of every candidate's linearised fits for residual vectors R (S, M, D);
         ``discovered``: the best over the number of library terms."""
@@ -441,7 +454,8 @@ def acceptance_null(
     params, windows = lin.params, lin.windows
     # null residual vectors of the base model on noisy copies of the windows
     cols = [lin.residuals(recs) for recs in null_sets(params, windows, noise, rng, draws)]
-    per = lin.dbic(np.stack(cols, axis=-1), n_eff)
+    R = np.stack(cols, axis=-1)
+    per = lin.dbic(R, n_eff)
     best = np.min(np.stack(list(per.values())), axis=0)
     q = float(np.quantile(best, alpha))
     return AcceptanceNull(
@@ -455,4 +469,5 @@ def acceptance_null(
             for name, v in per.items()
         },
         seconds=time.perf_counter() - t0,
+        refit_factor=lin.refit_factor(R),
     )

@@ -211,19 +211,26 @@ def test_an_error_of_the_job_itself_is_not_retried(tmp_path, data_dir, efd):
 
 
 def test_checkpoints_go_to_the_storage_uri_and_a_job_resumes_from_there(tmp_path, data_dir, efd):
-    """sweep.storage: the checkpoint lives at storage/<sweep>/<job key>/checkpoint.pkl (a
-    file:// URI here), not in the job directory; a lost job resumes from it."""
+    """sweep.storage: the checkpoint lives at storage/<sweep>/<job directory>/checkpoint.pkl
+    (a file:// URI here), not in the job directory; a lost job resumes from it. A '#' or '?'
+    in the sweep name stays part of the path (percent-encoded), and a relative directory is
+    made absolute on the driver."""
     cfg = _cfg("J2", 0, 100)
     cfg["data"]["root"] = str(data_dir)
-    cfg["sweep"] = {"name": "stored", "storage": f"file://{tmp_path / 'store'}"}
-    spec = spec_from_config(cfg, tmp_path / "job")
-    assert spec.checkpoint == f"file://{tmp_path}/store/stored/{spec.key}/checkpoint.pkl"
+    cfg["sweep"] = {"name": "run#1?", "storage": f"file://{tmp_path / 'store'}"}
+    spec = spec_from_config(cfg, tmp_path / "objective=J2,seed=0")
+    assert spec.checkpoint == (
+        f"file://{tmp_path}/store/run%231%3F/objective=J2,seed=0/checkpoint.pkl"
+    )
     executor = LosingExecutor({spec.key}, 1, data_dir)
     summary = run_sweep("stored", [spec], executor, NullTracker(), efd, tmp_path,
                         progress=Progress(io.StringIO()))  # fmt: skip
     assert summary.ok and summary.retries == {spec.key: 1}
-    assert (tmp_path / "store" / "stored" / spec.key / "checkpoint.pkl").is_file()
-    assert not (tmp_path / "job" / "checkpoint.pkl").exists()
+    assert (tmp_path / "store" / "run#1?" / "objective=J2,seed=0" / "checkpoint.pkl").is_file()
+    assert not (tmp_path / "objective=J2,seed=0" / "checkpoint.pkl").exists()
+    cfg["sweep"] = {"name": "x", "storage": "rel/store"}
+    relative = spec_from_config(cfg, tmp_path / "j")
+    assert relative.checkpoint is not None and Path(relative.checkpoint).is_absolute()
 
 
 def test_a_data_warning_is_said_once_by_the_driver(tmp_path, data_dir):

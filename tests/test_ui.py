@@ -76,6 +76,7 @@ def ui(smoke) -> Iterator[str]:
             proc.wait(timeout=20)
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
+        log.close()
 
 
 def test_the_ui_opens_on_the_runs_table_and_the_parent_shows_the_tables(ui: str) -> None:

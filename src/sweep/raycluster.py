@@ -38,7 +38,6 @@ LOST: tuple[type[BaseException], ...] = (
     ray.exceptions.OutOfMemoryError,
     ray.exceptions.ObjectLostError,  # OwnerDiedError, ObjectReconstructionFailedError
     ray.exceptions.LocalRayletDiedError,
-    ray.exceptions.RaySystemError,
 )
 
 

@@ -147,7 +147,7 @@ RULES: tuple[Rule, ...] = (
     Rule(
         "sweep.storage",
         _optional(_storage),
-        "null (the job directories) or a directory / pyarrow URI every node reaches "
+        "null (the job directories) or a directory / URI every node reaches "
         "(s3://bucket/prefix, gs://..., hdfs://..., file:///shared/dir)",
         required=False,
     ),

@@ -132,8 +132,15 @@ def spec_from_config(cfg: Mapping[str, Any], job_dir: Path) -> JobSpec:
     sweep_cfg = cfg.get("sweep") or {}
     store = sweep_cfg.get("storage")
     key = job_key(objective, train, seed)
+    # the same directory name as the job's own directory (the overrides that define the job):
+    # a changed override is a new checkpoint with storage as without it
     checkpoint = (
-        storage.join(str(store), str(sweep_cfg.get("name", "default")), key, "checkpoint.pkl")
+        storage.join(
+            storage.absolute(str(store)),
+            str(sweep_cfg.get("name", "default")),
+            Path(job_dir).name,
+            "checkpoint.pkl",
+        )
         if store
         else None
     )
@@ -331,10 +338,13 @@ def run_sweep(
     if outcomes:
         tables = report.summary_tables(outcomes, efd_table)
         summary.files = report.write_tables(tables, out_dir / "summary")
-        figure = report.plot_sweep(
-            tables, tracker.job_histories(parent), out_dir / "summary" / "sweep.png"
-        )
-        summary.files[figure.name] = figure
+        try:
+            figure = report.plot_sweep(
+                tables, tracker.job_histories(parent), out_dir / "summary" / "sweep.png"
+            )
+            summary.files[figure.name] = figure
+        except Exception as exc:  # the figure is a convenience: the tables must still land
+            progress.note(f"warning: the sweep figure could not be drawn ({exc})")
         summary.tables = tables
         tracker.finish_sweep(parent, tables, summary.files)
     summary.seconds = time.perf_counter() - t0

@@ -3,35 +3,61 @@
 A job's coordinator writes its checkpoint after every CMA-ES generation. With ``sweep.storage``
 unset the checkpoint sits in the job's directory under ``multirun/`` on the coordinator's node
 (enough on one machine). With ``sweep.storage=URI`` it goes to
-``URI/<sweep name>/<job key>/checkpoint.pkl`` on any file system pyarrow reaches (a directory
-every node mounts, ``s3://``, ``gs://``, ``hdfs://``...): a job resubmitted to another node after
-its node was lost resumes from there.
+``URI/<sweep name>/<job directory name>/checkpoint.pkl`` on any file system pyarrow reaches (a
+directory every node mounts, ``s3://``, ``gs://``, ``hdfs://``...): a job resubmitted to another
+node after its node was lost resumes from there.
 
 Writes are atomic: a temporary object is written and then moved over the old one (a rename on a
 local or mounted file system; an object store replaces the object whole), so a crash mid-write
-leaves the previous checkpoint readable.
+leaves the previous checkpoint readable. The file system of a URI is made once per scheme and
+authority (for ``s3://`` that asks the bucket's region over the network) and reused.
 """
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import os
 import uuid
 from pathlib import Path
+from urllib.parse import quote, unquote, urlsplit
 
 from pyarrow import fs as pafs
+
+#: URI schemes pyarrow's file systems understand
+SCHEMES = ("file", "s3", "gs", "gcs", "hdfs", "viewfs", "abfs", "abfss")
+
+
+@functools.lru_cache(maxsize=16)
+def _filesystem(scheme: str, authority: str) -> tuple[pafs.FileSystem, str]:
+    """(file system, path prefix) of ``scheme://authority`` (cached: made once per process)."""
+    if scheme == "file":
+        return pafs.LocalFileSystem(), ""
+    filesystem, root = pafs.FileSystem.from_uri(f"{scheme}://{authority}/")
+    return filesystem, root.rstrip("/")
 
 
 def _resolve(location: str | os.PathLike[str]) -> tuple[pafs.FileSystem, str]:
     text = os.fspath(location)
     if "://" not in text:
         return pafs.LocalFileSystem(), str(Path(text).resolve())
-    filesystem, path = pafs.FileSystem.from_uri(text)
-    return filesystem, path
+    parts = urlsplit(text)
+    filesystem, root = _filesystem(parts.scheme, parts.netloc)
+    path = unquote(parts.path)
+    return filesystem, f"{root}/{path.lstrip('/')}" if root else path
+
+
+def absolute(location: str) -> str:
+    """``location`` with a local path made absolute (on the driver, before jobs travel)."""
+    return location if "://" in location else str(Path(location).resolve())
 
 
 def join(base: str | os.PathLike[str], *parts: str) -> str:
-    """``base/part/...`` for a path or a URI."""
+    """``base/part/...`` for a path or a URI (parts of a URI are percent-encoded, so that a
+    ``#`` or ``?`` in a sweep name cannot cut the path short)."""
     text = os.fspath(base).rstrip("/")
+    if "://" in text:
+        parts = tuple(quote(p.strip("/"), safe="=,._-+") for p in parts)
     return "/".join([text, *(p.strip("/") for p in parts)])
 
 
@@ -53,14 +79,22 @@ def write_bytes(location: str | os.PathLike[str], data: bytes) -> None:
     if parent:
         filesystem.create_dir(parent, recursive=True)
     tmp = f"{path}.{uuid.uuid4().hex[:8]}.tmp"
-    with filesystem.open_output_stream(tmp) as stream:
-        stream.write(data)
-    filesystem.move(tmp, path)
+    try:
+        with filesystem.open_output_stream(tmp) as stream:
+            stream.write(data)
+        filesystem.move(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            filesystem.delete_file(tmp)
+        raise
 
 
 def check(location: str) -> None:
-    """Raise ValueError naming the setting if ``location`` is not a usable storage URI."""
-    try:
-        _resolve(location)  # the scheme and its file system (no listing: no network here)
-    except Exception as exc:  # pyarrow raises several types for a bad URI
-        raise ValueError(f"sweep.storage={location!r} is not a usable location: {exc}") from None
+    """Raise ValueError if ``location`` is not a path or a URI of a known scheme (no network)."""
+    if "://" not in location:
+        return
+    scheme = urlsplit(location).scheme
+    if scheme not in SCHEMES:
+        raise ValueError(
+            f"unknown storage scheme {scheme!r} (known: {', '.join(SCHEMES)}, or a plain path)"
+        )

@@ -52,7 +52,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
-    exp = experiment_id(args.tracking_uri, args.experiment)
+    from sweep.tracking import TrackingError
+
+    try:
+        exp = experiment_id(args.tracking_uri, args.experiment)
+    except TrackingError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     url = runs_url(f"http://{args.host}:{args.port}", exp)
     print(f"MLflow UI: {url}  (the sweep's runs table; Ctrl-C stops the server)", flush=True)
     env = dict(os.environ, MLFLOW_SERVER_ENABLE_JOB_EXECUTION="false")
@@ -61,16 +67,26 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--host", args.host, "--port", str(args.port), "--workers", "1",
     ]  # fmt: skip
     server = subprocess.Popen(command, env=env)
+    timer = None
     if not args.no_browser:
         import threading
         import webbrowser
 
-        threading.Timer(4.0, lambda: webbrowser.open(url)).start()
+        timer = threading.Timer(4.0, lambda: webbrowser.open(url))
+        timer.daemon = True
+        timer.start()
     try:
         return server.wait()
     except KeyboardInterrupt:
         server.terminate()
+        try:
+            server.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            server.kill()
         return 130
+    finally:
+        if timer is not None:
+            timer.cancel()
 
 
 if __name__ == "__main__":

@@ -16,9 +16,12 @@
    is the J a model exact in form and values would reach on these windows: the floor, with its
    spread over noise draws.
 3. **Test** (:func:`misfit_test`): the base model's J per run and channel against the floor. The
-   misfit is significant when the total exceeds the floor by more than ``margin`` (allowance for
-   a noise model that is only an AR(1) approximation) *and* by more than ``z`` standard
-   deviations of the floor's spread over draws.
+   base model was fitted to these windows, so its J is compared with the floor of a *fitted*
+   model: the floor times the share of the noise's J that the refit of the 57 parameters keeps
+   (``refit_factor``, from the linearised refits on noise-only copies in
+   :mod:`sweep.diagnose.threshold`). The misfit is significant when the total exceeds that
+   floor by more than ``margin`` (allowance for a noise model that is only an AR(1)
+   approximation) *and* by more than ``z`` standard deviations of its spread over draws.
 """
 
 from __future__ import annotations
@@ -270,25 +273,23 @@ def misfit_test(
     takes part of the noise out; :meth:`sweep.diagnose.threshold.Linearised.refit_factor`);
     the base model's J is compared with the floor times this factor."""
     ch = list(CHANNELS[objective])
+    draws, mean = refit_factor * f.draws, refit_factor * f.mean  # the floor of a fitted model
     J = float(f.actual[:, ch].sum())
-    totals = refit_factor * f.draws[:, :, ch].sum(axis=(1, 2))
+    totals = draws[:, :, ch].sum(axis=(1, 2))
     floor = float(totals.mean())
     sd = float(totals.std(ddof=1)) if totals.size > 1 else 0.0
     sd = max(sd, 1e-12)
     z = (J - floor) / sd
     significant = bool((1.0 + margin) * floor < J and z > z_crit)
     per_channel = {
-        OBSERVABLES_J[c]: float(
-            f.actual[:, c].sum() / max(refit_factor * f.mean[:, c].sum(), 1e-300)
-        )
-        for c in ch
+        OBSERVABLES_J[c]: float(f.actual[:, c].sum() / max(mean[:, c].sum(), 1e-300)) for c in ch
     }
     per_run: list[dict[str, Any]] = []
     for run in dict.fromkeys(f.runs):
         idx = [i for i, r in enumerate(f.runs) if r == run]
         a = f.actual[np.ix_(idx, ch)].sum(axis=0)
-        b = refit_factor * f.mean[np.ix_(idx, ch)].sum(axis=0)
-        tot_d = refit_factor * f.draws[:, idx][:, :, ch].sum(axis=(1, 2))
+        b = mean[np.ix_(idx, ch)].sum(axis=0)
+        tot_d = draws[:, idx][:, :, ch].sum(axis=(1, 2))
         sd_r = max(float(tot_d.std(ddof=1)) if tot_d.size > 1 else 0.0, 1e-12)
         per_run.append(
             {

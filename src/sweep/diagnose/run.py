@@ -2,9 +2,10 @@
 
 Procedure (:func:`diagnose`), all on the training recordings unless said otherwise:
 
-1. The training recordings are cut into the objective's 100-s windows; windows alternate between
-   a *fit* half and a *held-out* half (window 0, 2, 4, ... fit; 1, 3, 5, ... held out), so both
-   halves cover every run and regime.
+1. The training recordings are cut into the objective's 100-s windows and put in a *fit* half
+   and a *held-out* half: whole runs when there are several (longest first to the half with
+   less recorded time), so that a term must carry over to other runs; the windows alternately
+   (0, 2, 4, ... fit; 1, 3, 5, ... held out) when one run holds most of the time.
 2. Base identification on all training windows, from two starts that compete (the lower J
    wins): CMA-ES from ``--params`` (``base_budget`` evaluations) followed by Levenberg-Marquardt
    refinement (:mod:`sweep.polish`, up to ``final_polish_iterations``), and Levenberg-Marquardt
@@ -491,16 +492,10 @@ def diagnose(
         )
     )
 
-    # is anything missing at all? the base model's misfit against the noise floor
+    # the noise of the recordings and the floor of J it gives (judged after the null, below)
     rng = np.random.default_rng(s.seed + 7)
     noise = calibrated_noise(windows, base.params, rng)
     floor = noise_floor(base.params, windows, noise, rng, s.floor_draws)
-    misfit = misfit_test(floor, s.objective, margin=s.floor_margin)
-    log(
-        f"misfit: {s.objective} {misfit.J:.3g} on the training windows, {misfit.ratio:.2f} x the "
-        f"noise floor {misfit.floor:.3g} (z = {misfit.z:.1f}): "
-        + ("significant" if misfit.significant else "within the floor")
-    )
     proposal: Proposal | None = None
     extra_effects: list[Effect] = []
     if s.discover:
@@ -535,12 +530,14 @@ def diagnose(
         draws=s.threshold_draws,
         alpha=s.alpha,
     )
-    # the floor of a *fitted* model: the base's 57 parameters also fit part of the noise
+    # is anything missing at all? the base model's misfit against the floor of a *fitted*
+    # model: its 57 parameters also fit part of the noise (the refit factor, from the null)
     misfit = misfit_test(floor, s.objective, margin=s.floor_margin, refit_factor=null.refit_factor)
     log(
-        f"misfit against the floor of a fitted model (the refit keeps "
-        f"{100 * null.refit_factor:.0f} % of the noise's J): {misfit.ratio:.2f} x, "
-        f"z = {misfit.z:.1f}: " + ("significant" if misfit.significant else "within the floor")
+        f"misfit: {s.objective} {misfit.J:.3g} on the training windows, {misfit.ratio:.2f} x the "
+        f"noise floor of a fitted model, {misfit.floor:.3g} (the refit keeps "
+        f"{100 * null.refit_factor:.0f} % of the noise's J; z = {misfit.z:.1f}): "
+        + ("significant" if misfit.significant else "within the floor")
     )
     trajectory: TrajectorySelection | None = None
     if s.discover:

@@ -51,6 +51,8 @@ def test_the_shipped_configurations_pass():
         ("sweep.max_retries=-1", "sweep.max_retries", "non-negative integer"),
         ("objective.name=J4", "objective.name", "J1, J2, J3"),
         ("train.files=[]", "train.files", "non-empty list"),
+        ("effects=[warp_drive]", "effects", "current, heading_bias, propeller_walk"),
+        ("effects=[discovered:N_warp]", "effects", "discovered:<terms>"),
     ],
 )
 def test_a_bad_value_names_its_key_and_what_is_allowed(override, key, hint):

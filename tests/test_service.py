@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import json
 from pathlib import Path
 
 import numpy as np
@@ -252,3 +253,29 @@ def test_a_data_warning_is_said_once_by_the_driver(tmp_path, data_dir):
         check_recordings(specs, stream)
     lines = [ln for ln in stream.getvalue().splitlines() if ln.strip()]
     assert len(lines) == 1 and "327" in lines[0] and lines[0].startswith("warning: ")
+
+
+def test_a_job_identifies_extra_effects_with_the_57_parameters(tmp_path, data_dir, efd):
+    """effects=["discovered:N_s3b", "rudder_offset"]: the job searches the effects' parameters
+    with the 57 (from neutral, over their boxes), reports them in its parameters, and scores
+    the test set with them; a plain job's config (and hash) has no effects entry."""
+    cfg = _cfg("J2", 0, 60)
+    cfg["data"]["root"] = str(data_dir)
+    plain = spec_from_config(cfg, tmp_path / "plain")
+    assert "effects" not in plain.config
+    cfg["effects"] = ["discovered:N_s3b", "rudder_offset"]
+    spec = spec_from_config(cfg, tmp_path / "effects")
+    assert spec.config["effects"] == ["discovered:N_s3b", "rudder_offset"]
+    assert spec.config_hash != plain.config_hash
+    tracker = NullTracker()
+    summary = run_sweep("with-effects", [spec], LocalExecutor(plots=False), tracker, efd,
+                        tmp_path, progress=Progress(io.StringIO()))  # fmt: skip
+    assert summary.ok, summary.failed
+    (record,) = tracker.job_outcomes(summary.parent_id)
+    child = tracker.runs[record["run_id"]]
+    params = json.loads(child.artifacts["best_params.json"])
+    assert set(params["effects"]) == {"discovered:N_s3b", "rudder_offset"}
+    c = params["effects"]["discovered:N_s3b"]["C_N_s3b"]
+    assert c != 0.0 and -1.0 <= c <= 1.0  # moved from neutral, inside its box
+    assert np.isfinite(record["metrics"]["test/J2/total"])
+    assert child.params["effects"] == '["discovered:N_s3b", "rudder_offset"]'

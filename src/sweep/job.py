@@ -18,7 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from mmg import Parameters, bounds, efd_parameters, simulate_batch
+from mmg import Effect, Parameters, bounds, efd_parameters, get_effect, simulate_batch
+from mmg.params import N_THETA
 from sweep.cmaes import Box, Settings, State, optimise, restart_table
 from sweep.datasets import split_from_mapping
 from sweep.objective import OBJECTIVES, Objective, split_recording
@@ -82,10 +83,12 @@ def settings_of(config: Mapping[str, Any], seed: int) -> Settings:
     )
 
 
-def test_metrics(params: Parameters, test: Mapping[str, Recording]) -> dict[str, dict[str, float]]:
+def test_metrics(
+    params: Parameters, test: Mapping[str, Recording], effects: tuple[Effect, ...] = ()
+) -> dict[str, dict[str, float]]:
     """{J: {subset: value}} on the paper's test set, subsets B-S, B-P, B, R, T, Z, total."""
     labels = list(test)
-    table = Objective(list(test.values()), labels=labels).table(params)
+    table = Objective(list(test.values()), labels=labels, effects=effects).table(params)
     out: dict[str, dict[str, float]] = {}
     for J in OBJECTIVES:
         row = complete_subsets({SUBSET_OF_LABEL[lab]: table[J][lab][0] for lab in labels})
@@ -93,13 +96,19 @@ def test_metrics(params: Parameters, test: Mapping[str, Recording]) -> dict[str,
     return out
 
 
-def simulated_subsequences(rec: Recording, params: Parameters) -> np.ndarray:
+def simulated_subsequences(
+    rec: Recording, params: Parameters, effects: tuple[Effect, ...] = ()
+) -> np.ndarray:
     """The recording re-simulated subsequence by subsequence (the paper's Figs. 6-8), (N, 6)."""
     out = np.full_like(rec.x, np.nan)
     for seg in split_recording(rec):
         sl = slice(seg.start, seg.start + seg.n_steps + 1)
         traj = simulate_batch(
-            rec.x[None, seg.start], rec.u[None, sl][:, :-1], rec.w[None, sl][:, :-1], params
+            rec.x[None, seg.start],
+            rec.u[None, sl][:, :-1],
+            rec.w[None, sl][:, :-1],
+            params,
+            effects=effects,
         ).states[0]
         out[sl] = traj
     return out
@@ -121,8 +130,9 @@ def draw_plots(
             if label not in test:
                 continue
             rec = test[label]
+            effects = tuple(get_effect(name) for name, _ in params.effects)
             sims = {
-                "identified": simulated_subsequences(rec, params),
+                "identified": simulated_subsequences(rec, params, effects),
                 "EFD": simulated_subsequences(rec, efd),
             }
             path = Path(tmp) / f"trajectory_{label}.png"
@@ -151,9 +161,17 @@ def run_job(
         train = split_from_mapping(dict(cfg["train"]), f"train={spec.train}").load(spec.data_root)
         test = split_from_mapping(dict(cfg["test"]), "test").load(spec.data_root)
     settings = settings_of(cfg, spec.seed)
-    objective = Objective(list(train.values()), spec.objective)
+    # extra effects (``effects=[...]``: catalog or discovered) are identified with the 57
+    # parameters, their parameters searched over their own boxes from neutral
+    effects = tuple(get_effect(str(name)) for name in cfg.get("effects") or ())
+    objective = Objective(list(train.values()), spec.objective, effects=effects)
     lo, hi = bounds()
-    box = Box(lo, hi)
+    extra = [q for e in effects for q in e.params]
+    box = Box(
+        np.concatenate([lo, [q.lower for q in extra]]),
+        np.concatenate([hi, [q.upper for q in extra]]),
+    )
+    x0 = np.concatenate([efd_parameters().vector(), [q.neutral for q in extra]])
     if spec.checkpoint is None:  # with a storage URI the job needs no directory on its node
         spec.job_dir.mkdir(parents=True, exist_ok=True)
 
@@ -166,7 +184,7 @@ def run_job(
         result = optimise(
             evaluator,
             box,
-            efd_parameters().vector(),
+            x0,
             settings,
             checkpoint=spec.checkpoint_location,
             progress=progress,
@@ -174,7 +192,14 @@ def run_job(
     finally:
         evaluator.close()
     sim_seconds = float(getattr(evaluator, "sim_seconds", 0.0))
-    best = Parameters.from_vector(result.theta)
+    best = Parameters.from_vector(result.theta[:N_THETA])
+    if effects:
+        values = iter(float(v) for v in result.theta[N_THETA:])
+        best = Parameters(
+            best.theta,
+            best.ship,
+            tuple((e.name, tuple((q.name, next(values)) for q in e.params)) for e in effects),
+        )
     outcome = JobOutcome(
         job_key=spec.key,
         objective=spec.objective,
@@ -190,7 +215,7 @@ def run_job(
         stop_reason=result.stop_reason,
         restarts=restart_table(result),
         history=result.history,
-        test=test_metrics(best, test),
+        test=test_metrics(best, test, effects),
         sim_seconds=sim_seconds,
     )
     files = draw_plots(result.history, best, test, spec.key) if plots else {}

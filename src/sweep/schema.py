@@ -16,6 +16,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from mmg import catalog
 from sweep.objective import OBJECTIVES
 
 _MISSING = object()
@@ -66,6 +67,19 @@ def _storage(v: Any) -> bool:
     except ValueError:
         return False
     return True
+
+
+def _effects(v: Any) -> bool:
+    from mmg import get_effect
+
+    if not isinstance(v, list | tuple) or not all(isinstance(e, str) and e for e in v):
+        return False
+    try:
+        for name in v:
+            get_effect(name)
+    except (KeyError, ValueError):
+        return False
+    return len(set(v)) == len(v)
 
 
 def _address(v: Any) -> bool:
@@ -142,6 +156,13 @@ RULES: tuple[Rule, ...] = (
         "sweep.max_retries",
         lambda v: _is_int(v) and v >= 0,
         "a non-negative integer (resubmissions of a job lost to the infrastructure)",
+        required=False,
+    ),
+    Rule(
+        "effects",
+        _effects,
+        f"a list of distinct effect names: the catalog's ({', '.join(catalog())}) or "
+        "discovered:<terms> of the term library (e.g. 'effects=[\"discovered:N_s3b\"]')",
         required=False,
     ),
     Rule(

@@ -128,6 +128,8 @@ def spec_from_config(cfg: Mapping[str, Any], job_dir: Path) -> JobSpec:
         "cmaes": dict(cfg["cmaes"]),
         "seed": seed,
     }
+    if cfg.get("effects"):  # only when set: plain jobs keep their configs (and hashes)
+        config["effects"] = [str(e) for e in cfg["effects"]]
     root = cfg.get("data", {}).get("root")
     sweep_cfg = cfg.get("sweep") or {}
     store = sweep_cfg.get("storage")

@@ -702,14 +702,16 @@ def diagnose(
         after_settings = replace(final_settings, effect_only_share=0.0, effect_only_budget=0)
 
         def final_after() -> Fit:
-            # two starts, the better end wins: the candidate's joint fold fit (base re-balanced
-            # with the effect, but on half the windows) and the base fitted on all windows plus
-            # the effect's values (which had absorbed part of the effect)
+            # three starts, the better end wins: the candidate's joint fold fit (base re-balanced
+            # with the effect, but on half the windows), the base fitted on all windows plus
+            # the effect's values (which had absorbed part of the effect), and the base with the
+            # effect at neutral (so that the model with the effect never ends above the base)
             starts = (
                 fits[verdict_effect].params,
                 with_effects(
                     base.params, chosen_eff, effect_values(fits[verdict_effect].params, chosen_eff)
                 ),
+                with_effects(before.params, chosen_eff),
             )
             ends = [
                 refit(windows, p0, chosen_eff, after_settings, f"final {verdict}") for p0 in starts
@@ -717,7 +719,11 @@ def diagnose(
             return min(ends, key=lambda e: e.f)
 
         after = _staged(
-            store, stage_label(f"final-{verdict_effect}", chosen_eff), chosen_eff, log, final_after
+            store,
+            stage_label(f"final3-{verdict_effect}", chosen_eff),  # (three starts)
+            chosen_eff,
+            log,
+            final_after,
         )
         if verdict == "discovered":  # which catalog effect's force pattern it is most like
             resembles = resemblance(base.params, windows, chosen_eff[0], scores, effects)

@@ -214,6 +214,15 @@ def test_rank_breaks_near_ties_of_dbic_by_held_out_improvement():
     # small dBICs: an absolute margin of 10
     got = rank([c("a", 6.0, 0.04), c("b", 14.0, 0.10), c("d", 30.0, 0.9)])
     assert [x.effect for x in got] == ["b", "a", "d"]
+    # tied: a catalog effect before discovered terms that fit as well (walk vs n_p|n_p| terms),
+    # and an accepted candidate before one that is not
+    disc, walk, lag = (
+        c("discovered:N_nn+Y_nn", -2900.0, 0.989),
+        c("walk", -2880.0, 0.985),
+        c("lag", -2890.0, 0.99),
+    )
+    disc.accepted = walk.accepted = True
+    assert [x.effect for x in rank([disc, walk, lag])] == ["walk", "discovered:N_nn+Y_nn", "lag"]
 
 
 def test_a_planted_dead_time_is_the_catalog_lag_with_that_dead_time(runs):

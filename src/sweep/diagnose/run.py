@@ -357,14 +357,18 @@ class Diagnosis:
 
 def rank(scores: Sequence[CandidateScore], tie_margin: float = TIE_MARGIN) -> list[CandidateScore]:
     """Candidates by dBIC, except that those tied with the best (dBIC within
-    ``max(TIE_ABSOLUTE, tie_margin x |best|)``) come first in order of held-out improvement."""
+    ``max(TIE_ABSOLUTE, tie_margin x |best|)``) come first: accepted ones before the others, a
+    catalog effect before generated (discovered) terms that fit as well (named physics over a
+    generic form: n_p|n_p| terms imitate a propeller walk), then by held-out improvement."""
     by_bic = sorted(scores, key=lambda c: c.delta_bic)
     if not by_bic:
         return []
     best = by_bic[0].delta_bic
     margin = max(TIE_ABSOLUTE, tie_margin * abs(best)) if math.isfinite(best) else 0.0
     tied = [c for c in by_bic if c.delta_bic - best <= margin]
-    tied.sort(key=lambda c: c.improvement, reverse=True)
+    tied.sort(
+        key=lambda c: (not c.accepted, c.effect.startswith(DISCOVERED_PREFIX), -c.improvement)
+    )
     return tied + [c for c in by_bic if c not in tied]
 
 

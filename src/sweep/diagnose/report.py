@@ -199,6 +199,7 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
         ),
         "acceptance": d.extra.get("acceptance"),
         "trajectory_discovery": d.extra.get("trajectory_discovery"),
+        "confirmation": d.extra.get("confirmation"),
         "candidates": [asdict(c) for c in d.candidates],
         "fitted_effect_params": fitted.get(d.verdict_effect, {}),
         "candidate_fit_params": chosen.params if chosen else {},

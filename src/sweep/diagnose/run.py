@@ -699,6 +699,7 @@ def diagnose(
         lambda: refit(windows, base.params, (), final_settings, "final base"),
     )
     resembles: dict[str, float] = {}
+    confirmation: dict[str, Any] | None = None
     if not verdict_effect:
         after = before
     else:
@@ -729,7 +730,21 @@ def diagnose(
             log,
             final_after,
         )
-        if verdict == "discovered":  # which catalog effect's force pattern it is most like
+        # confirmation on all windows: the effect re-identified with the 57 parameters must
+        # still pass the threshold against the base re-identified alike; an effect that refits
+        # to nothing (its fold fits only re-balanced the base) is no missing physics
+        confirm = delta_bic(after.f, before.f, len(chosen_eff[0].params), n_eff)
+        confirmation = {"effect": verdict_effect, "delta_bic": confirm}
+        if confirm > threshold:
+            log(
+                f"re-identification on all windows: {verdict_effect} changes the training J from "
+                f"{before.f:.4g} to {after.f:.4g} (dBIC {confirm:.1f} > {threshold:.1f}): not "
+                "confirmed"
+            )
+            verdict_effect = ""
+            verdict = "unexplained" if misfit.significant else "none"
+            after = before
+        elif verdict == "discovered":  # which catalog effect's force pattern it is most like
             resembles = resemblance(base.params, windows, chosen_eff[0], scores, effects)
     labels = list(test_labels) if test_labels is not None else [r.name for r in test]
     test_before = test_table(before.params, test, labels) if test else {}
@@ -766,6 +781,7 @@ def diagnose(
             "resemblance": resembles,
             "acceptance": {**null.as_dict(), "used": threshold},
             "trajectory_discovery": asdict(trajectory) if trajectory is not None else None,
+            "confirmation": confirmation,
         },
     )
 

@@ -105,6 +105,13 @@ def statement(d: Diagnosis) -> str:
             f"alone gives ({s.objective} {m.J:.3g} against a floor of {m.floor:.3g}, z = "
             f"{m.z:.0f}), and no candidate (catalog or discovered) was accepted."
         )
+        conf = d.extra.get("confirmation")
+        if conf:
+            text += (
+                f" ({conf['effect']} passed on the two halves, but re-identified on all windows "
+                f"it does not lower J beyond the threshold: dBIC {conf['delta_bic']:.1f}; it "
+                "only re-balanced the base parameters.)"
+            )
         if m.per_run:
             worst = m.per_run[0]
             ch = max(worst["channels"], key=worst["channels"].get)

@@ -27,6 +27,19 @@ def test_catalog_lists_effects_with_parameters():
         get_effect("warp_drive")
 
 
+def test_loading_the_catalog_keeps_the_public_catalog_function():
+    """The subpackage mmg.catalog and the function mmg.catalog share a name: loading the
+    catalog (on the first get_effect) must not replace the function with the subpackage."""
+    import mmg
+
+    get_effect("current")
+    catalog()
+    assert callable(mmg.catalog) and "current" in mmg.catalog()
+    from mmg import catalog as again
+
+    assert callable(again)
+
+
 def test_neutral_effect_changes_nothing():
     p = efd_parameters()
     effects = tuple(catalog().values())

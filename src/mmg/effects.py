@@ -148,5 +148,14 @@ def catalog() -> dict[str, Effect]:
 
 
 def _load_catalog() -> None:
-    # the catalog modules register themselves on import
+    # the catalog modules register themselves on import. Importing the subpackage mmg.catalog
+    # binds it as the attribute ``catalog`` of the package mmg, where the public function of
+    # the same name lives (``from mmg import catalog``): put the function back
+    import sys
+
+    package = sys.modules.get("mmg")
+    public = getattr(package, "catalog", None)
     import mmg.catalog  # noqa: F401
+
+    if package is not None and callable(public):
+        package.catalog = public  # type: ignore[attr-defined]

@@ -312,7 +312,7 @@ def best_case(table: pd.DataFrame, column: str = "Total") -> tuple[str, float, f
 
 def sweep_note(name: str, tables: Mapping[str, pd.DataFrame], settings: Mapping[str, Any]) -> str:
     """The parent run's description (Markdown): which objective and training set generalise
-    best, then the J1, J2 and J3 tables (mean (std) over seeds, EFD row, best in bold) and the
+    best, then the J2, J1 and J3 tables (mean (std) over seeds, EFD row, best in bold) and the
     sweep's settings."""
     lines = [f"## Sweep {name}", ""]
     if "J2" in tables:
@@ -328,7 +328,7 @@ def sweep_note(name: str, tables: Mapping[str, pd.DataFrame], settings: Mapping[
                 + ".",
                 "",
             ]
-    for J in OBJECTIVE_NAMES:
+    for J in ("J2", *(j for j in OBJECTIVE_NAMES if j != "J2")):  # the question's table first
         if J not in tables:
             continue
         paper_layout = column_name("Total", "rank") in tables[J].columns

@@ -29,7 +29,7 @@ check: lint typecheck test  ## what CI runs
 bench:  ## simulator throughput (traj-steps/s) for B = 20, 540, 19440
 	$(PY) benchmarks/throughput.py
 
-bench-diagnose:  ## planted-effect benchmark of the diagnosis (20 cases, about half an hour on 2 cores)
+bench-diagnose:  ## planted-effect benchmark of the diagnosis (34 cases: catalog, unlisted forms, none; 1-2 h on 2 cores)
 	$(PY) benchmarks/diagnose_planted.py --out benchmarks/out/diagnose
 
 diagnose:  ## missing physics on the real recordings: best shipped model, Train-R, paper's test set

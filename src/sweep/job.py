@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from mmg import Effect, Parameters, bounds, efd_parameters, get_effect, simulate_batch
-from mmg.params import N_THETA
-from sweep.cmaes import Box, Settings, State, optimise, restart_table
+from mmg import Effect, Parameters, efd_parameters, get_effect, simulate_batch
+from sweep.cmaes import Settings, State, optimise, restart_table
 from sweep.datasets import split_from_mapping
+from sweep.diagnose.fit import from_full_vector, full_vector, joint_box
 from sweep.objective import OBJECTIVES, Objective, split_recording
 from sweep.outcome import SUBSETS, JobOutcome, complete_subsets, config_hash, make_job_key
 from sweep.recordings import Recording, RecordingWarning
@@ -165,13 +165,8 @@ def run_job(
     # parameters, their parameters searched over their own boxes from neutral
     effects = tuple(get_effect(str(name)) for name in cfg.get("effects") or ())
     objective = Objective(list(train.values()), spec.objective, effects=effects)
-    lo, hi = bounds()
-    extra = [q for e in effects for q in e.params]
-    box = Box(
-        np.concatenate([lo, [q.lower for q in extra]]),
-        np.concatenate([hi, [q.upper for q in extra]]),
-    )
-    x0 = np.concatenate([efd_parameters().vector(), [q.neutral for q in extra]])
+    box = joint_box(effects)
+    x0 = full_vector(efd_parameters(), effects)
     if spec.checkpoint is None:  # with a storage URI the job needs no directory on its node
         spec.job_dir.mkdir(parents=True, exist_ok=True)
 
@@ -192,14 +187,7 @@ def run_job(
     finally:
         evaluator.close()
     sim_seconds = float(getattr(evaluator, "sim_seconds", 0.0))
-    best = Parameters.from_vector(result.theta[:N_THETA])
-    if effects:
-        values = iter(float(v) for v in result.theta[N_THETA:])
-        best = Parameters(
-            best.theta,
-            best.ship,
-            tuple((e.name, tuple((q.name, next(values)) for q in e.params)) for e in effects),
-        )
+    best = from_full_vector(result.theta, efd_parameters(), effects)
     outcome = JobOutcome(
         job_key=spec.key,
         objective=spec.objective,

@@ -14,9 +14,10 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, get_args
 
 from mmg import catalog
+from sweep.cmaes import BoundHandling
 from sweep.objective import OBJECTIVES
 
 _MISSING = object()
@@ -130,8 +131,8 @@ RULES: tuple[Rule, ...] = (
     ),
     Rule(
         "cmaes.bound_handling",
-        lambda v: v in ("penalty", "transform", "none"),
-        "one of penalty, transform, none",
+        lambda v: v in get_args(BoundHandling),
+        f"one of {', '.join(get_args(BoundHandling))}",
     ),
     Rule(
         "cmaes.popsize_start",

@@ -215,8 +215,13 @@ class Floor:
     noise: NoiseModel
 
 
+def run_of(window: Recording) -> str:
+    """The run a window was cut from (``run@t0`` names, :func:`sweep.diagnose.run.cut_windows`)."""
+    return window.name.rsplit("@", 1)[0]
+
+
 def _windows_of(windows: Sequence[Recording]) -> list[str]:
-    return [w.name.rsplit("@", 1)[0] for w in windows]
+    return [run_of(w) for w in windows]
 
 
 def noise_floor(

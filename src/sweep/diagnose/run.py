@@ -80,7 +80,7 @@ from mmg.effects import DISCOVERED_PREFIX
 from mmg.params import N_THETA
 from sweep.diagnose.discover import DiscoverySettings, Proposal, discover, resemblance
 from sweep.diagnose.fit import Fit, FitSettings, effect_values, fit, with_effects
-from sweep.diagnose.floor import MisfitTest, calibrated_noise, misfit_test, noise_floor
+from sweep.diagnose.floor import MisfitTest, calibrated_noise, misfit_test, noise_floor, run_of
 from sweep.diagnose.locate import (
     equation_residuals,
     locate,
@@ -219,7 +219,7 @@ def split_windows(windows: Sequence[Recording]) -> tuple[list[Recording], list[R
         )
     runs: dict[str, list[Recording]] = {}
     for w in windows:
-        runs.setdefault(w.name.rsplit("@", 1)[0], []).append(w)
+        runs.setdefault(run_of(w), []).append(w)
     total = sum(w.duration for w in windows)
     longest = max(sum(w.duration for w in ws) for ws in runs.values())
     if len(runs) < 2 or longest > (2.0 / 3.0) * total:

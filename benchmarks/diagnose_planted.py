@@ -95,9 +95,12 @@ SPECS: list[PlantedSpec] = [
     PlantedSpec("reverse_sway", {"C_r": 3e-4}),
     PlantedSpec("none"),
     PlantedSpec("none"),
+    # a form in time (a side force building up over the run), two magnitudes
+    PlantedSpec("build_up", {"C_t": 1.5e-4, "tau_t": 600.0}),
+    PlantedSpec("build_up", {"C_t": 3e-4, "tau_t": 300.0}),
 ]
 #: cases whose measurement noise is coloured (AR(1), correlation between samples), the rest white
-NOISE_PHI: dict[int, float] = {i: 0.6 for i in (21, 23, 25, 27, 29, 31, 32, 33)}
+NOISE_PHI: dict[int, float] = {i: 0.6 for i in (21, 23, 25, 27, 29, 31, 32, 33, 35)}
 #: parameters that set a planted effect's strength: ``--scale s`` multiplies them by s
 STRENGTH: dict[str, tuple[str, ...]] = {
     "current": ("V_c",),
@@ -116,6 +119,7 @@ STRENGTH: dict[str, tuple[str, ...]] = {
     "earth_force": ("F_e",),
     "wash_yaw": ("C_d",),
     "reverse_sway": ("C_r",),
+    "build_up": ("C_t",),
 }
 #: ... and, for the forms whose strength is the angle where the effect takes hold, that angle,
 #: which ``--scale s`` divides by s (a weaker tanh stall saturates later)

@@ -225,6 +225,25 @@ def test_rank_breaks_near_ties_of_dbic_by_held_out_improvement():
     assert [x.effect for x in rank([disc, walk, lag])] == ["walk", "discovered:N_nn+Y_nn", "lag"]
 
 
+def test_held_out_improvement_is_the_typical_window_not_one_outlier():
+    """Case 26 of the planted benchmark: the right terms improved 9 of 12 held-out windows, but
+    one window that a half's fit threw off (2.1 -> 8.5) made the summed held-out J 67 % worse.
+    The typical change (geometric mean of the per-window ratios) counts it as one window."""
+    from sweep.diagnose.run import typical_change
+
+    control = np.array([0.55, 0.54, 0.15, 0.65, 2.08, 0.12, 0.42, 1.36, 0.59, 0.60, 0.11, 0.12])
+    effect = np.array([0.67, 0.37, 0.09, 0.45, 8.51, 0.39, 0.20, 1.27, 0.07, 0.15, 0.03, 0.03])
+    assert 1.0 - effect.sum() / control.sum() < -0.6  # the summed J: 67 % worse
+    assert typical_change(effect, control) == pytest.approx(
+        1.0 - np.exp(np.mean(np.log(effect / control)))
+    )
+    assert typical_change(effect, control) > 0.3  # typically better
+    # worse on most windows is worse, and a diverged window counts as 100 x worse
+    assert typical_change(control * 1.5, control) == pytest.approx(-0.5)
+    assert typical_change(np.array([np.inf, 1.0]), np.array([1.0, 1.0])) == pytest.approx(-9.0)
+    assert typical_change(np.array([]), np.array([])) == 0.0
+
+
 def test_a_planted_dead_time_is_the_catalog_lag_with_that_dead_time(runs):
     """The planted dead time (controls taken from the run's earlier samples) is what the catalog's
     actuator_lag computes with tau_delta = tau_n = tau: on noise-free windows its J2 is nearly 0

@@ -257,3 +257,38 @@ def test_heading_bias_reports_the_logged_heading_and_velocities():
     v_log = -truth[1:, 1] * np.sin(b_v) + truth[1:, 3] * np.cos(b_v)
     np.testing.assert_allclose(got[1:, 1], u_log, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(got[1:, 3], v_log, rtol=1e-12, atol=1e-15)
+
+
+def test_time_terms_see_the_recordings_clock():
+    """A force that depends on time gets the time on the recording's clock: the simulation of a
+    segment starting at t0 = 900 s feels the force of t = 900 s onwards, in the kernel, in the
+    NumPy reference and in the objective (segments start at the recording's own times)."""
+    from mmg.integrate import rk4_reference
+    from sweep.objective import Objective
+    from sweep.recordings import Recording
+
+    eff = get_effect("discovered:Y_t")
+    p0 = efd_parameters()
+    p1 = Parameters(p0.theta, p0.ship, (("discovered:Y_t", (("C_Y_t", 0.02),)),))
+    K = 200
+    x = np.array([[0.0, 0.6, 0.0, 0.0, 0.0, 0.0]])
+    u = np.tile([0.0, 10.0], (1, K, 1))
+    w = np.zeros((1, K, 2))
+    at_0 = simulate(x, u, w, p1, effects=(eff,), t0=0.0)[0]
+    at_900 = simulate(x, u, w, p1, effects=(eff,), t0=900.0)[0]
+    # Y = 0.5 rho L d C t / T_ref: at 900 s the side force is ~0.9 * 0.02 * q, at 0 s nearly none
+    without = simulate(x, u, w, p0)[0]
+    assert abs(at_900[-1, 3] - at_0[-1, 3]) > 20 * abs(at_0[-1, 3] - without[-1, 3])
+    ref = rk4_reference(x[0], u[0], w[0], p1, effects=(eff,), t0=900.0)
+    np.testing.assert_allclose(at_900, ref, rtol=1e-9, atol=1e-9)
+    # the objective: the same recording on two clocks gives different J with the time term only
+    traj = simulate(x, u, w, p0)[0]
+    t = np.arange(K + 1, dtype=np.float64) * 0.1
+    log = np.vstack([u[0], u[0, -1:]])
+    wind = np.zeros((K + 1, 2))
+    early = Recording("early", None, t, traj, log, wind)
+    late = Recording("late", None, t + 900.0, traj, log, wind)
+    for p, effects, same in ((p0, (), True), (p1, (eff,), False)):
+        J_early = Objective([early], "J2", effects=effects).evaluate(p)[0]
+        J_late = Objective([late], "J2", effects=effects).evaluate(p)[0]
+        assert (abs(J_early - J_late) < 1e-9 * max(J_early, 1e-12)) == same, (J_early, J_late)

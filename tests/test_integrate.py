@@ -20,7 +20,7 @@ def _run_linear(dt: float, T: float) -> np.ndarray:
     bad = np.empty(1, np.int64)
     p = efd_parameters()
     kern.simulate_lanes(
-        x0, np.zeros((1, K, 2)), np.zeros((1, K, 2)), parameter_matrix(p, 1),
+        x0, np.zeros(1), np.zeros((1, K, 2)), np.zeros((1, K, 2)), parameter_matrix(p, 1),
         np.array([K]), np.array([0]), p.ship, dt, LIMIT_A, LIMIT_A, 8, 1, out, bad,
     )  # fmt: skip
     return out[0, -1]

@@ -18,7 +18,7 @@ import threading
 from collections.abc import Sequence
 
 from mmg.effects import DISCOVERED_PREFIX, Effect, EffectParam, register
-from mmg.library import U_0, U_REF, Term, term
+from mmg.library import T_REF, U_0, U_REF, Term, term
 
 #: default search interval of a coefficient (the diagnosis narrows it around its estimate)
 DEFAULT_BOUND = 1.0
@@ -37,10 +37,11 @@ class {ptype}(NamedTuple):
 
 
 @subfunction
-def {func}(x0, y0, u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh):
+def {func}(t, x0, y0, u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh):
     """Forces of the terms {ids} (u, v_m through the water)."""
     Lp = sh.L_pp
     U_ref = {U_REF!r}
+    T_ref = {T_REF!r}
     q = 0.5 * sh.rho * Lp * sh.d
     U2 = u * u + v_m * v_m
     Ue = math.sqrt(U2 + {U_0!r} * {U_0!r})
@@ -83,6 +84,7 @@ def _source(name: str, terms: Sequence[Term], key: str) -> str:
         lines="\n".join(lines),
         U_0=U_0,
         U_REF=U_REF,
+        T_REF=T_REF,
     )
 
 

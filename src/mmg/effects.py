@@ -6,9 +6,11 @@ it by name):
 
 - ``force(u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh) -> (dX [N], dY [N], dN [N m])``:
   an additional force and moment at midship, added to the sum of paper Eq. (2);
-- ``force_at(x0, y0, u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh) -> (dX, dY, dN)``:
-  like ``force``, for forces that also depend on the position of midship (x0, y0) [m] (a bank,
-  shallow patch or a field of the basin); generated effects (:mod:`mmg.discovered`) use it;
+- ``force_at(t, x0, y0, u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh) -> (dX, dY, dN)``:
+  like ``force``, for forces that also depend on where and when: the position of midship
+  (x0, y0) [m] (a bank, shallow patch or a field of the basin) and the time t [s] on the
+  recording's clock (the time column of the file: a force that builds up or dies away over a
+  run); generated effects (:mod:`mmg.discovered`) use it;
 - ``current(x0, y0, psi, e) -> (u_c, v_c)`` [m/s]: the body-frame velocity of the water at the ship.
   The hydrodynamic sub-models then see the velocity through the water (u - u_c, v_m - v_c), the
   wind still sees the velocity over ground, and the equations of motion are written for the

@@ -12,7 +12,7 @@ array (n,) or (B, n) of flat vectors (57 explored values, then the effects' valu
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numba
@@ -102,17 +102,21 @@ def derivatives(
     p: ParamsLike,
     effects: tuple[Effect, ...] = (),
     ship: Ship | None = None,
+    t: Any = 0.0,
 ) -> FloatArray:
     """State derivatives xdot (..., 6) of paper Eq. (3), without the limiter.
 
     x (..., 6), u (..., 2) = (delta, n_p), w (..., 2) = (U_T, gamma_T); ``p`` one parameter set or
-    one per point (array (..., n) or sequence). Leading shapes broadcast.
+    one per point (array (..., n) or sequence); t (...) [s] the time on the recording's clock
+    (used only by effects whose forces depend on time). Leading shapes broadcast.
     """
     x_arr = np.asarray(x, dtype=np.float64)
     u_arr = np.asarray(u, dtype=np.float64)
     w_arr = np.asarray(w, dtype=np.float64)
-    shape = np.broadcast_shapes(x_arr.shape[:-1], u_arr.shape[:-1], w_arr.shape[:-1])
+    t_arr = np.asarray(t, dtype=np.float64)
+    shape = np.broadcast_shapes(x_arr.shape[:-1], u_arr.shape[:-1], w_arr.shape[:-1], t_arr.shape)
     M = int(np.prod(shape))
+    T = kernel_array(np.broadcast_to(t_arr, shape).reshape(M))
     X = kernel_array(np.broadcast_to(x_arr, (*shape, 6)).reshape(M, 6).T)
     U = np.broadcast_to(u_arr, (*shape, 2)).reshape(M, 2)
     Wd = np.broadcast_to(w_arr, (*shape, 2)).reshape(M, 2)
@@ -122,6 +126,7 @@ def derivatives(
     kern = load_kernel(effects)
     out = np.empty((6, M))
     kern.rhs_lanes(
+        T,
         X,
         kernel_array(U[:, 0]),
         kernel_array(U[:, 1]),
@@ -152,12 +157,15 @@ def simulate_batch(
     effects: tuple[Effect, ...] = (),
     ship: Ship | None = None,
     chunk: int = DEFAULT_CHUNK,
+    t0: Any = 0.0,
 ) -> SimulationResult:
     """RK4 simulation of B trajectories with the xdot limiter of paper Algorithm 1.
 
     x0 (B, 6) initial states; u_seq (B, K, 2) controls and w_seq (B, K, 2) true wind, held over
     each step of dt [s]; n_steps (B,) optional lengths <= K for segments of unequal length
-    (default K for all). Returns states (B, K + 1, 6) and the per-trajectory divergence flags.
+    (default K for all); t0 (B,) or a scalar: the start times [s] on the recordings' clocks (for
+    effects whose forces depend on time). Returns states (B, K + 1, 6) and the per-trajectory
+    divergence flags.
     A diverging trajectory never raises: it is flagged (and its states may be huge or NaN).
     """
     X0 = np.asarray(x0, dtype=np.float64)
@@ -180,8 +188,10 @@ def simulate_batch(
     order = np.argsort(-steps, kind="stable")  # similar lengths share a chunk
     out = np.empty((B, K + 1, 6))
     bad = np.empty(B, dtype=np.int64)
+    t_start = np.broadcast_to(np.asarray(t0, dtype=np.float64), (B,))
     kern.simulate_lanes(
         kernel_array(X0),
+        kernel_array(t_start),
         kernel_array(U),
         kernel_array(Wd),
         kernel_array(P),
@@ -208,9 +218,10 @@ def simulate(
     n_steps: Any = None,
     effects: tuple[Effect, ...] = (),
     ship: Ship | None = None,
+    t0: Any = 0.0,
 ) -> FloatArray:
     """Trajectories (B, K + 1, 6); see :func:`simulate_batch` for flags and arguments."""
-    return simulate_batch(x0, u_seq, w_seq, p, dt, n_steps, effects, ship).states
+    return simulate_batch(x0, u_seq, w_seq, p, dt, n_steps, effects, ship, t0=t0).states
 
 
 def rk4_reference(
@@ -220,6 +231,7 @@ def rk4_reference(
     p: Parameters,
     dt: float = 0.1,
     effects: tuple[Effect, ...] = (),
+    t0: float = 0.0,
 ) -> FloatArray:
     """One trajectory by a plain NumPy RK4 loop with the limiter of Algorithm 1: (K + 1, 6).
 
@@ -239,7 +251,7 @@ def rk4_reference(
         ks: list[FloatArray] = []
         for c, prev in ((0.0, None), (0.5, 0), (0.5, 1), (1.0, 2)):
             xs = x if prev is None else x + c * dt * ks[prev]
-            d = derivatives(xs, U[k], Wd[k], p, effects)
+            d = derivatives(xs, U[k], Wd[k], p, effects, t=t0 + (k * dt + c * dt))
             scale = np.where(position_rows, 2.0 - (k * dt + c * dt) / t_f, 1.0)
             d = np.where(np.abs(d) > lim, np.sign(d) * scale * lim, d)
             ks.append(d)
@@ -259,7 +271,9 @@ class Segments:
     x0 (S, 6) recorded first states; u (S, K, 2) controls and w (S, K, 2) true wind (zero-order
     hold); n_steps (S,) lengths <= K; ref (S, K + 1, 7) a reference series per observable (e.g. the
     standardised recording); shift (S, 7) subtracted from the simulated observables before the
-    moments are formed (numerical conditioning: use the recorded first values).
+    moments are formed (numerical conditioning: use the recorded first values); t0 (S,) the
+    segments' start times [s] on the recordings' clocks (default zeros), for effects whose forces
+    depend on time.
     """
 
     x0: FloatArray
@@ -268,9 +282,12 @@ class Segments:
     n_steps: np.ndarray
     ref: FloatArray
     shift: FloatArray
+    t0: FloatArray = field(default_factory=lambda: np.zeros(0))
 
     def __post_init__(self) -> None:
         S, K = self.u.shape[:2]
+        if self.t0.size == 0 and S > 0:  # not given: every segment starts at t = 0
+            object.__setattr__(self, "t0", np.zeros(S))
         shapes = {
             "x0": (self.x0.shape, (S, 6)),
             "u": (self.u.shape, (S, K, 2)),
@@ -278,6 +295,7 @@ class Segments:
             "n_steps": (self.n_steps.shape, (S,)),
             "ref": (self.ref.shape, (S, K + 1, 7)),
             "shift": (self.shift.shape, (S, 7)),
+            "t0": (np.shape(self.t0), (S,)),
         }
         for name, (got, want) in shapes.items():
             if got != want:
@@ -313,6 +331,7 @@ def segment_moments(
     bad = np.empty(L, dtype=np.int64)
     kern.moments_lanes(
         kernel_array(segments.x0),
+        kernel_array(segments.t0),
         kernel_array(segments.u),
         kernel_array(segments.w),
         kernel_array(segments.ref),

@@ -61,20 +61,26 @@ N_PARAMS = {n_params}
 
 
 @numba.njit(inline="always", **JIT_OPTIONS)
-def rhs(x0, u, y0, v_m, psi, r, delta, sin_d, cos_d, n_p, U_T, gamma_T, sin_g, cos_g, P, i, sh):
+def rhs(
+    t, x0, u, y0, v_m, psi, r, delta, sin_d, cos_d, n_p, U_T, gamma_T, sin_g, cos_g, P, i, sh
+):
     """Paper Eq. (3): xdot = f(x, u, w; theta) for lane i of the parameter matrix P.
+
+    t [s] is the time on the recording's clock (only ``force_at`` hooks of effects use it).
 
     Input angles come with their sine and cosine, computed once per step by the caller."""
 {rhs_body}
 
 
 @numba.njit(**JIT_OPTIONS)
-def rk4_step(X, Ks, Tr, delta, n_p, U_T, gamma_T, P, sh, k, dt, t_f, lim_lin, lim_ang, bad, W):
+def rk4_step(
+    X, Ks, Tr, delta, n_p, U_T, gamma_T, P, sh, k, dt, t_f, t_s, lim_lin, lim_ang, bad, W
+):
     """One RK4 step of W lanes in place; inputs held over the step (zero-order hold).
 
     X (6, W) state, Ks (4, 6, W) and Tr (4, W) scratch, inputs (W,), P (N_PARAMS, W), t_f (W,) [s]
-    segment
-    durations, bad (W,) int64: first step at which the lane hit the limiter or went non-finite.
+    segment durations, t_s (W,) [s] the segments' start times on the recordings' clocks, bad (W,)
+    int64: first step at which the lane hit the limiter or went non-finite.
     The limiter of Algorithm 1 clips each stage's xdot: |xdot_j| > lim_j becomes
     sign(xdot_j) (2 - t / t_f) lim_j for x0, y0, psi and sign(xdot_j) lim_j for u, v_m, r.
     """
@@ -102,7 +108,7 @@ def rk4_step(X, Ks, Tr, delta, n_p, U_T, gamma_T, P, sh, k, dt, t_f, lim_lin, li
                 a4 = X[4, i] + h * Ks[s - 1, 4, i]
                 a5 = X[5, i] + h * Ks[s - 1, 5, i]
             d0, d1, d2, d3, d4, d5 = rhs(
-                a0, a1, a2, a3, a4, a5, delta[i], Tr[0, i], Tr[1, i], n_p[i],
+                t_s[i] + t, a0, a1, a2, a3, a4, a5, delta[i], Tr[0, i], Tr[1, i], n_p[i],
                 U_T[i], gamma_T[i], Tr[2, i], Tr[3, i], P, i, sh,
             )
             scale = 2.0 - t / t_f[i]  # Algorithm 1, rows x0, y0, psi
@@ -204,14 +210,16 @@ def start_state(X, x0, s, Pc, ob, i):
 
 @numba.njit(parallel=True, cache=True, **JIT_OPTIONS)
 def simulate_lanes(
-    x0, u_seq, w_seq, P, n_steps, lane_ids, sh, dt, lim_lin, lim_ang, W, n_threads, out, bad
+    x0, t_start, u_seq, w_seq, P, n_steps, lane_ids, sh, dt, lim_lin, lim_ang, W, n_threads, out,
+    bad,
 ):
     """Integrate B trajectories in chunks of W lanes; thread t takes chunks t, t + n_threads, ...
 
-    x0 (B, 6); u_seq, w_seq (B, K, 2); P (N_PARAMS, B); n_steps (B,) int64; lane_ids (B,) the
-    order in which trajectories are packed into chunks (similar lengths together). Writes
-    out (B, K + 1, 6), NaN after each trajectory's own length, and bad (B,) the first step at which
-    the trajectory hit the limiter or became non-finite (-1: never).
+    x0 (B, 6); t_start (B,) [s] the start times on the recordings' clocks; u_seq, w_seq
+    (B, K, 2); P (N_PARAMS, B); n_steps (B,) int64; lane_ids (B,) the order in which
+    trajectories are packed into chunks (similar lengths together). Writes out (B, K + 1, 6),
+    NaN after each trajectory's own length, and bad (B,) the first step at which the trajectory
+    hit the limiter or became non-finite (-1: never).
     Inputs are gathered and states scattered one step at a time: W rows advancing together keep
     a few kB of cache lines live, where a whole-chunk transpose would stream them from memory.
     """
@@ -228,6 +236,7 @@ def simulate_lanes(
         Ks = np.empty((4, 6, W))
         Tr = np.empty((4, W))
         t_f = np.empty(W)
+        t_s = np.empty(W)
         fb = np.empty(W, dtype=np.int64)
         ids = np.empty(W, dtype=np.int64)
         last = np.empty(W, dtype=np.int64)
@@ -241,6 +250,7 @@ def simulate_lanes(
                 kmax = max(kmax, n_steps[b])
                 last[i] = max(n_steps[b] - 1, 0)
                 t_f[i] = n_steps[b] * dt
+                t_s[i] = t_start[b]
                 fb[i] = -1
                 for j in range(NP):
                     Pc[j, i] = P[j, b]
@@ -252,7 +262,7 @@ def simulate_lanes(
                 transform_inputs(cur, prev, Pc, k, w, dt)
                 rk4_step(
                     X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
-                    Pc, sh, k, dt, t_f, lim_lin, lim_ang, fb, w,
+                    Pc, sh, k, dt, t_f, t_s, lim_lin, lim_ang, fb, w,
                 )
                 for i in range(w):
                     if k < n_steps[ids[i]]:
@@ -276,14 +286,14 @@ def simulate_lanes(
 
 @numba.njit(parallel=True, cache=True, **JIT_OPTIONS)
 def moments_lanes(
-    seg_x0, seg_u, seg_w, seg_ref, seg_shift, seg_steps, P, lane_cand, lane_seg,
+    seg_x0, seg_t0, seg_u, seg_w, seg_ref, seg_shift, seg_steps, P, lane_cand, lane_seg,
     sh, dt, lim_lin, lim_ang, W, n_threads, mom, bad,
 ):
     """Integrate lanes (candidate, segment) and accumulate moments of the observables.
 
     Observables z = (x0, u, y0, v_m, sin psi, cos psi, r), shifted by seg_shift (S, 7).
-    Segments: seg_x0 (S, 6), seg_u / seg_w (S, K, 2), seg_ref (S, K + 1, 7) a reference series,
-    seg_steps (S,).
+    Segments: seg_x0 (S, 6), seg_t0 (S,) start times [s], seg_u / seg_w (S, K, 2), seg_ref
+    (S, K + 1, 7) a reference series, seg_steps (S,).
     Lanes: lane_cand, lane_seg (L,) index P (N_PARAMS, C) and the segments. For every lane and
     observable, mom (L, 7, 5) receives over the samples k = 0..K of its segment, with trapezoid
     weights w_k (1/2 at both ends, else 1): sum z, sum z^2, sum w z, sum w z^2, sum w z ref.
@@ -301,6 +311,7 @@ def moments_lanes(
         Ks = np.empty((4, 6, W))
         Tr = np.empty((4, W))
         t_f = np.empty(W)
+        t_s = np.empty(W)
         fb = np.empty(W, dtype=np.int64)
         seg = np.empty(W, dtype=np.int64)
         last = np.empty(W, dtype=np.int64)
@@ -315,6 +326,7 @@ def moments_lanes(
                 last[i] = max(seg_steps[s] - 1, 0)
                 kmax = max(kmax, seg_steps[s])
                 t_f[i] = seg_steps[s] * dt
+                t_s[i] = seg_t0[s]
                 fb[i] = -1
                 for j in range(NP):
                     Pc[j, i] = P[j, lane_cand[lo + i]]
@@ -358,7 +370,7 @@ def moments_lanes(
                 transform_inputs(cur, prev, Pc, k, w, dt)
                 rk4_step(
                     X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
-                    Pc, sh, k, dt, t_f, lim_lin, lim_ang, fb, w,
+                    Pc, sh, k, dt, t_f, t_s, lim_lin, lim_ang, fb, w,
                 )
             for i in range(w):
                 lane = lo + i
@@ -369,13 +381,14 @@ def moments_lanes(
 
 
 @numba.njit(cache=True, **JIT_OPTIONS)
-def rhs_lanes(X, delta, n_p, U_T, gamma_T, P, sh, out):
-    """xdot for M independent points: X (6, M), inputs (M,), P (N_PARAMS, M) -> out (6, M)."""
+def rhs_lanes(T, X, delta, n_p, U_T, gamma_T, P, sh, out):
+    """xdot for M independent points: T (M,) times [s], X (6, M), inputs (M,), P (N_PARAMS, M)
+    -> out (6, M)."""
     for i in range(X.shape[1]):
         sin_d, cos_d = sincos(delta[i])
         sin_g, cos_g = sincos(gamma_T[i])
         d = rhs(
-            X[0, i], X[1, i], X[2, i], X[3, i], X[4, i], X[5, i],
+            T[i], X[0, i], X[1, i], X[2, i], X[3, i], X[4, i], X[5, i],
             delta[i], sin_d, cos_d, n_p[i], U_T[i], gamma_T[i], sin_g, cos_g, P, i, sh,
         )
         for j in range(6):
@@ -475,7 +488,7 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
             imports.append(f"from {fn.__module__} import {fn.__name__}")
             current_lines.append(f"    du_c, dv_c = {fn.__name__}(x0, y0, psi, e{q})\n")
             current_lines.append("    u_c += du_c\n    v_c += dv_c\n")
-        for hook, position in ((eff.force, ""), (eff.force_at, "x0, y0, ")):
+        for hook, position in ((eff.force, ""), (eff.force_at, "t, x0, y0, ")):
             if hook is not None:
                 imports.append(f"from {hook.__module__} import {hook.__name__}")
                 force_lines.append(

@@ -9,13 +9,15 @@ with g [m^2/s^2] a function of the state (through the water), the controls, the 
 heading and the position. Hull terms are products of u, v_m and r L_pp (the MMG polynomials
 times U^2, with their |.| forms; third-order ones divided by U_e = sqrt(U^2 + U_0^2), which keeps
 them finite at rest); propeller terms use n_p D_p; rudder terms delta; wind terms the apparent wind
-scaled to the above-water areas; heading and position terms describe a force fixed to the basin.
+scaled to the above-water areas; heading and position terms describe a force fixed to the basin;
+time terms a force that builds up or dies away over a run (polynomials of t / T_ref).
 ``X_...``, ``Y_...`` and ``N_...`` are the equations the term enters.
 
 Each term is one scalar Python expression, compiled into the hook of a generated effect
 (:mod:`mmg.discovered`), over these names:
 
-    u, v_m [m/s], r [rad/s], psi [rad], delta [rad], n_p [rev/s], x0, y0 [m], U2 = u^2 + v_m^2,
+    u, v_m [m/s], r [rad/s], psi [rad], delta [rad], n_p [rev/s], x0, y0 [m], t [s] (the time on
+    the recording's clock: the file's time column), T_ref (:data:`T_REF`), U2 = u^2 + v_m^2,
     Ue = sqrt(U2 + U_0^2), rL = r L_pp, nD = n_p D_p [m/s], uA, vA (apparent wind [m/s], see
     :func:`mmg.wind.apparent_wind`), wT = rho_A A_T / (rho L_pp d), wL = rho_A A_L / (rho L_pp d),
     Lp = L_pp, ast = 1 if u < 0 (astern) else 0, rev = 1 if n_p < 0 else 0, U_ref, abs and math.
@@ -32,8 +34,10 @@ from dataclasses import dataclass
 
 #: speed that keeps third-order terms finite at rest [m/s] (a few per cent of the service speed)
 U_0 = 0.05
-#: reference speed of terms with no velocity in them (heading, position, constant) [m/s]
+#: reference speed of terms with no velocity in them (heading, position, time, constant) [m/s]
 U_REF = 1.0
+#: reference time of the time terms [s] (about the length of a recorded run)
+T_REF = 1000.0
 
 
 @dataclass(frozen=True)
@@ -46,7 +50,7 @@ class Term:
     id: str
     expr: str
     formula: str  # g in the paper's notation
-    kind: str  # hull, propeller, rudder, wind, quadrant, heading, position
+    kind: str  # hull, propeller, rudder, wind, quadrant, heading, position, time
     parts: tuple[tuple[str, str, str], ...] = ()
 
     @property
@@ -128,6 +132,9 @@ _TERMS: list[Term] = [
     *_t("XYN", "y", "y0 / Lp", "U_ref^2 y0 / L_pp", "position"),
     *_t("XYN", "Uy", "U2 * y0 / Lp", "U^2 y0 / L_pp", "position"),
     *_t("XYN", "Ux", "U2 * x0 / Lp", "U^2 x0 / L_pp", "position"),
+    # a force that changes over the run (on the recording's clock)
+    *_t("XYN", "t", "t / T_ref", "U_ref^2 t / T_ref", "time"),
+    *_t("XYN", "tt", "(t / T_ref) ** 2", "U_ref^2 (t / T_ref)^2", "time"),
     # a steady force fixed to the basin, along x0 or y0, on the ship's axes (Eq. (1)'s rotation)
     Term(
         "E_x0",

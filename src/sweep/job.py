@@ -109,6 +109,7 @@ def simulated_subsequences(
             rec.w[None, sl][:, :-1],
             params,
             effects=effects,
+            t0=rec.t[seg.start],
         ).states[0]
         out[sl] = traj
     return out

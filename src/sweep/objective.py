@@ -135,6 +135,7 @@ class SegmentSet:
         K = max(s.n_steps for s in self.index)
         floor = np.array([self.floors[name] for name in OBSERVABLES])
         x0 = np.zeros((S, 6))
+        t0 = np.zeros(S)  # start times on the recordings' clocks
         u = np.zeros((S, K, 2))
         w = np.zeros((S, K, 2))
         ref = np.zeros((S, K + 1, 7))
@@ -153,6 +154,7 @@ class SegmentSet:
             wt = np.ones(n + 1)
             wt[0] = wt[-1] = 0.5
             x0[s] = rec.x[seg.start]
+            t0[s] = rec.t[seg.start]
             u[s, :n] = rec.u[seg.start : seg.start + n]
             w[s, :n] = rec.w[seg.start : seg.start + n]
             ref[s, : n + 1] = z_hat
@@ -162,7 +164,8 @@ class SegmentSet:
             self.weight_sum[s] = wt.sum()
             self.n_samples[s] = n + 1
         self.floor = floor
-        self.segments = Segments(x0, u, w, np.array([s.n_steps for s in self.index]), ref, shift)
+        steps = np.array([s.n_steps for s in self.index])
+        self.segments = Segments(x0, u, w, steps, ref, shift, t0)
 
     @property
     def durations(self) -> FloatArray:

@@ -109,6 +109,7 @@ def residual_vectors(obj: Objective, thetas: FloatArray) -> tuple[FloatArray, np
             np.tile(seg.n_steps, c),
             effects=obj.effects,
             ship=obj.ship,
+            t0=np.tile(seg.t0, c),
         )
         z = observables(sim.states).reshape(c, S, K + 1, 7)[..., ch]
         z = np.where(valid[None, :, :, None], z, 0.0)

@@ -114,8 +114,9 @@ def equation_data(
         acc = np.asarray(savgol_filter(x[:, list(ACC)], m, 3, deriv=1, delta=dt, axis=0))
         us = _smooth(np.asarray(w.u, dtype=np.float64), m)  # the controls averaged alike
         wind = np.asarray(w.w)
+        tt = np.asarray(w.t, dtype=np.float64)
         sl = slice(m // 2, x.shape[0] - m // 2, settings.stride)  # away from the filter's edges
-        xs, acc, us, wind = xs[sl], acc[sl], us[sl], wind[sl]
+        xs, acc, us, wind, tt = xs[sl], acc[sl], us[sl], wind[sl], tt[sl]
         n = xs.shape[0]
         d = derivatives(
             np.broadcast_to(xs, (R, n, 6)),
@@ -123,6 +124,7 @@ def equation_data(
             np.broadcast_to(wind, (R, n, 2)),
             np.broadcast_to(P[:, None, :], (R, n, P.shape[1])),
             effects,
+            t=np.broadcast_to(tt, (R, n)),
         )[..., ACC]
         d = np.moveaxis(d, 1, 0)  # (n, R, 3)
         base = d[:, 0]
@@ -368,6 +370,7 @@ def force_pattern(
     x = np.concatenate([np.asarray(w.x)[::stride] for w in windows])
     u = np.concatenate([np.asarray(w.u)[::stride] for w in windows])
     wind = np.concatenate([np.asarray(w.w)[::stride] for w in windows])
+    tt = np.concatenate([np.asarray(w.t)[::stride] for w in windows])
     n = x.shape[0]
     d = derivatives(
         np.broadcast_to(x, (2, n, 6)),
@@ -375,6 +378,7 @@ def force_pattern(
         np.broadcast_to(wind, (2, n, 2)),
         np.broadcast_to(np.stack([p0, p1])[:, None, :], (2, n, p0.size)),
         effects,
+        t=np.broadcast_to(tt, (2, n)),
     )
     a0 = d[0][:, list(ACC)]
     da = d[1][:, list(ACC)] - a0

@@ -131,7 +131,8 @@ def estimate_noise(
         idx = starts[:, None] + np.arange(K)[None, :]
         uu = np.asarray(rec.u)[idx]
         ww = np.asarray(rec.w)[idx]
-        sim = simulate_batch(x[starts], uu, ww, params, effects=effects).states  # (B, K+1, 6)
+        t0 = np.asarray(rec.t)[starts]
+        sim = simulate_batch(x[starts], uu, ww, params, effects=effects, t0=t0).states
         truth = x[starts[:, None] + np.arange(K + 1)[None, :]]
         d = truth[:, 1:] - sim[:, 1:]
         d[..., 4] = (d[..., 4] + np.pi) % (2 * np.pi) - np.pi
@@ -196,7 +197,8 @@ def simulate_windows(params: Parameters, windows: Sequence[Recording]) -> list[F
         wind[i, : n_steps[i]] = np.asarray(w.w)[:-1]
         u[i, n_steps[i] :] = u[i, n_steps[i] - 1]
         wind[i, n_steps[i] :] = wind[i, n_steps[i] - 1]
-    sim = simulate_batch(x0, u, wind, params, effects=effects)
+    t0 = np.array([float(w.t[0]) for w in windows])
+    sim = simulate_batch(x0, u, wind, params, effects=effects, t0=t0)
     out = []
     for i, w in enumerate(windows):
         clean = np.array(sim.states[i, : n_steps[i] + 1])

@@ -113,7 +113,14 @@ def residual_frame(
             x = np.asarray(rec.x[sl])
             u = np.asarray(rec.u[sl])
             wind = np.asarray(rec.w[sl])
-            sim = simulate_batch(x[None, 0], u[None, :-1], wind[None, :-1], params, effects=effects)
+            sim = simulate_batch(
+                x[None, 0],
+                u[None, :-1],
+                wind[None, :-1],
+                params,
+                effects=effects,
+                t0=float(rec.t[seg.start]),
+            )
             z_rec = observables(x)
             z_sim = observables(sim.states[0])
             sigma = np.maximum(z_rec.std(axis=0), floor)
@@ -221,7 +228,7 @@ def equation_residuals(
         u = np.asarray(rec.u)
         w = np.asarray(rec.w)
         acc_rec = np.gradient(x[:, [1, 3, 5]], rec.dt, axis=0)
-        acc_mod = derivatives(x, u, w, params, effects)[:, [1, 3, 5]]
+        acc_mod = derivatives(x, u, w, params, effects, t=np.asarray(rec.t))[:, [1, 3, 5]]
         width = max(1, round(smooth_s / rec.dt))
         kernel = np.ones(width) / width
         res = np.stack(

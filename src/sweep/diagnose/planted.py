@@ -154,6 +154,7 @@ class BankParams(NamedTuple):
 
 @subfunction
 def bank_force_at(
+    t: float,
     x0: float,
     y0: float,
     u: float,
@@ -310,6 +311,34 @@ def _p(*names: str) -> tuple[EffectParam, ...]:
     return tuple(EffectParam(n, "-", 0.0, -1e9, 1e9, "") for n in names)
 
 
+class BuildUpParams(NamedTuple):
+    C_t: float  # strength of the side force once built up [-]
+    tau_t: float  # how fast it builds up [s]
+
+
+@subfunction
+def build_up_force_at(
+    t: float,
+    x0: float,
+    y0: float,
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    e: BuildUpParams,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float]:
+    """A side force that builds up over the run (a circulation developing in the basin):
+    Y = 0.5 rho L d C_t (1 m/s)^2 (1 - exp(-t / tau_t)), N = -0.25 L Y (time)."""
+    Y = 0.5 * sh.rho * sh.L_pp * sh.d * e.C_t * (1.0 - math.exp(-t / e.tau_t))
+    return 0.0, Y, -0.25 * sh.L_pp * Y
+
+
 #: planted forms in no catalog entry: only discovery can explain them
 UNLISTED: dict[str, Effect] = {
     "bank": _form_at("bank", _p("C_b", "y_b", "W_b"), BankParams, bank_force_at),
@@ -322,6 +351,7 @@ UNLISTED: dict[str, Effect] = {
     "earth_force": _form("earth_force", _p("F_e", "chi_e"), EarthForceParams, earth_force_force),
     "wash_yaw": _form("wash_yaw", _p("C_d"), WashYawParams, wash_yaw_force),
     "reverse_sway": _form("reverse_sway", _p("C_r"), ReverseSwayParams, reverse_sway_force),
+    "build_up": _form_at("build_up", _p("C_t", "tau_t"), BuildUpParams, build_up_force_at),
 }
 
 
@@ -488,7 +518,8 @@ def generate(
     x0 = np.stack([np.asarray(w.rec.x[w.start]) for w in windows])
     u = np.stack([_controls(w, spec) for w in windows])
     wind = np.stack([np.asarray(w.rec.w[w.start : w.start + w.n - 1]) for w in windows])
-    sim = simulate_batch(x0, u, wind, p, effects=effects)
+    t0 = np.array([float(w.rec.t[w.start]) for w in windows])
+    sim = simulate_batch(x0, u, wind, p, effects=effects, t0=t0)
     sigma = np.array([noise[n] for n in STATE_NAMES])
     out = []
     for i, w in enumerate(windows):

@@ -81,7 +81,11 @@ def test_planted_rudder_offset_is_found_end_to_end(runs, tmp_path, capsys):
     ends = re.search(r"CMA-ES then descent J = ([\d.]+), descent alone J = ([\d.]+)", captured.err)
     assert ends is not None
     J_base = report["training"]["J_base_fit"]
-    assert J_base == pytest.approx(min(float(ends[1]), float(ends[2])), abs=0.006)
+    # the misfit is above the floor, so a second CMA-ES start ran first; the lowest end is the base
+    retry = report["base_retry"]
+    assert retry is not None and "base, second start" in captured.err
+    assert retry["J_first"] == pytest.approx(min(float(ends[1]), float(ends[2])), abs=0.006)
+    assert J_base == pytest.approx(min(retry["J_first"], retry["J_second"]), rel=1e-9)
 
     from mlflow import MlflowClient
 

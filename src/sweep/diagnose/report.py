@@ -209,6 +209,7 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
         "acceptance": d.extra.get("acceptance"),
         "trajectory_discovery": d.extra.get("trajectory_discovery"),
         "confirmation": d.extra.get("confirmation"),
+        "base_retry": d.extra.get("base_retry"),
         "candidates": [asdict(c) for c in d.candidates],
         "fitted_effect_params": fitted.get(d.verdict_effect, {}),
         "candidate_fit_params": chosen.params if chosen else {},

@@ -72,7 +72,20 @@ def test_the_comparison_is_on_the_first_screens(smoke):
     client = mlflow.MlflowClient(f"sqlite:///{cwd}/mlflow.db")
     exp = client.get_experiment_by_name("mmg-sweep")
     assert exp is not None and exp.tags[EXPERIMENT_KIND[0]] == EXPERIMENT_KIND[1]
+    # the saved view of the runs table (MLflow's record: deflate + base64 of the JSON state),
+    # whose columns are metrics and params the runs really carry
+    import base64
+    import json
+    import zlib
+
+    view = json.loads(exp.tags["mlflow.sharedViewState.mmg-sweep-tables"])
+    assert view["state"].startswith("deflate;") and view["name"].startswith("Sweep")
+    state = json.loads(zlib.decompress(base64.b64decode(view["state"].split(";", 1)[1])))
     runs = client.search_runs([exp.experiment_id])
+    child = next(r for r in runs if r.data.tags.get("mlflow.parentRunId"))
+    for column in state["selectedColumns"]:
+        kind, key = column.split(".", 1)
+        assert key.strip("`") in getattr(child.data, kind), column
     parent = next(r for r in runs if r.data.tags.get("sweep") == "true")
     note = parent.data.tags[NOTE_TAG]
     assert "Best generalisation (J2, whole test set): J" in note

@@ -83,16 +83,20 @@ def test_the_ui_opens_on_the_runs_table_and_the_parent_shows_the_tables(ui: str)
     from playwright.sync_api import sync_playwright
 
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
-    assert "workflowType=machine_learning" in ui
+    assert "workflowType=machine_learning" in ui and "viewStateShareKey=mmg-sweep-tables" in ui
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
-        page = browser.new_page(viewport={"width": 1500, "height": 1000})
+        page = browser.new_page(viewport={"width": 1900, "height": 1000})
         try:
             page.goto(ui, wait_until="load")
             page.get_by_text("ci-smoke").first.wait_for(timeout=90_000)
             page.screenshot(path=str(ARTIFACTS / "1-runs-table.png"))
             body = page.inner_text("body")
             assert "Runs" in body and "Detect Issues" not in body  # not the GenAI overview
+            # the sweep's saved view: objective, training set, seed and the test J as columns
+            headers = set(page.locator("[role=columnheader]").all_inner_texts())
+            for column in ("objective", "train", "seed", "test/J2/total", "test/J1/total"):
+                assert column in headers, (column, headers)
             name_cells = page.locator("[role=gridcell][col-id='attributes.`Run Name`']")
             parent = name_cells.filter(has_text="ci-smoke").first
             parent.locator("button[data-component-id*='runnamecellrenderer']").click()

@@ -141,6 +141,47 @@ NOTE_TAG = "mlflow.note.content"
 EXPERIMENT_KIND = ("mlflow.experimentKind", "custom_model_development")
 
 
+#: the saved view of the runs table that ``python -m sweep.ui`` opens (MLflow keeps saved views
+#: as experiment tags ``mlflow.sharedViewState.<key>``; ``?viewStateShareKey=<key>`` opens one)
+SWEEP_VIEW_KEY = "mmg-sweep-tables"
+SWEEP_VIEW_NAME = "Sweep: test J2, J1, J3 by objective, training set and seed"
+#: the columns of that view: what the question needs, beside the run names
+SWEEP_VIEW_COLUMNS = (
+    "params.`objective`",
+    "params.`train`",
+    "params.`seed`",
+    *(f"metrics.`{metric_name('test', J, 'total')}`" for J in ("J2", "J1", "J3")),
+    "metrics.`best_f`",
+    "metrics.`restarts`",
+)
+
+
+def sweep_view_tag(now_ms: int | None = None) -> tuple[str, str]:
+    """(key, value) of the experiment tag holding the sweep's saved view of the runs table.
+
+    The value is MLflow's saved-view record: a name, times, and the view state (columns and
+    order) as ``deflate;`` + base64 of the zlib-compressed JSON, the format the UI writes."""
+    import base64
+    import zlib
+
+    state = {
+        "selectedColumns": list(SWEEP_VIEW_COLUMNS),
+        "columnOrder": list(SWEEP_VIEW_COLUMNS),  # params first, then J2, J1, J3
+        "orderByKey": "attributes.start_time",
+        "orderByAsc": False,
+        "runsHiddenMode": "SHOW_ALL",
+    }
+    packed = base64.b64encode(zlib.compress(json.dumps(state).encode())).decode()
+    now = int(time.time() * 1000) if now_ms is None else int(now_ms)
+    value = {
+        "name": SWEEP_VIEW_NAME,
+        "createdAt": now,
+        "updatedAt": now,
+        "state": f"deflate;{packed}",
+    }
+    return f"mlflow.sharedViewState.{SWEEP_VIEW_KEY}", json.dumps(value)
+
+
 def job_params(outcome: JobOutcome) -> dict[str, str]:
     """The child run's params: the flattened job config, and objective, train and seed as
     plain params (so that compare, group-by and parallel coordinates can use them)."""
@@ -426,12 +467,15 @@ class MlflowTracker:
                     self.client.create_experiment(
                         self.experiment,
                         artifact_location=self._artifact_location(),
-                        tags=dict([EXPERIMENT_KIND]),
+                        tags=dict([EXPERIMENT_KIND, sweep_view_tag()]),
                     )
                 exp = self.client.get_experiment_by_name(self.experiment)
-            if exp is not None and create and exp.tags.get(EXPERIMENT_KIND[0]) is None:
-                # an experiment made before (or by plain MLflow): open it on the runs table
-                self.client.set_experiment_tag(exp.experiment_id, *EXPERIMENT_KIND)
+            if exp is not None and create:
+                # an experiment made before (or by plain MLflow): open it on the runs table,
+                # with the sweep's saved view of it
+                for key, value in (EXPERIMENT_KIND, sweep_view_tag()):
+                    if exp.tags.get(key) is None:
+                        self.client.set_experiment_tag(exp.experiment_id, key, value)
         if exp is None:
             return None
         if exp.lifecycle_stage != "active":

@@ -2,8 +2,9 @@
 
 MLflow 3's UI starts on its generative-AI view ("Traces", "Evaluation runs") unless the page is
 opened as a model-training workflow; the address printed here (and opened in a browser when
-one is available) goes straight to the experiment's runs table, where the sweep's parent run
-lists its jobs and its description holds the J1-J3 tables::
+one is available) goes straight to the experiment's runs table, in the saved view a sweep
+stores with its experiment (columns: objective, training set, seed and the test J2, J1, J3),
+where the sweep's parent run lists its jobs and its description holds the J1-J3 tables::
 
     python -m sweep.ui [--tracking-uri sqlite:///mlflow.db] [--experiment mmg-sweep]
                        [--host 127.0.0.1] [--port 5000] [--no-browser]
@@ -21,18 +22,30 @@ from collections.abc import Sequence
 WORKFLOW_QUERY = "workflowType=machine_learning"
 
 
-def runs_url(base: str, experiment_id: str | None) -> str:
-    """The address of the experiment's runs table (the experiment list if it has no id)."""
+def runs_url(base: str, experiment_id: str | None, view: str | None = None) -> str:
+    """The address of the experiment's runs table (the experiment list if it has no id), in
+    the saved view ``view`` when given (its columns: objective, training set, seed, test J)."""
     base = base.rstrip("/")
     if experiment_id is None:
         return f"{base}/#/experiments?{WORKFLOW_QUERY}"
-    return f"{base}/#/experiments/{experiment_id}?{WORKFLOW_QUERY}"
+    shown = f"viewStateShareKey={view}&" if view else ""
+    return f"{base}/#/experiments/{experiment_id}/runs?{shown}{WORKFLOW_QUERY}"
 
 
 def experiment_id(uri: str, experiment: str) -> str | None:
     from sweep.tracking import MlflowTracker
 
     return MlflowTracker(uri, experiment).experiment_id(create=False)
+
+
+def view_of(uri: str, experiment: str | None) -> str | None:
+    """The key of the sweep's saved view when the experiment has it (made by a sweep)."""
+    if experiment is None:
+        return None
+    from sweep.tracking import SWEEP_VIEW_KEY, MlflowTracker
+
+    tags = MlflowTracker(uri, "").client.get_experiment(experiment).tags
+    return SWEEP_VIEW_KEY if f"mlflow.sharedViewState.{SWEEP_VIEW_KEY}" in tags else None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -59,7 +72,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except TrackingError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    url = runs_url(f"http://{args.host}:{args.port}", exp)
+    url = runs_url(f"http://{args.host}:{args.port}", exp, view_of(args.tracking_uri, exp))
     print(f"MLflow UI: {url}  (the sweep's runs table; Ctrl-C stops the server)", flush=True)
     env = dict(os.environ, MLFLOW_SERVER_ENABLE_JOB_EXECUTION="false")
     command = [

@@ -10,7 +10,8 @@ heading and the position. Hull terms are products of u, v_m and r L_pp (the MMG 
 times U^2, with their |.| forms; third-order ones divided by U_e = sqrt(U^2 + U_0^2), which keeps
 them finite at rest); propeller terms use n_p D_p; rudder terms delta; wind terms the apparent wind
 scaled to the above-water areas; heading and position terms describe a force fixed to the basin;
-time terms a force that builds up or dies away over a run (polynomials of t / T_ref).
+time terms a force that builds up or dies away over a run (polynomials of t / T_ref and
+transients exp(-t / tau) with tau a decade apart).
 ``X_...``, ``Y_...`` and ``N_...`` are the equations the term enters.
 
 Each term is one scalar Python expression, compiled into the hook of a generated effect
@@ -135,6 +136,9 @@ _TERMS: list[Term] = [
     # a force that changes over the run (on the recording's clock)
     *_t("XYN", "t", "t / T_ref", "U_ref^2 t / T_ref", "time"),
     *_t("XYN", "tt", "(t / T_ref) ** 2", "U_ref^2 (t / T_ref)^2", "time"),
+    # ... and a transient after the start of the run (settling, building up), decades of time
+    *_t("XYN", "e100", "math.exp(-t / 100.0)", "U_ref^2 exp(-t / 100 s)", "time"),
+    *_t("XYN", "e1000", "math.exp(-t / 1000.0)", "U_ref^2 exp(-t / 1000 s)", "time"),
     # a steady force fixed to the basin, along x0 or y0, on the ship's axes (Eq. (1)'s rotation)
     Term(
         "E_x0",

@@ -1,0 +1,143 @@
+"""Simulator throughput as a fraction of the machine's measured multiply-add rate.
+
+Usage: ``PYTHONPATH=. python benchmarks/peak_fraction.py [--steps 1000] [--repeat 3]
+[--sizes 540 19440] [--fma-peak PATH]``
+
+Prints, in one process: the yardstick, ``measure()`` of ``../shared/tools/fma_peak.py`` (the
+double-precision multiply-add rate on all of Numba's threads, flop/s); and for each batch size B
+the trajectory-steps per second of the two kernels users wait on, counted at
+:data:`FLOPS_PER_STEP` useful flops per RK4 step of the model, as a fraction of it:
+
+- ``simulate``: :func:`mmg.simulate_batch`, full trajectories (B, K + 1, 6) written out;
+- ``moments``: :func:`mmg.integrate.segment_moments`, the objective's kernel (no trajectories:
+  moments of the observables accumulated per lane), B lanes = 20 candidates x B / 20 segments.
+
+The fraction compares across machines (one with AVX-512, one without) where an absolute rate
+alone does not. The yardstick is measured before and after the kernels; both are printed, and
+the larger one is used (a busy machine lowers both).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+from types import ModuleType
+
+import numba
+import numpy as np
+
+from benchmarks.throughput import workload
+from mmg import efd_parameters, simulate_batch
+from mmg.integrate import Segments, segment_moments
+
+#: useful floating-point operations per RK4 step of one trajectory (four right-hand sides of
+#: the paper's equations, about 950-1,000 in an operation count; issue 15)
+FLOPS_PER_STEP = 1000.0
+#: candidates per population in the moments workload
+CANDIDATES = 20
+
+
+def load_fma_peak(path: str | None) -> ModuleType:
+    """The shared yardstick module: ``--fma-peak``, ``$MMG_FMA_PEAK`` or ../shared/tools."""
+    candidates = [path, os.environ.get("MMG_FMA_PEAK")]
+    here = Path(__file__).resolve().parents[1]
+    candidates += [str(here.parent / "shared" / "tools" / "fma_peak.py")]
+    for c in candidates:
+        if c and Path(c).is_file():
+            spec = importlib.util.spec_from_file_location("fma_peak", c)
+            assert spec is not None and spec.loader is not None
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+            return module
+    sys.exit(
+        "error: fma_peak.py not found (looked at --fma-peak, $MMG_FMA_PEAK and "
+        f"{candidates[-1]}); pass --fma-peak PATH"
+    )
+
+
+def simulate_rate(B: int, K: int, repeat: int) -> float:
+    """Median trajectory-steps/s of simulate_batch over ``repeat`` runs."""
+    x0, u, w, theta = workload(B, K)
+    simulate_batch(x0[:2], u[:2, :10], w[:2, :10], theta[:2])  # load / compile
+    rates = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        res = simulate_batch(x0, u, w, theta)
+        rates.append(B * K / (time.perf_counter() - t0))
+        del res
+    return statistics.median(rates)
+
+
+def moments_rate(B: int, K: int, repeat: int) -> float:
+    """Median trajectory-steps/s of segment_moments: CANDIDATES x (B / CANDIDATES) lanes."""
+    S = max(1, B // CANDIDATES)
+    x0, u, w, theta = workload(max(S, CANDIDATES), K, seed=1)
+    ref = np.zeros((S, K + 1, 7))
+    seg = Segments(x0[:S], u[:S], w[:S], np.full(S, K), ref, np.zeros((S, 7)))
+    cand = theta[:CANDIDATES]
+    small = Segments(x0[:1], u[:1, :10], w[:1, :10], np.array([10]), ref[:1, :11], np.zeros((1, 7)))
+    segment_moments(small, cand[:2])  # load / compile
+    rates = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        segment_moments(seg, cand)
+        rates.append(CANDIDATES * S * K / (time.perf_counter() - t0))
+    return statistics.median(rates)
+
+
+def cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def has_avx512() -> bool:
+    try:
+        return " avx512f" in Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return False
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=int, default=1000)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[540, 19440])
+    ap.add_argument("--fma-peak", default=None, help="path of fma_peak.py")
+    args = ap.parse_args(argv)
+
+    fma = load_fma_peak(args.fma_peak)
+    threads = numba.get_num_threads()
+    avx = "with" if has_avx512() else "without"
+    print(f"{cpu_name()} ({avx} AVX-512), {threads} Numba threads, {args.steps} steps")
+    peak_before = float(fma.measure())
+    efd_parameters()
+    rows = []
+    for B in args.sizes:
+        sim = simulate_rate(B, args.steps, args.repeat)
+        rows.append((B, sim, moments_rate(B, args.steps, args.repeat)))
+    peak_after = float(fma.measure())
+    peak = max(peak_before, peak_after)
+    print(
+        f"yardstick (fma_peak.measure): {peak_before / 1e9:.1f} GFLOP/s before, "
+        f"{peak_after / 1e9:.1f} after; used {peak / 1e9:.1f}"
+    )
+    print(f"{'B':>7} {'kernel':>9} {'traj-steps/s':>13} {'GFLOP/s':>8} {'of peak':>8}")
+    for B, sim, mom in rows:
+        for name, rate in (("simulate", sim), ("moments", mom)):
+            flops = rate * FLOPS_PER_STEP
+            print(f"{B:>7} {name:>9} {rate:>13.3g} {flops / 1e9:>8.2f} {flops / peak:>8.3f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -40,7 +40,9 @@ from typing import Any
 import numpy as np
 
 from mmg import Parameters, efd_parameters
-from sweep.datasets import data_root
+from sweep.data.datasets import data_root
+from sweep.data.objective import Objective
+from sweep.data.recordings import Recording, read_recordings
 from sweep.diagnose.planted import (
     PlantedSpec,
     generate,
@@ -51,8 +53,6 @@ from sweep.diagnose.planted import (
     write_case,
 )
 from sweep.diagnose.run import DiagnoseSettings, diagnose
-from sweep.objective import Objective
-from sweep.recordings import Recording, read_recordings
 
 KINDS = ("random", "turning", "zigzag", "berthing")
 TRAIN = {"random": 5, "turning": 3, "zigzag": 2, "berthing": 2}

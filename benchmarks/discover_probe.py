@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from benchmarks.diagnose_planted import KINDS, TRAIN, load_runs
-from sweep.datasets import data_root
+from sweep.data.datasets import data_root
 from sweep.diagnose.discover import DiscoverySettings, discover
 from sweep.diagnose.floor import calibrated_noise, misfit_test, noise_floor
 from sweep.diagnose.planted import PlantedSpec, generate, noise_levels, perturbed_ship, pick_windows

@@ -21,10 +21,10 @@ import numpy as np
 
 import mmg.integrate as integrate
 from mmg import bounds, efd_parameters
-from sweep.cmaes import Box, Settings, optimise
-from sweep.datasets import load_split
-from sweep.objective import Objective
-from sweep.workers import InProcess, ProcessPool, available_cores
+from sweep.data.datasets import load_split
+from sweep.data.objective import Objective
+from sweep.identification.cmaes import Box, Settings, optimise
+from sweep.identification.workers import InProcess, ProcessPool, available_cores
 
 
 class KernelTimer:
@@ -42,13 +42,13 @@ class KernelTimer:
             return out
 
         integrate.segment_moments = timed
-        import sweep.objective as objective_module
+        import sweep.data.objective as objective_module
 
         objective_module.segment_moments = timed  # the name the objective calls
         return self
 
     def __exit__(self, *exc: object) -> None:
-        import sweep.objective as objective_module
+        import sweep.data.objective as objective_module
 
         integrate.segment_moments = self._inner
         objective_module.segment_moments = self._inner

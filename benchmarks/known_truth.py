@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 
 from mmg import Parameters, bounds, efd_parameters, simulate
-from sweep.cmaes import Settings
-from sweep.datasets import load_split
+from sweep.data.datasets import load_split
+from sweep.data.objective import Objective
+from sweep.data.recordings import Recording
+from sweep.identification.cmaes import Settings
 from sweep.identify import identify
-from sweep.objective import Objective
-from sweep.recordings import Recording
 
 
 def synthetic_recordings(truth: Parameters, root: str) -> list[Recording]:

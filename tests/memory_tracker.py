@@ -13,9 +13,9 @@ from typing import Any
 
 import pandas as pd
 
-from sweep.outcome import JobOutcome, ScoreTable, config_hash
 from sweep.report import job_note, sweep_note
-from sweep.tracking import (
+from sweep.service.outcome import JobOutcome, ScoreTable, config_hash
+from sweep.service.tracking import (
     MAX_ERROR_TAG,
     NOTE_TAG,
     PARENT_TAG,

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from mmg import bounds, efd_parameters
-from sweep.cmaes import Box, Settings, load_checkpoint, optimise, population_schedule
-from sweep.objective import Objective
-from sweep.recordings import Recording
-from sweep.workers import InProcess, ProcessPool
+from sweep.data.objective import Objective
+from sweep.data.recordings import Recording
+from sweep.identification.cmaes import Box, Settings, load_checkpoint, optimise, population_schedule
+from sweep.identification.workers import InProcess, ProcessPool
 
 N = 8
 BOX = Box(-5.0 * np.ones(N), 5.0 * np.ones(N))
@@ -110,7 +110,7 @@ def test_non_finite_values_do_not_break_a_generation():
 
 @pytest.fixture(scope="module")
 def small_objective(data_dir):
-    from sweep.recordings import read_recording
+    from sweep.data.recordings import read_recording
 
     rec = read_recording(data_dir / "data/berthing/berthing_12-Nov-2020_13_21_03.csv")
     short = Recording(rec.name, None, rec.t[:301], rec.x[:301], rec.u[:301], rec.w[:301])
@@ -147,7 +147,7 @@ class _Exploding(Objective):
 
 
 def test_a_candidate_that_raises_gets_the_maximum_penalty(data_dir):
-    from sweep.recordings import read_recording
+    from sweep.data.recordings import read_recording
 
     rec = read_recording(data_dir / "data/berthing/berthing_12-Nov-2020_13_21_03.csv")
     obj = _Exploding([rec], "J1")

@@ -1,4 +1,4 @@
-"""Tests of sweep.datasets: the split configuration, the data root, and the berthing sides.
+"""Tests of sweep.data.datasets: the split configuration, the data root, and the berthing sides.
 
 The recordings are read from $MMG_DATA_DIR, else ../shared/data/frt-ds-esso beside the repository.
 """
@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sweep import datasets
-from sweep.datasets import (
+from sweep.data import datasets
+from sweep.data.datasets import (
     CONF_DIR,
     DataNotFoundError,
     Split,
@@ -23,8 +23,8 @@ from sweep.datasets import (
     data_root,
     load_split,
 )
+from sweep.data.recordings import DT, Recording, RecordingWarning
 from sweep.download import CHECKSUMS
-from sweep.recordings import DT, Recording, RecordingWarning
 
 R = "data/random/random_06-Aug-2020_16_24_25_{}.csv"
 TRAIN = {

@@ -11,6 +11,7 @@ import pytest
 
 from mmg import derivatives, efd_parameters, get_effect
 from mmg.discovered import discovered_effect, effect_name
+from sweep.data.recordings import Recording, read_recordings
 from sweep.diagnose.__main__ import main
 from sweep.diagnose.fit import with_effects
 from sweep.diagnose.floor import NoiseModel, calibrated_noise, misfit_test, noise_floor
@@ -23,7 +24,6 @@ from sweep.diagnose.planted import (
     write_case,
 )
 from sweep.diagnose.run import cut_windows
-from sweep.recordings import Recording, read_recordings
 
 KINDS = ("random", "turning", "zigzag")
 

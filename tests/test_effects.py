@@ -201,8 +201,8 @@ def test_actuator_dead_time_shifts_the_logged_controls(tau: float) -> None:
 
 def test_dead_time_acts_in_the_objective_kernel_too():
     """The objective's own kernel (moments of the observables) delays the controls the same way."""
-    from sweep.objective import Objective
-    from sweep.recordings import Recording
+    from sweep.data.objective import Objective
+    from sweep.data.recordings import Recording
 
     eff = get_effect("actuator_lag")
     p0 = efd_parameters()
@@ -264,8 +264,8 @@ def test_time_terms_see_the_recordings_clock():
     segment starting at t0 = 900 s feels the force of t = 900 s onwards, in the kernel, in the
     NumPy reference and in the objective (segments start at the recording's own times)."""
     from mmg.integrate import rk4_reference
-    from sweep.objective import Objective
-    from sweep.recordings import Recording
+    from sweep.data.objective import Objective
+    from sweep.data.recordings import Recording
 
     eff = get_effect("discovered:Y_t")
     p0 = efd_parameters()

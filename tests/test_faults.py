@@ -29,8 +29,14 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sweep.datasets import CONF_DIR
-from sweep.service import LocalExecutor, Progress, efd_reference, run_sweep, spec_from_config
+from sweep.data.datasets import CONF_DIR
+from sweep.service.orchestration import (
+    LocalExecutor,
+    Progress,
+    efd_reference,
+    run_sweep,
+    spec_from_config,
+)
 from tests.memory_tracker import NullTracker
 
 BUDGET = 1500
@@ -289,7 +295,7 @@ def test_an_empty_address_starts_a_private_ray_beside_a_registered_dead_cluster(
         os.killpg(head.pid, signal.SIGKILL)  # stopped, still registered
         head.wait(timeout=30)
         code = (
-            "import time, ray; from sweep.raycluster import RayExecutor; t = time.time(); "
+            "import time, ray; from sweep.service.raycluster import RayExecutor; t = time.time(); "
             "e = RayExecutor(num_cpus=1); "
             "print(len(ray.nodes()), ray.get_runtime_context().gcs_address, time.time() - t); "
             "e.shutdown()"

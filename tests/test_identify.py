@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from mmg import Parameters, efd_parameters, simulate
-from sweep.cmaes import Settings
+from sweep.data.objective import Objective
+from sweep.data.recordings import Recording, read_recording
+from sweep.identification.cmaes import Settings
 from sweep.identify import identify, main
-from sweep.objective import Objective
-from sweep.recordings import Recording, read_recording
 
 
 @pytest.fixture(scope="module")

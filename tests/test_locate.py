@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from mmg import efd_parameters, simulate
-from sweep.datasets import load_split
+from sweep.data.datasets import load_split
+from sweep.data.recordings import Recording
 from sweep.diagnose.locate import CHANNELS, locate, rank_windows, residual_frame
-from sweep.recordings import Recording
 
 
 def _synthetic(rec: Recording, p) -> Recording:

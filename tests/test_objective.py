@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from mmg import bounds, efd_parameters, simulate
-from sweep.datasets import load_split
-from sweep.objective import (
+from sweep.data.datasets import load_split
+from sweep.data.objective import (
     DEFAULT_FLOORS,
     PENALTY_FACTOR,
     Objective,
@@ -15,7 +15,7 @@ from sweep.objective import (
     observables,
     split_recording,
 )
-from sweep.recordings import Recording
+from sweep.data.recordings import Recording
 
 
 @pytest.fixture(scope="module")

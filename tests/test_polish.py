@@ -10,10 +10,16 @@ import pytest
 
 from mmg import Parameters, bounds, efd_parameters, simulate
 from mmg.params import N_THETA, PARAMETER_NAMES
-from sweep.cmaes import Box
-from sweep.objective import Objective
-from sweep.polish import PolishSettings, damped_step, polish, residual_vectors, totals
-from sweep.recordings import Recording, read_recordings
+from sweep.data.objective import Objective
+from sweep.data.recordings import Recording, read_recordings
+from sweep.identification.cmaes import Box
+from sweep.identification.polish import (
+    PolishSettings,
+    damped_step,
+    polish,
+    residual_vectors,
+    totals,
+)
 
 
 @pytest.fixture(scope="module")

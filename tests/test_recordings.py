@@ -1,4 +1,4 @@
-"""Tests of sweep.recordings on the real FRT-DS-ESSO files and on malformed copies of them.
+"""Tests of sweep.data.recordings on the real FRT-DS-ESSO files and on malformed copies of them.
 
 The recordings are read from $MMG_DATA_DIR, else ../shared/data/frt-ds-esso beside the repository.
 Malformed files are written into tmp_path only.
@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from sweep.recordings import (
+from sweep.data.recordings import (
     DT,
     MIN_SAMPLES,
     Recording,
@@ -529,7 +529,7 @@ def test_velocities_that_do_not_integrate_to_the_track_are_rejected(
 
 def test_every_real_recording_integrates_to_its_track(data_dir: Path) -> None:
     """The check's tolerance leaves a wide margin on the real data (misfit 3-5 %, ratio ~1)."""
-    from sweep.recordings import TRACK_TOLERANCE, _track_misfit
+    from sweep.data.recordings import TRACK_TOLERANCE, _track_misfit
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -548,7 +548,7 @@ def test_a_heading_offset_is_not_mistaken_for_a_wrong_reading(
     """A constant heading error of 0.3 rad makes the velocities miss the track by about 30 %,
     but no mistaken reading (units, swapped columns, a sign) explains it: it is physics or a
     measurement error for the diagnosis to name (heading_bias), so the file is read."""
-    from sweep.recordings import TRACK_TOLERANCE, _track_misfit
+    from sweep.data.recordings import TRACK_TOLERANCE, _track_misfit
 
     def edit(header: list[str], rows: Rows) -> None:
         j = _col(header, "psi_hat [rad]")

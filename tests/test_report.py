@@ -13,7 +13,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from sweep.outcome import COLUMNS, JobOutcome
 from sweep.report import (
     display_table,
     main,
@@ -22,7 +21,8 @@ from sweep.report import (
     summary_tables,
     write_tables,
 )
-from sweep.tracking import MlflowTracker
+from sweep.service.outcome import COLUMNS, JobOutcome
+from sweep.service.tracking import MlflowTracker
 from tests.memory_tracker import NullTracker
 from tests.test_tracking import EFD, history, make_outcome, shared_store
 

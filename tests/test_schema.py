@@ -11,7 +11,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from sweep.__main__ import CONF
-from sweep.schema import ConfigError, validate
+from sweep.service.schema import ConfigError, validate
 
 
 def _composed(overrides: list[str]) -> dict:

@@ -11,14 +11,20 @@ import pytest
 import yaml
 
 from mmg import bounds, efd_parameters
-from sweep.cmaes import Box, optimise
-from sweep.datasets import CONF_DIR, load_split
-from sweep.job import JobSpec, settings_of
-from sweep.objective import Objective
-from sweep.outcome import SUBSETS
-from sweep.service import LocalExecutor, Progress, efd_reference, run_sweep, spec_from_config
-from sweep.tracking import ConfigChangedError
-from sweep.workers import InProcess
+from sweep.data.datasets import CONF_DIR, load_split
+from sweep.data.objective import Objective
+from sweep.identification.cmaes import Box, optimise
+from sweep.identification.workers import InProcess
+from sweep.service.job import JobSpec, settings_of
+from sweep.service.orchestration import (
+    LocalExecutor,
+    Progress,
+    efd_reference,
+    run_sweep,
+    spec_from_config,
+)
+from sweep.service.outcome import SUBSETS
+from sweep.service.tracking import ConfigChangedError
 from tests.memory_tracker import NullTracker
 
 
@@ -239,8 +245,8 @@ def test_a_data_warning_is_said_once_by_the_driver(tmp_path, data_dir):
     driver says it once; the jobs themselves stay quiet."""
     import warnings
 
-    from sweep.recordings import RecordingWarning
-    from sweep.service import check_recordings
+    from sweep.data.recordings import RecordingWarning
+    from sweep.service.orchestration import check_recordings
 
     specs = []
     for J in ("J1", "J2", "J3"):

@@ -13,7 +13,7 @@ import sys
 
 import pytest
 
-from sweep.outcome import SUBSETS
+from sweep.service.outcome import SUBSETS
 from tests.conftest import run_smoke as _run
 
 
@@ -66,7 +66,7 @@ def test_the_comparison_is_on_the_first_screens(smoke):
     the parent; the terminal prints the J2 table at the end."""
     import mlflow
 
-    from sweep.tracking import EXPERIMENT_KIND, NOTE_TAG
+    from sweep.service.tracking import EXPERIMENT_KIND, NOTE_TAG
 
     cwd, first = smoke
     client = mlflow.MlflowClient(f"sqlite:///{cwd}/mlflow.db")

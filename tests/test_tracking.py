@@ -1,4 +1,5 @@
-"""sweep.tracking: the Tracker contract on MLflow (one SQLite store per session) and in memory."""
+"""sweep.service.tracking: the Tracker contract on MLflow (one SQLite store per session) and in
+memory."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import pandas as pd
 import pytest
 
 from mmg import Parameters, efd_parameters
-from sweep.outcome import (
+from sweep.service.outcome import (
     SUBSETS,
     JobOutcome,
     complete_subsets,
@@ -22,7 +23,7 @@ from sweep.outcome import (
     make_job_key,
     source_version,
 )
-from sweep.tracking import (
+from sweep.service.tracking import (
     ConfigChangedError,
     MlflowTracker,
     Tracker,

@@ -27,8 +27,7 @@ def single_job(cfg: DictConfig) -> Any:
     from hydra.core.hydra_config import HydraConfig
 
     from hydra_plugins.mmg_sweep_launcher.mmg_ray_launcher import job_config
-    from sweep.schema import validate
-    from sweep.service import (
+    from sweep.service.orchestration import (
         LocalExecutor,
         Progress,
         check_recordings,
@@ -36,7 +35,8 @@ def single_job(cfg: DictConfig) -> Any:
         run_sweep,
         spec_from_config,
     )
-    from sweep.tracking import MlflowTracker
+    from sweep.service.schema import validate
+    from sweep.service.tracking import MlflowTracker
 
     plain = job_config(cfg)
     validate(plain)  # before an MLflow run is created

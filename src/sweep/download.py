@@ -8,7 +8,7 @@ The recordings (CC BY-NC-SA 4.0, Wakita et al. 2022, Miyauchi et al. 2022) come 
 GitHub repository NAOE-5thLab/FRT-DS-ESSO at commit :data:`COMMIT`, as the tar.gz archive GitHub
 serves for that commit (:data:`DEFAULT_URL`). Only the 13 files of the split (:data:`CHECKSUMS`)
 plus ``LICENSE`` and ``README.md`` (when present) are extracted, into the data root
-(:func:`sweep.datasets.data_root`: ``--root``, else ``$MMG_DATA_DIR``, else the user cache
+(:func:`sweep.data.datasets.data_root`: ``--root``, else ``$MMG_DATA_DIR``, else the user cache
 directory), keeping the ``data/<kind>/<file>.csv`` layout. The archive's top-level directory
 (``FRT-DS-ESSO-<sha>/``) is stripped; other files in the archive are ignored.
 
@@ -48,7 +48,7 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import IO, TextIO
 
-from sweep.datasets import data_root
+from sweep.data.datasets import data_root
 
 REPOSITORY = "NAOE-5thLab/FRT-DS-ESSO"
 COMMIT = "e694dfd"
@@ -230,7 +230,7 @@ def download(
     """Make the 13 verified recordings present below the data root, downloading if needed.
 
     Args:
-        root: data root; None = :func:`sweep.datasets.data_root` default (``$MMG_DATA_DIR`` or
+        root: data root; None = :func:`sweep.data.datasets.data_root` default (``$MMG_DATA_DIR`` or
             the user cache directory). Created if missing.
         url: the tar.gz archive of the repository at the pinned commit.
         force: download and rewrite even if every file is present and verified.

@@ -7,9 +7,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 from mmg.params import ParameterError
-from sweep.datasets import DataNotFoundError, SplitError
-from sweep.recordings import RecordingError
-from sweep.schema import ConfigError
+from sweep.data.datasets import DataNotFoundError, SplitError
+from sweep.data.recordings import RecordingError
+from sweep.service.schema import ConfigError
 
 #: exceptions that report a mistake in the user's input or set-up, not a bug
 USER_ERRORS: tuple[type[BaseException], ...] = (
@@ -24,7 +24,7 @@ USER_ERRORS: tuple[type[BaseException], ...] = (
 @contextmanager
 def exit_on_user_error() -> Iterator[None]:
     """Turn a user error (including a refused config change) into ``error: ...`` and exit 2."""
-    from sweep.tracking import ConfigChangedError
+    from sweep.service.tracking import ConfigChangedError
 
     errors: tuple[type[BaseException], ...] = (*USER_ERRORS, ConfigChangedError)
     try:

@@ -6,7 +6,7 @@ Usage::
                              [--json OUT] [--data-root DIR]
 
 ``--set test`` is the paper's test set under the data root (``--data-root``, else $MMG_DATA_DIR,
-else the user cache; see :func:`sweep.datasets.data_root`); ``--set R|TR|TZR`` a training set.
+else the user cache; see :func:`sweep.data.datasets.data_root`); ``--set R|TR|TZR`` a training set.
 ``--recordings`` takes CSV/Parquet files or directories. The printed table has one row per
 objective; for the test set the columns are those of the paper (Test-B-S, Test-B-P,
 Test-B-S + Test-B-P, Test-R, Test-T, Test-Z, Total), otherwise one column per recording file and
@@ -27,9 +27,9 @@ from pathlib import Path
 
 from mmg.effects import Effect, get_effect
 from mmg.params import ParameterError, Parameters, efd_parameters
-from sweep.datasets import DataNotFoundError, SplitError, load_split
-from sweep.objective import OBJECTIVES, Objective
-from sweep.recordings import Recording, RecordingError, read_recordings
+from sweep.data.datasets import DataNotFoundError, SplitError, load_split
+from sweep.data.objective import OBJECTIVES, Objective
+from sweep.data.recordings import Recording, RecordingError, read_recordings
 
 #: the paper's column order (Tables 6-8)
 TEST_COLUMNS = (

@@ -25,12 +25,12 @@ from typing import Any
 import pandas as pd
 
 from mmg.params import ParameterError, Parameters, bounds, efd_parameters
-from sweep.cmaes import Box, Result, Settings, State, optimise, restart_table
-from sweep.datasets import DataNotFoundError, SplitError, load_split
-from sweep.objective import Objective
-from sweep.outcome import source_version
-from sweep.recordings import Recording, RecordingError, read_recordings
-from sweep.workers import make_evaluator
+from sweep.data.datasets import DataNotFoundError, SplitError, load_split
+from sweep.data.objective import Objective
+from sweep.data.recordings import Recording, RecordingError, read_recordings
+from sweep.identification.cmaes import Box, Result, Settings, State, optimise, restart_table
+from sweep.identification.workers import make_evaluator
+from sweep.service.outcome import source_version
 
 
 def identify(

@@ -5,7 +5,7 @@ Usage::
     python -m sweep.publish --sweep NAME [--tracking-uri URI] [--out docs]
                             [--params-out results/best_params.json] [--discussion FILE]
 
-Reads the sweep's MLflow runs (through :mod:`sweep.tracking`) and writes
+Reads the sweep's MLflow runs (through :mod:`sweep.service.tracking`) and writes
 
 - the three tables in the paper's layout, each cell "ours mean (std) / paper mean";
 - the ratio of each pair's Total to the EFD Total, ours and the paper's;
@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from mmg.params import Parameters
-from sweep.outcome import COLUMNS, SUBSETS
+from sweep.service.outcome import COLUMNS, SUBSETS
 
 PAPER_ORDER = ("B-S", "B-P", "B", "R", "T", "Z", "total")
 CASES = tuple(f"{J}-{T}" for J in ("J1", "J2", "J3") for T in ("R", "TR", "TZR"))
@@ -152,7 +152,7 @@ def ratios_markdown(stats: Mapping[str, Any], efd: Mapping[str, Mapping[str, flo
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from sweep.tracking import MlflowTracker, default_tracking_uri
+    from sweep.service.tracking import MlflowTracker, default_tracking_uri
 
     ap = argparse.ArgumentParser(
         prog="python -m sweep.publish", description=__doc__.splitlines()[0]

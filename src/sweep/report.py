@@ -13,7 +13,7 @@ An unknown sweep or store exits with status 2 and a one-line message.
 
 Table layout, per objective J used for *evaluation*: rows "EFD", then the (objective, training set)
 cases J1-R, J1-TR, J1-TZR, J2-R, ..., J3-TZR that are present; for each paper column
-(:data:`sweep.outcome.COLUMNS`) the mean over seeds, the standard deviation (ddof=1; NaN for
+(:data:`sweep.service.outcome.COLUMNS`) the mean over seeds, the standard deviation (ddof=1; NaN for
 fewer than two seeds) and the rank of the mean among the cases (1 = lowest; EFD is not ranked),
 then ``n`` (seeds used) and ``rejected`` (seeds removed by the paper's post-filter, never
 averaged). Rank 1 is shown in bold, rank 2 underlined, as in the paper.
@@ -33,7 +33,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
-from sweep.outcome import (
+from sweep.service.outcome import (
     COLUMNS,
     OBJECTIVE_NAMES,
     SUBSETS,
@@ -125,7 +125,8 @@ def summary_tables(
 ) -> dict[str, pd.DataFrame]:
     """{J: table} for J1, J2, J3 in the paper's layout (see the module docstring).
 
-    ``outcomes``: JobOutcome objects or records of :meth:`sweep.tracking.Tracker.job_outcomes`
+    ``outcomes``: JobOutcome objects or records of
+    :meth:`sweep.service.tracking.Tracker.job_outcomes`
     (or any mapping with objective, train, rejected and test {J: {subset: value}} or flat
     ``test/{J}/{subset}`` entries). ``efd``: {J: {subset: value}} of the EFD model.
     """
@@ -419,7 +420,8 @@ def plot_convergence(
 ) -> Path:
     """The paper's Fig. 5: J of each generation's best and min J so far vs evaluations.
 
-    ``history``: rows with evaluations, best_f, best_so_far and restart (sweep.cmaes history).
+    ``history``: rows with evaluations, best_f, best_so_far and restart (the history of
+    sweep.identification.cmaes).
     Restarts are dashed vertical lines; the optimum is marked. Returns ``path``.
     """
     if not history:
@@ -516,7 +518,7 @@ def plot_trajectories(
 
 def run(argv: Sequence[str] | None = None) -> dict[str, pd.DataFrame]:
     """Parse arguments, read the sweep, print, write and log; returns the tables."""
-    from sweep.tracking import MlflowTracker, default_tracking_uri, sqlite_path
+    from sweep.service.tracking import MlflowTracker, default_tracking_uri, sqlite_path
 
     ap = argparse.ArgumentParser(prog="python -m sweep.report", description=__doc__.splitlines()[0])
     ap.add_argument("--tracking-uri", help="MLflow tracking URI (default sqlite:///./mlflow.db)")
@@ -559,7 +561,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, pd.DataFrame]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point: exit status 0, or 2 with a one-line message for an unknown store or sweep."""
-    from sweep.tracking import TrackingError
+    from sweep.service.tracking import TrackingError
 
     try:
         run(argv)

@@ -33,7 +33,7 @@ def runs_url(base: str, experiment_id: str | None, view: str | None = None) -> s
 
 
 def experiment_id(uri: str, experiment: str) -> str | None:
-    from sweep.tracking import MlflowTracker
+    from sweep.service.tracking import MlflowTracker
 
     return MlflowTracker(uri, experiment).experiment_id(create=False)
 
@@ -42,14 +42,14 @@ def view_of(uri: str, experiment: str | None) -> str | None:
     """The key of the sweep's saved view when the experiment has it (made by a sweep)."""
     if experiment is None:
         return None
-    from sweep.tracking import SWEEP_VIEW_KEY, MlflowTracker
+    from sweep.service.tracking import SWEEP_VIEW_KEY, MlflowTracker
 
     tags = MlflowTracker(uri, "").client.get_experiment(experiment).tags
     return SWEEP_VIEW_KEY if f"mlflow.sharedViewState.{SWEEP_VIEW_KEY}" in tags else None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from sweep.tracking import default_tracking_uri, sqlite_path
+    from sweep.service.tracking import default_tracking_uri, sqlite_path
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--tracking-uri", default=default_tracking_uri())
@@ -65,7 +65,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
-    from sweep.tracking import TrackingError
+    from sweep.service.tracking import TrackingError
 
     try:
         exp = experiment_id(args.tracking_uri, args.experiment)

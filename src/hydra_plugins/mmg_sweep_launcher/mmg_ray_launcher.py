@@ -1,10 +1,11 @@
 """The ``mmg_ray`` Hydra launcher: runs a multirun as one mmg-sweep on Ray.
 
 Hydra composes the configuration of every job of ``python -m sweep -m ...``; this launcher turns
-them into :class:`sweep.job.JobSpec` and hands them to :func:`sweep.service.run_sweep` with a
-Ray executor and an MLflow tracker: bounded concurrency, skip-if-finished, resume from
-checkpoints, failures recorded, a live progress display, summary tables at the end. Its job
-directories are ``hydra.sweep.dir/hydra.sweep.subdir`` (stable names, so a rerun resumes).
+them into :class:`sweep.service.job.JobSpec` and hands them to
+:func:`sweep.service.orchestration.run_sweep` with a Ray executor and an MLflow tracker: bounded
+concurrency, skip-if-finished, resume from checkpoints, failures recorded, a live progress display,
+summary tables at the end. Its job directories are ``hydra.sweep.dir/hydra.sweep.subdir`` (stable
+names, so a rerun resumes).
 """
 
 import logging
@@ -73,17 +74,17 @@ class MmgRayLauncher(Launcher):
         self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int
     ) -> Sequence[JobReturn]:
         global LAST_SUMMARY
-        from sweep.job import JobSpec
-        from sweep.raycluster import RayExecutor
-        from sweep.schema import validate
-        from sweep.service import (
+        from sweep.service.job import JobSpec
+        from sweep.service.orchestration import (
             Progress,
             check_recordings,
             efd_reference,
             run_sweep,
             spec_from_config,
         )
-        from sweep.tracking import MlflowTracker
+        from sweep.service.raycluster import RayExecutor
+        from sweep.service.schema import validate
+        from sweep.service.tracking import MlflowTracker
 
         assert self.config is not None and self.hydra_context is not None
         specs: list[JobSpec] = []

@@ -28,11 +28,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from mmg import catalog
-from sweep.datasets import CONF_DIR, DataNotFoundError, SplitError, load_split
+from sweep.data.datasets import CONF_DIR, DataNotFoundError, SplitError, load_split
+from sweep.data.recordings import Recording, read_recordings
 from sweep.diagnose.run import DiagnoseSettings, diagnose
 from sweep.errors import exit_on_user_error
 from sweep.evaluate import UserError, load_parameters
-from sweep.recordings import Recording, read_recordings
 
 
 def _paths(values: Sequence[str], what: str) -> list[Path]:
@@ -186,7 +186,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
     print(report["statement"])
     print(f"report: {out / 'report.md'}")
     if not args.no_tracking:
-        from sweep.tracking import MlflowTracker, default_tracking_uri
+        from sweep.service.tracking import MlflowTracker, default_tracking_uri
 
         uri = args.tracking_uri or default_tracking_uri()
 

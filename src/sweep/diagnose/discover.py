@@ -44,9 +44,9 @@ from mmg import Effect, Parameters, bounds, derivatives, get_effect
 from mmg.discovered import discovered_effect, with_bounds
 from mmg.library import TERMS, term
 from mmg.params import N_THETA
+from sweep.data.recordings import Recording
 from sweep.diagnose.fit import effect_values
 from sweep.diagnose.floor import NoiseModel, simulate_windows
-from sweep.recordings import Recording
 
 FloatArray = NDArray[np.float64]
 

@@ -6,9 +6,9 @@ starts from given base parameters (usually the base model identified without the
 effect at its neutral values, then: (1) the effect alone on top of the base (a grid for one or two
 parameters); (2) optionally CMA-ES on all coordinates (``budget`` > 0; the effect's coordinates
 step ``effect_sigma`` of their interval, the base ones ``sigma0``); (3) optionally
-Levenberg-Marquardt on all coordinates (``polish``, :mod:`sweep.polish`). In (2) and (3) the base
-can re-balance what it had absorbed of the effect (the cancellation effect) while the effect's
-parameters move freely. With ``budget`` 0 the fit is deterministic.
+Levenberg-Marquardt on all coordinates (``polish``, :mod:`sweep.identification.polish`). In (2)
+and (3) the base can re-balance what it had absorbed of the effect (the cancellation effect) while
+the effect's parameters move freely. With ``budget`` 0 the fit is deterministic.
 """
 
 from __future__ import annotations
@@ -23,11 +23,11 @@ from numpy.typing import NDArray
 
 from mmg import Effect, Parameters, bounds
 from mmg.params import N_THETA
-from sweep.cmaes import Box, Result, Settings, optimise
-from sweep.objective import Objective
-from sweep.polish import PolishSettings, polish
-from sweep.recordings import Recording
-from sweep.workers import make_evaluator
+from sweep.data.objective import Objective
+from sweep.data.recordings import Recording
+from sweep.identification.cmaes import Box, Result, Settings, optimise
+from sweep.identification.polish import PolishSettings, polish
+from sweep.identification.workers import make_evaluator
 
 FloatArray = NDArray[np.float64]
 

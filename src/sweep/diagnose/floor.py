@@ -36,8 +36,8 @@ from scipy.signal import lfilter
 
 from mmg import Parameters, get_effect, simulate_batch
 from mmg.integrate import OBSERVABLES as OBSERVABLES_J
-from sweep.objective import CHANNELS, Objective
-from sweep.recordings import Recording
+from sweep.data.objective import CHANNELS, Objective
+from sweep.data.recordings import Recording
 
 FloatArray = NDArray[np.float64]
 

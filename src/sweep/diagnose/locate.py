@@ -33,8 +33,8 @@ import numpy as np
 import pandas as pd
 
 from mmg import Effect, Parameters, simulate_batch
-from sweep.objective import DEFAULT_FLOORS, observables, split_recording
-from sweep.recordings import Recording
+from sweep.data.objective import DEFAULT_FLOORS, observables, split_recording
+from sweep.data.recordings import Recording
 
 CHANNELS = ("x0", "u", "y0", "v_m", "sin_psi", "cos_psi", "r")
 GROUPS = {"velocity": ("u", "v_m", "r"), "track": ("x0", "y0", "sin_psi", "cos_psi")}

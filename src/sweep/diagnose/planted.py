@@ -36,8 +36,8 @@ from mmg.params import N_THETA, Ship, Theta
 from mmg.propeller import wake_factor
 from mmg.rudder import lift_gradient
 from mmg.trig import atan2, sincos
+from sweep.data.recordings import Recording
 from sweep.diagnose.floor import ar1
-from sweep.recordings import Recording
 
 # --------------------------------------------------------------------------- other forms
 

@@ -16,9 +16,9 @@ import numpy as np
 import pandas as pd
 
 from mmg import Parameters, get_effect, simulate_batch
+from sweep.data.recordings import Recording
 from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
 from sweep.diagnose.run import Diagnosis
-from sweep.recordings import Recording
 
 #: the regime variable in which each catalog effect acts
 EFFECT_REGIME_VARIABLE = {

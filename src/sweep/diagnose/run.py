@@ -8,13 +8,13 @@ Procedure (:func:`diagnose`), all on the training recordings unless said otherwi
    (0, 2, 4, ... fit; 1, 3, 5, ... held out) when one run holds most of the time.
 2. Base identification on all training windows, from two starts that compete (the lower J
    wins): CMA-ES from ``--params`` (``base_budget`` evaluations) followed by Levenberg-Marquardt
-   refinement (:mod:`sweep.polish`, up to ``final_polish_iterations``), and Levenberg-Marquardt
-   alone from ``--params`` (up to ``base_lm_iterations``). Neither dominates: of the 40 planted
-   benchmark cases, the descent alone ended more than 1.5 x lower in 6 (up to 5.3 x: CMA-ES had
-   led the refinement into a worse basin of the 57-parameter landscape), CMA-ES first in 3 (up to
-   80 x: the descent alone stuck). The base model absorbs what it can of any missing effect, as
-   in practice. When the misfit test (step 5's floor) finds the base above the noise floor, a
-   second CMA-ES start (another seed) runs first and the lower end becomes the base: an
+   refinement (:mod:`sweep.identification.polish`, up to ``final_polish_iterations``), and
+   Levenberg-Marquardt alone from ``--params`` (up to ``base_lm_iterations``). Neither dominates: of
+   the 40 planted benchmark cases, the descent alone ended more than 1.5 x lower in 6 (up to 5.3 x:
+   CMA-ES had led the refinement into a worse basin of the 57-parameter landscape), CMA-ES first in
+   3 (up to 80 x: the descent alone stuck). The base model absorbs what it can of any missing
+   effect, as in practice. When the misfit test (step 5's floor) finds the base above the noise
+   floor, a second CMA-ES start (another seed) runs first and the lower end becomes the base: an
    identification stopped in another basin is not missing physics (a no-effect case of the
    planted benchmark went from 1.52 to 1.01 against the true model's 0.90).
    Every Levenberg-Marquardt refinement of the diagnosis minimises J plus a weak prior
@@ -85,6 +85,8 @@ from mmg import Effect, Parameters, catalog, get_effect
 from mmg.discovered import discovered_effect, with_bounds
 from mmg.effects import DISCOVERED_PREFIX
 from mmg.params import N_THETA
+from sweep.data.objective import CHANNELS, OBJECTIVES, T_F, Objective, split_recording
+from sweep.data.recordings import Recording
 from sweep.diagnose.discover import DiscoverySettings, Proposal, discover, resemblance
 from sweep.diagnose.fit import Fit, FitSettings, effect_values, fit, with_effects
 from sweep.diagnose.floor import (
@@ -109,9 +111,7 @@ from sweep.diagnose.threshold import (
     TrajectorySelection,
     acceptance_null,
 )
-from sweep.objective import CHANNELS, OBJECTIVES, T_F, Objective, split_recording
-from sweep.polish import PolishSettings
-from sweep.recordings import Recording
+from sweep.identification.polish import PolishSettings
 
 FloatArray = NDArray[np.float64]
 

@@ -10,16 +10,16 @@ parametric bootstrap that linearises the fits (Gauss-Newton):
 
 1. **Null recordings.** The base model is simulated on every training window and noise of the
    estimated level and colour is added (:mod:`sweep.diagnose.floor`), ``draws`` times. The
-   residual vector ``r_d`` the objective squares (:func:`sweep.polish.residual_vectors`) of the
-   base model on copy ``d`` is what a refit would have to explain when nothing is missing.
-2. **Directions.** The Jacobian ``A`` of the residuals with respect to the 57 base parameters
-   (forward differences in the normalised box, the coordinates of the fits' prior) and, for each
-   candidate, the directions its effect can move the residuals in: the derivatives at its
-   neutral values and, for effects that are not linear in their parameters, the change from
-   neutral to each point of a grid over the effect's box (an onset angle gives no derivative at
-   neutral, but a direction at every angle of the grid). With discovery on, the library terms'
-   columns too: the discovered candidate's null is a greedy forward selection of up to
-   ``max_terms`` of them per copy (the look-elsewhere of choosing among the library).
+   residual vector ``r_d`` the objective squares
+   (:func:`sweep.identification.polish.residual_vectors`) of the base model on copy ``d`` is what a
+   refit would have to explain when nothing is missing. 2. **Directions.** The Jacobian ``A`` of the
+   residuals with respect to the 57 base parameters (forward differences in the normalised box, the
+   coordinates of the fits' prior) and, for each candidate, the directions its effect can move the
+   residuals in: the derivatives at its neutral values and, for effects that are not linear in their
+   parameters, the change from neutral to each point of a grid over the effect's box (an onset angle
+   gives no derivative at neutral, but a direction at every angle of the grid). With discovery on,
+   the library terms' columns too: the discovered candidate's null is a greedy forward selection of
+   up to ``max_terms`` of them per copy (the look-elsewhere of choosing among the library).
 3. **Linearised fits.** In each fold (the windows a fold fit sees) the control fit is the least
    squares of ``r_d`` on ``A`` with the fits' prior (rows ``sqrt(mu) I``); a candidate adds its
    directions (the best single grid direction, or the span of its derivatives, whichever gains
@@ -44,12 +44,12 @@ from mmg import Effect, Parameters, bounds, get_effect
 from mmg.discovered import discovered_effect
 from mmg.library import TERMS
 from mmg.params import N_THETA
+from sweep.data.objective import Objective
+from sweep.data.recordings import Recording
 from sweep.diagnose.discover import null_sets
 from sweep.diagnose.fit import effect_values
 from sweep.diagnose.floor import NoiseModel
-from sweep.objective import Objective
-from sweep.polish import residual_vectors
-from sweep.recordings import Recording
+from sweep.identification.polish import residual_vectors
 
 FloatArray = NDArray[np.float64]
 

@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 from mmg.effects import Effect
 from mmg.integrate import OBSERVABLES, Segments, segment_moments
 from mmg.params import ESSO_OSAKA, Parameters, Ship
-from sweep.recordings import Recording
+from sweep.data.recordings import Recording
 
 FloatArray = NDArray[np.float64]
 

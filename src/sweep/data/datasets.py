@@ -60,9 +60,9 @@ import numpy as np
 import platformdirs
 import yaml
 
-from sweep.recordings import PathLike, Recording, read_recording
+from sweep.data.recordings import PathLike, Recording, read_recording
 
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
+CONF_DIR = Path(__file__).resolve().parents[3] / "conf"
 """The repository's Hydra ``conf/`` directory (found relative to this file; editable install)."""
 SPLIT_GROUPS: tuple[str, ...] = ("train", "test")
 """Config groups holding split files."""
@@ -163,7 +163,7 @@ class Split:
         return out
 
     def load(self, root: str | os.PathLike[str] | None = None) -> dict[str, Recording]:
-        """Label -> validated :class:`~sweep.recordings.Recording`, in the YAML order."""
+        """Label -> validated :class:`~sweep.data.recordings.Recording`, in the YAML order."""
         return {label: read_recording(p) for label, p in self.paths(root).items()}
 
 

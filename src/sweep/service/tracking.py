@@ -38,7 +38,8 @@ from mlflow import MlflowClient
 from mlflow.entities import Metric, Param, Run, ViewType
 from mlflow.exceptions import MlflowException
 
-from sweep.outcome import (
+from sweep.report import job_note, sweep_note
+from sweep.service.outcome import (
     OBJECTIVE_NAMES,
     SUBSETS,
     JobOutcome,
@@ -47,7 +48,6 @@ from sweep.outcome import (
     metric_name,
     source_version,
 )
-from sweep.report import job_note, sweep_note
 
 #: longest error text stored in the ``error`` tag (MLflow allows 8000 characters)
 MAX_ERROR_TAG = 5000

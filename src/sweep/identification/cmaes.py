@@ -49,7 +49,7 @@ import cma
 import numpy as np
 from numpy.typing import NDArray
 
-from sweep import storage
+from sweep.service import storage
 
 FloatArray = NDArray[np.float64]
 BoundHandling = Literal["penalty", "transform", "none"]
@@ -190,14 +190,14 @@ def _new_strategy(state: State, y0: FloatArray) -> cma.CMAEvolutionStrategy:
 
 def save_checkpoint(state: State, path: str | Path) -> None:
     """Write atomically (a crash mid-write leaves the previous checkpoint intact); ``path`` is
-    a file or a storage URI (:mod:`sweep.storage`)."""
+    a file or a storage URI (:mod:`sweep.service.storage`)."""
     storage.write_bytes(path, pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
 
 
 def load_checkpoint(path: str | Path) -> State:
     state = pickle.loads(storage.read_bytes(path))
     if not isinstance(state, State):
-        raise ValueError(f"{path}: not a checkpoint of sweep.cmaes")
+        raise ValueError(f"{path}: not a checkpoint of sweep.identification.cmaes")
     return state
 
 

@@ -21,9 +21,9 @@ import numba
 import numpy as np
 import ray
 
-from sweep.job import JobSpec, run_job
-from sweep.objective import Objective
-from sweep.workers import safe_evaluate
+from sweep.data.objective import Objective
+from sweep.identification.workers import safe_evaluate
+from sweep.service.job import JobSpec, run_job
 
 log = logging.getLogger(__name__)
 _remote: Any = ray.remote  # Ray's decorator overloads do not type actor classes
@@ -136,7 +136,8 @@ JobActor: Any = _remote(num_cpus=0, max_concurrency=2)(_JobActor)
 
 
 class RayExecutor:
-    """An :class:`sweep.service.Executor` on Ray (a local Ray, or a cluster by address)."""
+    """An :class:`sweep.service.orchestration.Executor` on Ray (a local Ray, or a cluster by
+    address)."""
 
     def __init__(
         self,

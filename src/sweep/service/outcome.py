@@ -69,9 +69,11 @@ class JobOutcome:
     f: float  # best objective value on the training set
     evaluations: int
     seconds: float
-    rejected: bool  # the paper's post-filter (sweep.cmaes.Box.rejected)
+    rejected: bool  # the paper's post-filter (sweep.identification.cmaes.Box.rejected)
     stop_reason: str
-    restarts: list[dict[str, Any]] = field(default_factory=list)  # sweep.cmaes.restart_table
+    restarts: list[dict[str, Any]] = field(
+        default_factory=list
+    )  # sweep.identification.cmaes.restart_table
     history: list[dict[str, float]] = field(default_factory=list)  # one row per generation
     test: ScoreTable = field(default_factory=dict)  # {J: {subset: value}}
     sim_seconds: float = 0.0  # time spent evaluating the objective (simulator), all workers

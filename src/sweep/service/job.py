@@ -3,8 +3,8 @@
 A job is described by a :class:`JobSpec` (plain data: the job's composed configuration and its
 directory) and run by :func:`run_job` wherever an executor puts it (this process, a Ray actor).
 It knows nothing of Ray, MLflow or Hydra: evaluation goes through the evaluator it is given, and
-the result comes back as a :class:`~sweep.outcome.JobOutcome` plus the plot files as bytes (so
-that a job on another machine can hand them to the driver).
+the result comes back as a :class:`~sweep.service.outcome.JobOutcome` plus the plot files as
+bytes (so that a job on another machine can hand them to the driver).
 """
 
 from __future__ import annotations
@@ -19,12 +19,12 @@ from typing import Any
 import numpy as np
 
 from mmg import Effect, Parameters, efd_parameters, get_effect, simulate_batch
-from sweep.cmaes import Settings, State, optimise, restart_table
-from sweep.datasets import split_from_mapping
+from sweep.data.datasets import split_from_mapping
+from sweep.data.objective import OBJECTIVES, Objective, split_recording
+from sweep.data.recordings import Recording, RecordingWarning
 from sweep.diagnose.fit import from_full_vector, full_vector, joint_box
-from sweep.objective import OBJECTIVES, Objective, split_recording
-from sweep.outcome import SUBSETS, JobOutcome, complete_subsets, config_hash, make_job_key
-from sweep.recordings import Recording, RecordingWarning
+from sweep.identification.cmaes import Settings, State, optimise, restart_table
+from sweep.service.outcome import SUBSETS, JobOutcome, complete_subsets, config_hash, make_job_key
 
 #: test-set labels of conf/test/paper.yaml -> metric suffixes
 SUBSET_OF_LABEL = {
@@ -142,7 +142,7 @@ def draw_plots(
     return files
 
 
-Evaluator = Any  # callable thetas -> f with close(); see sweep.workers
+Evaluator = Any  # callable thetas -> f with close(); see sweep.identification.workers
 Status = Callable[[dict[str, float]], None]
 
 

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 from typing import Any, get_args
 
 from mmg import catalog
-from sweep.cmaes import BoundHandling
-from sweep.objective import OBJECTIVES
+from sweep.data.objective import OBJECTIVES
+from sweep.identification.cmaes import BoundHandling
 
 _MISSING = object()
 
@@ -59,7 +59,7 @@ def _name(v: Any) -> bool:
 
 
 def _storage(v: Any) -> bool:
-    from sweep import storage
+    from sweep.service import storage
 
     if not _text(v):
         return False

@@ -1,6 +1,6 @@
 """Local refinement of an identified model: Levenberg-Marquardt on the objective's residuals.
 
-J1, J2 and J3 (:mod:`sweep.objective`) are sums of squares: per subsequence s, observable j and
+J1, J2 and J3 (:mod:`sweep.data.objective`) are sums of squares: per subsequence s, observable j and
 sample k, with trapezoid weights w_k,
 
     J = sum_s sum_j sum_k r_sjk^2,   r_sjk = sqrt(w_k dt) (z_hat_in - z_hat_sim)_sjk
@@ -32,8 +32,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mmg.integrate import simulate_batch
-from sweep.cmaes import Box
-from sweep.objective import CHANNELS, PENALTY_FACTOR, Objective, observables
+from sweep.data.objective import CHANNELS, PENALTY_FACTOR, Objective, observables
+from sweep.identification.cmaes import Box
 
 FloatArray = NDArray[np.float64]
 

@@ -1,8 +1,9 @@
 """The sweep: run many jobs with bounded concurrency, skip finished ones, survive failures.
 
 :func:`run_sweep` is the orchestration, independent of Ray, MLflow and Hydra: it talks to an
-:class:`Executor` (where jobs run: :class:`LocalExecutor` here, ``sweep.raycluster.RayExecutor``
-for Ray) and a tracker (``sweep.tracking``: MLflow, or an in-memory one for tests).
+:class:`Executor` (where jobs run: :class:`LocalExecutor` here,
+``sweep.service.raycluster.RayExecutor`` for Ray) and a tracker (``sweep.service.tracking``: MLflow,
+or an in-memory one for tests).
 
 - One parent run per sweep (reused when the same sweep name runs again); one child run per job.
 - Before anything runs, each job is looked up by its key: a finished job with the same config
@@ -26,12 +27,12 @@ from pathlib import Path
 from typing import Any, Protocol, TextIO
 
 from mmg import efd_parameters
-from sweep import storage
-from sweep.datasets import split_from_mapping
-from sweep.job import JobSpec, job_key, run_job, test_metrics
-from sweep.outcome import JobOutcome
-from sweep.recordings import RecordingWarning
-from sweep.workers import InProcess
+from sweep.data.datasets import split_from_mapping
+from sweep.data.recordings import RecordingWarning
+from sweep.identification.workers import InProcess
+from sweep.service import storage
+from sweep.service.job import JobSpec, job_key, run_job, test_metrics
+from sweep.service.outcome import JobOutcome
 
 
 class Executor(Protocol):

@@ -9,7 +9,7 @@ workers or the split (tested).
 Failure is a value: a candidate whose simulation diverges already costs the objective's penalty;
 a chunk whose evaluation raises (a crashed worker, an unexpected error) is evaluated again
 candidate by candidate in this process, and a candidate that still fails gets
-:attr:`sweep.objective.Objective.max_penalty`. A generation is never lost.
+:attr:`sweep.data.objective.Objective.max_penalty`. A generation is never lost.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from sweep.objective import Objective
+from sweep.data.objective import Objective
 
 FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)

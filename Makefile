@@ -1,8 +1,8 @@
 # Common commands; see README.md.
 PY ?= python
 
-.PHONY: install test test-all lint format typecheck check bench bench-diagnose data sweep smoke ui \
-	diagnose
+.PHONY: install test test-all lint format typecheck check bench bench-peak bench-diagnose data sweep \
+	smoke ui diagnose
 
 install:  ## install the project and its development tools
 	$(PY) -m pip install -e ".[dev]"
@@ -28,6 +28,9 @@ check: lint typecheck test  ## what CI runs
 
 bench:  ## simulator throughput (traj-steps/s) for B = 20, 540, 19440
 	$(PY) benchmarks/throughput.py
+
+bench-peak:  ## simulate and moments throughput as a fraction of ../shared/tools/fma_peak.py
+	PYTHONPATH=. $(PY) benchmarks/peak_fraction.py
 
 bench-diagnose:  ## planted-effect benchmark of the diagnosis (34 cases: catalog, unlisted forms, none; 1-2 h on 2 cores)
 	$(PY) benchmarks/diagnose_planted.py --out benchmarks/out/diagnose

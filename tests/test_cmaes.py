@@ -62,6 +62,24 @@ def test_resumed_run_ends_exactly_like_an_uninterrupted_one(tmp_path):
     assert [r.stop for r in resumed.restarts] == [r.stop for r in full.restarts]
 
 
+def test_a_checkpoint_of_the_old_module_layout_still_resumes(tmp_path):
+    """Checkpoints written when this module was sweep.cmaes (before the subpackages) load."""
+    import pickle
+
+    s = Settings(seed=3, max_evaluations=600, sigma0=0.3)
+    ck = tmp_path / "ck.pkl"
+    optimise(rastrigin, BOX, np.zeros(N), s, checkpoint=ck, stop_after_generations=5)
+    state = load_checkpoint(ck)
+    # protocol 2 names classes as text: write the state as the old layout would have
+    old = pickle.dumps(state, protocol=2).replace(b"sweep.identification.cmaes", b"sweep.cmaes")
+    assert b"sweep.cmaes\n" in old and b"sweep.identification" not in old
+    ck.write_bytes(old)
+    again = load_checkpoint(ck)
+    assert again.evaluations == state.evaluations and type(again) is type(state)
+    full = optimise(rastrigin, BOX, np.zeros(N), s)
+    assert optimise(rastrigin, BOX, np.zeros(N), s, checkpoint=ck).f == full.f
+
+
 def test_checkpoint_with_other_settings_is_refused(tmp_path):
     ck = tmp_path / "ck.pkl"
     optimise(rastrigin, BOX, np.zeros(N), Settings(seed=1, max_evaluations=200), checkpoint=ck)

@@ -194,8 +194,22 @@ def save_checkpoint(state: State, path: str | Path) -> None:
     storage.write_bytes(path, pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
 
 
+#: where checkpoint classes lived before ``sweep`` was grouped into subpackages
+_MOVED_MODULES = {"sweep.cmaes": __name__}
+
+
+class _Unpickler(pickle.Unpickler):
+    """Reads checkpoints written before the move of this module (sweep.cmaes), so that a sweep
+    interrupted under the old layout resumes under the new one."""
+
+    def find_class(self, module: str, name: str) -> Any:
+        return super().find_class(_MOVED_MODULES.get(module, module), name)
+
+
 def load_checkpoint(path: str | Path) -> State:
-    state = pickle.loads(storage.read_bytes(path))
+    import io
+
+    state = _Unpickler(io.BytesIO(storage.read_bytes(path))).load()
     if not isinstance(state, State):
         raise ValueError(f"{path}: not a checkpoint of sweep.identification.cmaes")
     return state

@@ -292,3 +292,25 @@ def test_time_terms_see_the_recordings_clock():
         J_early = Objective([early], "J2", effects=effects).evaluate(p)[0]
         J_late = Objective([late], "J2", effects=effects).evaluate(p)[0]
         assert (abs(J_early - J_late) < 1e-9 * max(J_early, 1e-12)) == same, (J_early, J_late)
+
+
+def test_a_discovered_effect_pickles_into_a_fresh_process():
+    """Ray workers receive effects pickled: a generated effect's module is not on the import
+    path, so it travels by name and search intervals and is rebuilt from the library there."""
+    import pickle
+    import subprocess
+    import sys
+
+    from mmg.discovered import with_bounds
+
+    eff = with_bounds(get_effect("discovered:N_s3b+Y_t"), [0.3, 0.2])
+    code = (
+        "import pickle, sys; e = pickle.loads(sys.stdin.buffer.read()); "
+        "print(e.name, [q.upper for q in e.params], e.force_at is not None)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], input=pickle.dumps(eff), capture_output=True, check=True
+    )
+    assert out.stdout.decode().split() == ["discovered:N_s3b+Y_t", "[0.3,", "0.2]", "True"]
+    catalog_effect = get_effect("current")  # field by field, as before
+    assert pickle.loads(pickle.dumps(catalog_effect)) == catalog_effect

@@ -144,3 +144,15 @@ def with_bounds(effect: Effect, half_widths: Sequence[float]) -> Effect:
         for q, h in zip(effect.params, half_widths, strict=True)
     )
     return replace(effect, params=params)
+
+
+def rebuild(name: str, half_widths: Sequence[float]) -> Effect:
+    """The generated effect ``name`` (``discovered:<terms>``) with coefficient intervals
+    [-h_j, h_j]: how a pickled discovered effect is restored in another process."""
+    if not name.startswith(DISCOVERED_PREFIX):
+        raise ValueError(f"{name!r} is not a discovered effect")
+    effect = discovered_effect(name[len(DISCOVERED_PREFIX) :].split("+"))
+    if all(q.upper == float(h) for q, h in zip(effect.params, half_widths, strict=True)):
+        return effect
+    return with_bounds(effect, half_widths)
+

@@ -155,4 +155,3 @@ def rebuild(name: str, half_widths: Sequence[float]) -> Effect:
     if all(q.upper == float(h) for q, h in zip(effect.params, half_widths, strict=True)):
         return effect
     return with_bounds(effect, half_widths)
-

@@ -38,14 +38,11 @@ def experiment_id(uri: str, experiment: str) -> str | None:
     return MlflowTracker(uri, experiment).experiment_id(create=False)
 
 
-def view_of(uri: str, experiment: str | None) -> str | None:
+def view_of(uri: str, experiment: str) -> str | None:
     """The key of the sweep's saved view when the experiment has it (made by a sweep)."""
-    if experiment is None:
-        return None
     from sweep.service.tracking import SWEEP_VIEW_KEY, MlflowTracker
 
-    tags = MlflowTracker(uri, "").client.get_experiment(experiment).tags
-    return SWEEP_VIEW_KEY if f"mlflow.sharedViewState.{SWEEP_VIEW_KEY}" in tags else None
+    return SWEEP_VIEW_KEY if MlflowTracker(uri, experiment).has_sweep_view() else None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -69,10 +66,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         exp = experiment_id(args.tracking_uri, args.experiment)
+        view = view_of(args.tracking_uri, args.experiment)
     except TrackingError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    url = runs_url(f"http://{args.host}:{args.port}", exp, view_of(args.tracking_uri, exp))
+    url = runs_url(f"http://{args.host}:{args.port}", exp, view)
     print(f"MLflow UI: {url}  (the sweep's runs table; Ctrl-C stops the server)", flush=True)
     env = dict(os.environ, MLFLOW_SERVER_ENABLE_JOB_EXECUTION="false")
     command = [

@@ -486,6 +486,15 @@ class MlflowTracker:
         self._experiment_id = str(exp.experiment_id)
         return self._experiment_id
 
+    def has_sweep_view(self) -> bool:
+        """Whether the tracker's experiment holds the sweep's saved view of the runs table."""
+        exp = self.experiment_id(create=False)
+        if exp is None:
+            return False
+        with self._mlflow_errors():
+            tags = self.client.get_experiment(exp).tags
+        return sweep_view_tag(0)[0] in tags
+
     def _artifact_location(self) -> str | None:
         db = sqlite_path(self.uri)
         if db is None:

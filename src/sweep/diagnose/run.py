@@ -388,13 +388,12 @@ def rank(scores: Sequence[CandidateScore], tie_margin: float = TIE_MARGIN) -> li
 
 
 def heldout_per_window(
-    windows: Sequence[Recording], params: Parameters, effects: tuple[Effect, ...], objective: str
+    windows: Sequence[Recording], params: Parameters, objective: str
 ) -> list[float]:
-    """J of ``params`` on each window (in order)."""
+    """J of ``params`` (with its effects) on each window, in order (:func:`test_table`)."""
     labels = [f"w{i}" for i in range(len(windows))]
-    obj = Objective(windows, objective, labels=labels, effects=effects, ship=params.ship)
-    table = obj.table(params)[objective]
-    return [float(table[lab][0]) for lab in labels]
+    row = test_table(params, windows, labels)[objective]
+    return [row[lab] for lab in labels]
 
 
 def typical_change(J_effect: FloatArray, J_control: FloatArray) -> float:
@@ -671,7 +670,7 @@ def diagnose(
                 lambda fh=fit_half, p0=p0: refit(fh, p0, effs, settings, name),  # type: ignore[misc]
             )
             out_fits.append(res)
-            J_ho += heldout_per_window(held_half, res.params, effs, s.objective)
+            J_ho += heldout_per_window(held_half, res.params, s.objective)
         return out_fits, np.asarray(J_ho)
 
     def score(

@@ -144,6 +144,7 @@ EXPERIMENT_KIND = ("mlflow.experimentKind", "custom_model_development")
 #: the saved view of the runs table that ``python -m sweep.ui`` opens (MLflow keeps saved views
 #: as experiment tags ``mlflow.sharedViewState.<key>``; ``?viewStateShareKey=<key>`` opens one)
 SWEEP_VIEW_KEY = "mmg-sweep-tables"
+SWEEP_VIEW_TAG = f"mlflow.sharedViewState.{SWEEP_VIEW_KEY}"
 SWEEP_VIEW_NAME = "Sweep: test J2, J1, J3 by objective, training set and seed"
 #: the columns of that view: what the question needs, beside the run names
 SWEEP_VIEW_COLUMNS = (
@@ -179,7 +180,7 @@ def sweep_view_tag(now_ms: int | None = None) -> tuple[str, str]:
         "updatedAt": now,
         "state": f"deflate;{packed}",
     }
-    return f"mlflow.sharedViewState.{SWEEP_VIEW_KEY}", json.dumps(value)
+    return SWEEP_VIEW_TAG, json.dumps(value)
 
 
 def job_params(outcome: JobOutcome) -> dict[str, str]:
@@ -493,7 +494,7 @@ class MlflowTracker:
             return False
         with self._mlflow_errors():
             tags = self.client.get_experiment(exp).tags
-        return sweep_view_tag(0)[0] in tags
+        return SWEEP_VIEW_TAG in tags
 
     def _artifact_location(self) -> str | None:
         db = sqlite_path(self.uri)

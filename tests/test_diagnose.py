@@ -229,6 +229,31 @@ def test_rank_breaks_near_ties_of_dbic_by_held_out_improvement():
     assert [x.effect for x in rank([disc, walk, lag])] == ["walk", "discovered:N_nn+Y_nn", "lag"]
 
 
+def test_rank_puts_the_accepted_candidate_that_carries_over_to_held_out_windows_first():
+    """Planted case 35 (a side force building up in time): given both, the position terms fit
+    the training halves a little better (dBIC -1080 against -1015) but improve the typical
+    held-out window by 32 % against the time terms' 62 %. Both pass the threshold: the one
+    that carries over wins. A catalog effect tied on dBIC with a discovered one still goes
+    first, and candidates that are not accepted follow by dBIC."""
+    from sweep.diagnose.run import CandidateScore, rank
+
+    def c(name: str, bic: float, imp: float, accepted: bool = True) -> CandidateScore:
+        return CandidateScore(name, "", "", {}, 1.0, 1.0, imp, bic, accepted=accepted)
+
+    position = c("discovered:N_x+Y_x", -1080.0, 0.319)
+    time_terms = c("discovered:Y_t+N_t", -1015.0, 0.616)
+    const = c("discovered:Y_one+N_one", -364.0, 0.538)
+    bias = c("heading_bias", -54.0, 0.7, accepted=False)
+    got = [x.effect for x in rank([position, time_terms, const, bias])]
+    assert got == [time_terms.effect, const.effect, position.effect, "heading_bias"]
+    # a named effect tied on dBIC (within 5 %) with the held-out leader goes first
+    walk = c("propeller_walk", -2034.0, 0.973)
+    disc = c("discovered:N_nn+Y_nn", -2040.0, 0.977)
+    offset = c("rudder_offset", -1019.0, 0.99)  # not tied: the better held-out wins
+    assert [x.effect for x in rank([disc, walk])] == ["propeller_walk", disc.effect]
+    assert rank([disc, walk, offset])[0].effect == "rudder_offset"
+
+
 def test_held_out_improvement_is_the_typical_window_not_one_outlier():
     """Case 26 of the planted benchmark: the right terms improved 9 of 12 held-out windows, but
     one window that a half's fit threw off (2.1 -> 8.5) made the summed held-out J 67 % worse.

@@ -181,3 +181,50 @@ def test_no_effect_with_coloured_noise_gives_none_and_no_accepted_term(runs, tmp
     traj = report["trajectory_discovery"]
     assert not traj["terms"] or traj["dbic"] > report["acceptance"]["used"]
     assert all(not c["accepted"] for c in report["candidates"])
+
+
+def _equation_data(columns: dict[str, np.ndarray], y: np.ndarray, windows: int, rng):
+    from sweep.diagnose.discover import EquationData
+
+    n = y.size
+    return EquationData(
+        y=y,
+        C=np.stack(list(columns.values()), axis=1),
+        B=rng.normal(size=(n, 3)),
+        groups=np.repeat(np.arange(windows), n // windows),
+        term_ids=list(columns),
+        scale=np.ones(3),
+    )
+
+
+def test_a_time_term_that_fits_nearly_as_well_as_a_position_term_is_proposed_beside_it():
+    """Position and the time in the run drift together over a run: when the residual is a
+    time term's and a position term correlated with it explains it about as well, the
+    selection keeps its best set and proposes the set without position terms beside it; an
+    unrelated term that explains far less is not proposed."""
+    from sweep.diagnose.discover import DiscoverySettings, select
+
+    rng = np.random.default_rng(5)
+    n, windows = 1200, 12
+    drift = np.repeat(rng.normal(size=windows), n // windows)  # a per-window level
+    time_col = drift + 0.05 * rng.normal(size=n)
+    position = drift + 0.05 * rng.normal(size=n)  # the same drift, other wiggles
+    hull = rng.normal(size=n)
+    y = 0.4 * time_col + 0.2 * hull + rng.normal(size=n)
+    data = _equation_data({"Y_x": position, "Y_t": time_col, "Y_vv": hull}, y, windows, rng)
+    sel = select(data, DiscoverySettings(max_terms=2))
+    assert set(sel.terms) >= {"Y_vv"}
+    assert len(sel.alternatives) == 1
+    alt = sel.alternatives[0]
+    other = "Y_t" if "Y_x" in sel.terms else "Y_x"
+    assert other in alt.terms and alt.without in ("position", "time")
+    assert alt.cv_r2 >= 0.8 * sel.cv_r2
+    # without the alternatives (as in the null draws): the same selection, none beside it
+    bare = select(data, DiscoverySettings(max_terms=2), with_alternatives=False)
+    assert bare.terms == sel.terms and bare.alternatives == []
+    # a position term unrelated to the residual's time term: nothing near as good, no alternative
+    data2 = _equation_data(
+        {"Y_x": rng.normal(size=n), "Y_t": time_col, "Y_vv": hull}, y, windows, rng
+    )
+    sel2 = select(data2, DiscoverySettings(max_terms=2))
+    assert "Y_t" in sel2.terms and sel2.alternatives == []

@@ -285,3 +285,35 @@ def test_a_job_identifies_extra_effects_with_the_57_parameters(tmp_path, data_di
     assert c != 0.0 and -1.0 <= c <= 1.0  # moved from neutral, inside its box
     assert np.isfinite(record["metrics"]["test/J2/total"])
     assert child.params["effects"] == '["discovered:N_s3b", "rudder_offset"]'
+
+
+def test_cmaes_polish_refines_the_result_and_reports_it_as_its_own_row(tmp_path, data_dir, efd):
+    """cmaes.polish=3: after the restarts, Levenberg-Marquardt continues from the CMA-ES result.
+    The job keeps the CMA-ES result as its parameters and test row ("J2-R") and reports the
+    refined one beside it ("J2-R+LM", polished_params.json, polish/* metrics), with a training
+    J no higher. A job without it keeps its config (and hash): no polish key."""
+    cfg = _cfg("J2", 0, 60)
+    cfg["data"]["root"] = str(data_dir)
+    cfg["cmaes"]["polish"] = False
+    plain = spec_from_config(cfg, tmp_path / "plain")
+    assert "polish" not in plain.config["cmaes"]
+    cfg["cmaes"]["polish"] = 3
+    spec = spec_from_config(cfg, tmp_path / "polish")
+    assert spec.config["cmaes"]["polish"] == 3 and spec.config_hash != plain.config_hash
+    tracker = NullTracker()
+    summary = run_sweep("polish", [spec], LocalExecutor(plots=False), tracker, efd, tmp_path,
+                        progress=Progress(io.StringIO()))  # fmt: skip
+    assert summary.ok, summary.failed
+    (record,) = tracker.job_outcomes(summary.parent_id)
+    m = record["metrics"]
+    assert m["polish_f"] < m["best_f"]  # 60 CMA-ES evaluations leave LM plenty to gain
+    assert m["polish_evaluations"] > 3 * 57
+    assert record["polish"]["J2"]["total"] == m["polish/J2/total"] != m["test/J2/total"]
+    child = tracker.runs[record["run_id"]]
+    refined = json.loads(child.artifacts["polished_params.json"])
+    assert refined["metadata"]["f_polished"] == pytest.approx(m["polish_f"])
+    assert refined["theta"] != json.loads(child.artifacts["best_params.json"])["theta"]
+    table = summary.tables["J2"]
+    assert list(table.index) == ["EFD", "J2-R", "J2-R+LM"]
+    assert table.loc["J2-R+LM", "Total mean"] == pytest.approx(m["polish/J2/total"])
+    assert table.loc["J2-R", "Total mean"] == pytest.approx(m["test/J2/total"])

@@ -228,6 +228,38 @@ def test_job_outcomes_records(tracker: Tracker) -> None:
     assert first["rejected"] is False and second["rejected"] is True
     assert first["evaluations"] == 25 * 0 + 10 * 20 + 15 * 40
     assert first["f"] == pytest.approx(make_outcome().f)
+    assert first["polish"] == {}
+
+
+def test_a_polished_job_reads_back_as_two_table_rows(tracker: Tracker) -> None:
+    """cmaes.polish: the refined result's test scores go to the store as polish/* metrics and
+    come back as their own row of the summary tables, right after the CMA-ES row."""
+    from sweep.report import summary_tables
+
+    parent = tracker.start_sweep("s", {}, EFD)
+    for seed in (0, 1):
+        out = make_outcome("J2", "R", seed, scale=1.0 + seed)
+        out.polished = {
+            "f_start": out.f,
+            "f": 0.5 * out.f,
+            "evaluations": 250,
+            "iterations": 3,
+            "seconds": 1.0,
+            "params": out.params.to_dict(),
+            "test": scores(0.5 + 0.25 * seed),
+        }
+        tracker.log_job(parent, out, None)
+    records = tracker.job_outcomes(parent)
+    assert [r["polish"] for r in records] == [scores(0.5), scores(0.75)]
+    assert records[0]["metrics"]["polish_f"] == pytest.approx(0.5 * make_outcome().f)
+    table = summary_tables(records, EFD)["J2"]
+    assert list(table.index) == ["EFD", "J2-R", "J2-R+LM"]
+    assert table.loc["J2-R+LM", "Total mean"] == pytest.approx(
+        (scores(0.5)["J2"]["total"] + scores(0.75)["J2"]["total"]) / 2
+    )
+    assert table.loc["J2-R", "Total mean"] == pytest.approx(
+        (scores(1.0)["J2"]["total"] + scores(2.0)["J2"]["total"]) / 2
+    )
 
 
 def test_null_tracker_keeps_artifacts(tmp_path: Path) -> None:

@@ -11,7 +11,7 @@ times U^2, with their |.| forms; third-order ones divided by U_e = sqrt(U^2 + U_
 them finite at rest); propeller terms use n_p D_p; rudder terms delta; wind terms the apparent wind
 scaled to the above-water areas; heading and position terms describe a force fixed to the basin;
 time terms a force that builds up or dies away over a run (polynomials of t / T_ref and
-transients exp(-t / tau) with tau a decade apart).
+transients exp(-t / tau) and 1 - exp(-t / tau) with tau = 100, 300 and 1,000 s).
 ``X_...``, ``Y_...`` and ``N_...`` are the equations the term enters.
 
 Each term is one scalar Python expression, compiled into the hook of a generated effect
@@ -136,9 +136,15 @@ _TERMS: list[Term] = [
     # a force that changes over the run (on the recording's clock)
     *_t("XYN", "t", "t / T_ref", "U_ref^2 t / T_ref", "time"),
     *_t("XYN", "tt", "(t / T_ref) ** 2", "U_ref^2 (t / T_ref)^2", "time"),
-    # ... and a transient after the start of the run (settling, building up), decades of time
+    # ... and a transient after the start of the run, half a decade of time apart: one dying
+    # away (settling) and one building up to a steady level (a circulation developing in the
+    # basin), which is a single term, not a constant minus a decay, for the sparse selection
     *_t("XYN", "e100", "math.exp(-t / 100.0)", "U_ref^2 exp(-t / 100 s)", "time"),
+    *_t("XYN", "e300", "math.exp(-t / 300.0)", "U_ref^2 exp(-t / 300 s)", "time"),
     *_t("XYN", "e1000", "math.exp(-t / 1000.0)", "U_ref^2 exp(-t / 1000 s)", "time"),
+    *_t("XYN", "b100", "1.0 - math.exp(-t / 100.0)", "U_ref^2 (1 - exp(-t / 100 s))", "time"),
+    *_t("XYN", "b300", "1.0 - math.exp(-t / 300.0)", "U_ref^2 (1 - exp(-t / 300 s))", "time"),
+    *_t("XYN", "b1000", "1.0 - math.exp(-t / 1000.0)", "U_ref^2 (1 - exp(-t / 1000 s))", "time"),
     # a steady force fixed to the basin, along x0 or y0, on the ship's axes (Eq. (1)'s rotation)
     Term(
         "E_x0",

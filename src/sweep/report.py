@@ -12,7 +12,9 @@ to DIR and logs them to the sweep's parent run under ``summary/`` (without chang
 An unknown sweep or store exits with status 2 and a one-line message.
 
 Table layout, per objective J used for *evaluation*: rows "EFD", then the (objective, training set)
-cases J1-R, J1-TR, J1-TZR, J2-R, ..., J3-TZR that are present; for each paper column
+cases J1-R, J1-TR, J1-TZR, J2-R, ..., J3-TZR that are present (a sweep with ``cmaes.polish``
+also has the rows J2-R+LM, ...: the same jobs after the Levenberg-Marquardt refinement of their
+CMA-ES result, each right after its CMA-ES row); for each paper column
 (:data:`sweep.service.outcome.COLUMNS`) the mean over seeds, the standard deviation (ddof=1; NaN for
 fewer than two seeds) and the rank of the mean among the cases (1 = lowest; EFD is not ranked),
 then ``n`` (seeds used) and ``rejected`` (seeds removed by the paper's post-filter, never
@@ -69,9 +71,37 @@ def column_name(column: str, stat: str) -> str:
     return f"{column} {stat}"
 
 
-def case_name(objective: str, train: str) -> str:
-    """Row label of an identified case, e.g. "J2-R"."""
-    return f"{objective}-{train}"
+#: row-label suffix of the results after the Levenberg-Marquardt refinement (``cmaes.polish``)
+POLISHED_SUFFIX = "+LM"
+
+
+def case_name(objective: str, train: str, variant: str = "") -> str:
+    """Row label of an identified case, e.g. "J2-R", or "J2-R+LM" for the refined results."""
+    return f"{objective}-{train}{variant}"
+
+
+def _records(outcome: JobOutcome | Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The job's record and, when the job refined its CMA-ES result (``cmaes.polish``), the
+    refined result's record (variant ``+LM``: its own row in the tables)."""
+    main = _record(outcome)
+    if isinstance(outcome, JobOutcome):
+        polished = outcome.polished["test"] if outcome.polished else {}
+    else:
+        polished = dict(outcome.get("polish") or {})
+        if not polished:  # flat metrics "polish/J/subset"
+            flat = {**outcome, **outcome.get("metrics", {})}
+            for key, value in flat.items():
+                parts = str(key).split("/")
+                if len(parts) == 3 and parts[0] == "polish":
+                    polished.setdefault(parts[1], {})[parts[2]] = float(value)
+    if not polished:
+        return [main]
+    refined = {
+        **main,
+        "variant": POLISHED_SUFFIX,
+        "test": {J: complete_subsets(v) for J, v in polished.items()},
+    }
+    return [main, refined]
 
 
 def _record(outcome: JobOutcome | Mapping[str, Any]) -> dict[str, Any]:
@@ -101,21 +131,23 @@ def _record(outcome: JobOutcome | Mapping[str, Any]) -> dict[str, Any]:
     return {
         "objective": str(data["objective"]),
         "train": str(data["train"]),
+        "variant": "",
         "seed": data.get("seed"),
         "rejected": bool(rejected),
         "test": {J: complete_subsets(v) for J, v in test.items()},
     }
 
 
-def _ordered_cases(records: Iterable[Mapping[str, Any]]) -> list[tuple[str, str]]:
-    """(objective, train) pairs present, in the paper's order; others after, sorted."""
-    present = {(r["objective"], r["train"]) for r in records}
+def _ordered_cases(records: Iterable[Mapping[str, Any]]) -> list[tuple[str, str, str]]:
+    """(objective, train, variant) present, in the paper's order (a refined row right after its
+    CMA-ES row); others after, sorted."""
+    present = {(r["objective"], r["train"], r.get("variant", "")) for r in records}
 
-    def order(pair: tuple[str, str]) -> tuple[int, str, int, str]:
-        J, train = pair
+    def order(case: tuple[str, str, str]) -> tuple[int, str, int, str, str]:
+        J, train, variant = case
         j = OBJECTIVE_NAMES.index(J) if J in OBJECTIVE_NAMES else len(OBJECTIVE_NAMES)
         t = TRAIN_NAMES.index(train) if train in TRAIN_NAMES else len(TRAIN_NAMES)
-        return (j, J, t, train)
+        return (j, J, t, train, variant)
 
     return sorted(present, key=order)
 
@@ -130,7 +162,7 @@ def summary_tables(
     (or any mapping with objective, train, rejected and test {J: {subset: value}} or flat
     ``test/{J}/{subset}`` entries). ``efd``: {J: {subset: value}} of the EFD model.
     """
-    records = [_record(o) for o in outcomes]
+    records = [r for o in outcomes for r in _records(o)]
     cases = _ordered_cases(records)
     tables: dict[str, pd.DataFrame] = {}
     for J in OBJECTIVE_NAMES:
@@ -142,8 +174,12 @@ def summary_tables(
                 "n": pd.NA,
                 "rejected": pd.NA,
             }
-        for objective, train in cases:
-            group = [r for r in records if (r["objective"], r["train"]) == (objective, train)]
+        for objective, train, variant in cases:
+            group = [
+                r
+                for r in records
+                if (r["objective"], r["train"], r.get("variant", "")) == (objective, train, variant)
+            ]
             kept = [r["test"][J] for r in group if not r["rejected"] and J in r["test"]]
             row: dict[str, Any] = {}
             for s in SUBSETS:
@@ -154,7 +190,7 @@ def summary_tables(
                 )
             row["n"] = len(kept)
             row["rejected"] = sum(r["rejected"] for r in group)
-            rows[case_name(objective, train)] = row
+            rows[case_name(objective, train, variant)] = row
         tables[J] = _finish_table(rows)
     return tables
 
@@ -269,6 +305,14 @@ def job_note(outcome: JobOutcome, efd: ScoreTable) -> str:
         + (f"; resubmitted {outcome.retries} time(s) after a loss" if outcome.retries else ""),
         "",
     ]
+    if outcome.polished:
+        pol = outcome.polished
+        lines += [
+            f"Refined by Levenberg-Marquardt (`cmaes.polish`): training {outcome.objective} "
+            f"{pol['f_start']:.4g} -> {pol['f']:.4g} in {pol['iterations']} iterations, "
+            f'{pol["evaluations"]:,} evaluations ({pol["seconds"]:.0f} s); row "+ LM" below.',
+            "",
+        ]
     for J in OBJECTIVE_NAMES:
         if J not in outcome.test:
             continue
@@ -280,6 +324,11 @@ def job_note(outcome: JobOutcome, efd: ScoreTable) -> str:
             head,
             rule,
             "| this job | " + " | ".join(_num(mine.get(s)) for s in SUBSETS) + " |",
+            *(
+                ["| + LM | " + " | ".join(_num(lm.get(s)) for s in SUBSETS) + " |"]
+                if (lm := complete_subsets((outcome.polished or {}).get("test", {}).get(J, {})))
+                else []
+            ),
             "| EFD | " + " | ".join(_num(ref.get(s)) for s in SUBSETS) + " |",
             "",
         ]

@@ -24,6 +24,13 @@ the catalog's effects by the same rules (:mod:`sweep.diagnose.run`).
    neighbouring samples are not), then the next, up to ``max_terms``, while each step adds at
    least ``min_gain`` times the held-out R^2 reached so far. The statistic is the held-out R^2
    of the selection.
+4b. **Alternatives.** Heading, position and the time in the run drift together over a few
+   windows (the ship crosses the basin as the run goes on), so the equation residual cannot
+   always tell a force fixed to the basin from one that builds up in time, and both explain the
+   training windows about equally. For every such kind of variable in the selection, the
+   selection is repeated without the terms of that kind; a set that reaches at least
+   ``alternative_ratio`` of the held-out R^2 is proposed beside it (up to ``alternatives``), and
+   the trajectory fits decide which carries over to windows they were not fitted to.
 5. **Calibration on a null.** The base model is simulated on the same windows with noise of the
    estimated level and colour (:mod:`sweep.diagnose.floor`) and the *same* procedure run on
    each such recording set: the statistic's distribution when nothing is missing. The terms are
@@ -66,6 +73,13 @@ class DiscoverySettings:
     null_draws: int = 19
     alpha: float = 0.05
     terms: tuple[str, ...] = ()  # library terms searched (empty: all)
+    alternatives: int = 2  # further term sets proposed without one kind of variable (step 4b)
+    alternative_ratio: float = 0.8  # ... when they reach this share of the held-out R^2
+
+
+#: kinds of library terms that describe where and when, not how the ship moves: they drift
+#: together over a run and are the ones step 4b swaps
+EXOGENOUS_KINDS = ("heading", "position", "time")
 
 
 @dataclass
@@ -163,6 +177,18 @@ class Selection:
     path: list[dict[str, float | str]]
     absorbed: dict[str, float]
     single: list[dict[str, float | str]]  # every term alone: held-out R^2, absorbed fraction
+    #: step 4b: term sets without one kind of variable that explain nearly as much
+    alternatives: list[Alternative] = field(default_factory=list)
+
+
+@dataclass
+class Alternative:
+    """A term set selected without the terms of one kind (``without``), step 4b."""
+
+    terms: list[str]
+    coefficients: list[float]
+    cv_r2: float
+    without: str
 
 
 def _cv_r2(y: FloatArray, X: FloatArray, folds: list[NDArray[np.bool_]]) -> float:
@@ -225,8 +251,11 @@ def regression_view(data: EquationData, terms: Sequence[str], bins: int = 10) ->
     return out
 
 
-def select(data: EquationData, settings: DiscoverySettings) -> Selection:
-    """Project out the base regressors, then forward stepwise selection by held-out R^2."""
+def select(
+    data: EquationData, settings: DiscoverySettings, with_alternatives: bool = True
+) -> Selection:
+    """Project out the base regressors, then forward stepwise selection by held-out R^2 (and,
+    with ``with_alternatives``, the alternatives of step 4b)."""
     y, C = _projected(data)
     norm0 = np.sum(data.C * data.C, axis=0)
     norm = np.sum(C * C, axis=0)
@@ -245,8 +274,48 @@ def select(data: EquationData, settings: DiscoverySettings) -> Selection:
             }
         )
     single.sort(key=lambda r: r["cv_r2"], reverse=True)
+    chosen, best, steps = _forward(y, C, usable, folds, settings)
+    names = [data.term_ids[k] for k in chosen]
+    path: list[dict[str, float | str]] = [
+        {"term": data.term_ids[k], "cv_r2": r2} for k, r2 in steps
+    ]
+    alternatives: list[Alternative] = []
+    if with_alternatives and chosen:
+        seen = {frozenset(names)}
+        for kind in EXOGENOUS_KINDS:
+            if len(alternatives) >= settings.alternatives:
+                break
+            if all(term(n).kind != kind for n in names):
+                continue
+            rest = [k for k in usable if term(data.term_ids[k]).kind != kind]
+            alt, r2, _steps = _forward(y, C, rest, folds, settings)
+            alt_names = [data.term_ids[k] for k in alt]
+            if not alt or r2 < settings.alternative_ratio * best or frozenset(alt_names) in seen:
+                continue
+            seen.add(frozenset(alt_names))
+            alternatives.append(Alternative(alt_names, _coefficients(y, C, alt), r2, kind))
+    return Selection(
+        terms=names,
+        coefficients=_coefficients(y, C, chosen),
+        cv_r2=best,
+        path=path,
+        absorbed={data.term_ids[k]: float(absorbed[k]) for k in chosen},
+        single=single[:12],
+        alternatives=alternatives,
+    )
+
+
+def _forward(
+    y: FloatArray,
+    C: FloatArray,
+    usable: Sequence[int],
+    folds: list[NDArray[np.bool_]],
+    settings: DiscoverySettings,
+) -> tuple[list[int], float, list[tuple[int, float]]]:
+    """Forward stepwise selection among the columns ``usable`` (step 4): (chosen columns, their
+    held-out R^2, the path as (column, held-out R^2) per step)."""
     chosen: list[int] = []
-    path: list[dict[str, float | str]] = []
+    path: list[tuple[int, float]] = []
     best = 0.0
     for _ in range(settings.max_terms):
         trials = [(_cv_r2(y, C[:, [*chosen, k]], folds), k) for k in usable if k not in chosen]
@@ -257,19 +326,16 @@ def select(data: EquationData, settings: DiscoverySettings) -> Selection:
             break
         chosen.append(k)
         best = r2
-        path.append({"term": data.term_ids[k], "cv_r2": r2})
-    coefs: list[float] = []
-    if chosen:
-        beta, *_ = np.linalg.lstsq(C[:, chosen], y, rcond=None)
-        coefs = [float(b) for b in beta]
-    return Selection(
-        terms=[data.term_ids[k] for k in chosen],
-        coefficients=coefs,
-        cv_r2=best,
-        path=path,
-        absorbed={data.term_ids[k]: float(absorbed[k]) for k in chosen},
-        single=single[:12],
-    )
+        path.append((k, r2))
+    return chosen, best, path
+
+
+def _coefficients(y: FloatArray, C: FloatArray, chosen: Sequence[int]) -> list[float]:
+    """Joint least-squares coefficients of the columns ``chosen``."""
+    if not chosen:
+        return []
+    beta, *_ = np.linalg.lstsq(C[:, list(chosen)], y, rcond=None)
+    return [float(b) for b in beta]
 
 
 @dataclass
@@ -290,9 +356,21 @@ class Proposal:
 
     def effect(self, widen: float = 4.0) -> Effect:
         """The generated effect of the proposed terms, its box +-``widen`` x the estimate."""
-        eff = discovered_effect(self.selection.terms)
-        half = [max(widen * abs(c), 1e-6) for c in self.selection.coefficients]
-        return with_bounds(eff, half)
+        return _boxed(self.selection.terms, self.selection.coefficients, widen)
+
+    def effects(self, widen: float = 4.0) -> list[Effect]:
+        """The proposed effect and its alternatives (step 4b), each boxed like :meth:`effect`;
+        none when nothing is proposed."""
+        if not self.proposed:
+            return []
+        alts = [_boxed(a.terms, a.coefficients, widen) for a in self.selection.alternatives]
+        return [self.effect(widen), *alts]
+
+
+def _boxed(terms: Sequence[str], coefficients: Sequence[float], widen: float) -> Effect:
+    """The generated effect of ``terms``, its box +-``widen`` x the equation-level estimates."""
+    half = [max(widen * abs(c), 1e-6) for c in coefficients]
+    return with_bounds(discovered_effect(terms), half)
 
 
 def null_sets(
@@ -337,7 +415,7 @@ def discover(
     view = regression_view(data, shown)
     null: list[float] = []
     for recs in null_sets(params, windows, noise, rng, s.null_draws):
-        null.append(select(equation_data(params, recs, s), s).cv_r2)
+        null.append(select(equation_data(params, recs, s), s, with_alternatives=False).cv_r2)
     threshold = float(np.quantile(null, 1.0 - s.alpha)) if null else 0.0
     proposed = bool(sel.terms) and sel.cv_r2 > threshold
     if log is not None:
@@ -346,6 +424,11 @@ def discover(
             f"the held-out equation residual (null {1 - s.alpha:.0%} quantile "
             f"{100 * threshold:.1f} %) -> {'proposed' if proposed else 'not proposed'}"
         )
+        for a in sel.alternatives if proposed else []:
+            log(
+                f"discovery, alternative without {a.without} terms: {' + '.join(a.terms)} "
+                f"explains {100 * a.cv_r2:.1f} % -> proposed beside it"
+            )
     return Proposal(
         sel, threshold, null, s.alpha, proposed, time.perf_counter() - t0, {"regression": view}
     )

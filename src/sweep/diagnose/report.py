@@ -194,6 +194,7 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
                 "absorbed": prop.selection.absorbed,
                 "path": prop.selection.path,
                 "single_terms": prop.selection.single,
+                "alternatives": [asdict(a) for a in prop.selection.alternatives],
                 "regression": {
                     "terms": prop.extra.get("regression", {}).get("terms", []),
                     "channels": [
@@ -406,6 +407,13 @@ def _discovery_md(d: Diagnosis) -> list[str]:
         f"{', '.join(f'{100 * v:.2f}' for v in sorted(p.null))} %) -> "
         + ("proposed as a candidate." if p.proposed else "not proposed."),
         "",
+        *(
+            f"Alternative without the {a.without} terms: {' + '.join(a.terms)}, held-out R^2 "
+            f"{100 * a.cv_r2:.2f} %"
+            + (" (proposed beside it; the trajectories decide)." if p.proposed else ".")
+            for a in sel.alternatives
+        ),
+        *([""] if sel.alternatives else []),
         "| term (alone) | force | held-out R^2 | absorbed by the base |",
         "|---|---|---:|---:|",
     ]

@@ -42,21 +42,22 @@ Procedure (:func:`diagnose`), all on the training recordings unless said otherwi
    ``1 - exp(mean over held-out windows of ln(J_ho(effect) / J_ho(control)))`` (a geometric
    mean of the per-window ratios: one window that a half's fit throws off, for control or
    candidate alike, cannot decide it; the change of the summed held-out J is reported beside).
-5. Verdict: the candidate with the lowest dBIC (among candidates tied with it, see
-   :data:`TIE_MARGIN`, the one with the best held-out improvement), if dBIC is at most the
-   acceptance threshold and its held-out improvement >= ``min_improvement``; otherwise
-   ``unexplained`` when the misfit test (:mod:`sweep.diagnose.floor`) finds the base model
-   significantly above the noise floor, ``none`` when it does not. The threshold is calibrated
-   on the data at hand (:mod:`sweep.diagnose.threshold`): the ``alpha`` quantile of the best
-   candidate's dBIC over noise-only copies of the training windows, with the fold fits
-   linearised, capped at -10 (``--max-delta-bic`` sets it by hand instead). The held-out
-   improvement is noisy, because refitting 57 parameters on half the windows moves them along
-   directions that half does not constrain, so it is a veto against an effect that makes unseen
-   windows clearly worse and a tie-breaker, not the ranking.
-   Discovery adds up to two candidates before the fits: terms of the library proposed from
-   the equation-level residuals (:mod:`sweep.diagnose.discover`) and terms selected on the
-   trajectory residuals by the same linearised fits (:meth:`Linearised.select`), each only
-   beyond its own null at ``alpha``.
+5. Verdict. A candidate is *accepted* when its dBIC is at most the acceptance threshold and its
+   held-out improvement >= ``min_improvement`` (a veto against an effect that makes a typical
+   unseen window clearly worse). The threshold is calibrated on the data at hand
+   (:mod:`sweep.diagnose.threshold`): the ``alpha`` quantile of the best candidate's dBIC over
+   noise-only copies of the training windows, with the fold fits linearised, capped at -10
+   (``--max-delta-bic`` sets it by hand instead). Among accepted candidates the best held-out
+   improvement wins (:func:`rank`; a catalog effect tied on dBIC with a discovered one goes
+   first): acceptance says something is there, the windows a fit has not seen say which form
+   carries over. With no accepted candidate the verdict is ``unexplained`` when the misfit test
+   (:mod:`sweep.diagnose.floor`) finds the base model significantly above the noise floor,
+   ``none`` when it does not.
+   Discovery adds candidates before the fits: terms of the library proposed from the
+   equation-level residuals (:mod:`sweep.diagnose.discover`; with up to two alternatives
+   without the heading, position or time terms of the proposal, step 4b there) and terms
+   selected on the trajectory residuals by the same linearised fits
+   (:meth:`Linearised.select`), each only beyond its own null at ``alpha``.
 6. Re-identification on all training windows (``final_budget`` CMA-ES evaluations, then the
    refinement) of the base model plus the chosen effect (from the candidate's better fold fit
    and from the base plus the effect's values; the better end wins), and of the base model
@@ -174,6 +175,8 @@ class DiagnoseSettings:
     #: propose terms from the library (:mod:`sweep.diagnose.discover`) as one more candidate
     discover: bool = True
     discover_terms: int = DiscoverySettings.max_terms
+    #: further term sets proposed without the proposal's heading, position or time terms
+    discover_alternatives: int = DiscoverySettings.alternatives
     null_draws: int = DiscoverySettings.null_draws
     #: false-alarm rate of the discovery's proposal and of the acceptance threshold
     alpha: float = DiscoverySettings.alpha
@@ -190,7 +193,14 @@ class DiagnoseSettings:
         # thresholds decide the verdict only: stages fitted under other thresholds are reused
         # (the misfit test's margin and draws stay in: they decide whether the base gets a
         # second start, and every later stage starts from the base)
-        skip = ("workers", "min_improvement", "max_delta_bic", "tie_margin")
+        # (the alternatives only add candidates, each with its own stages)
+        skip = (
+            "workers",
+            "min_improvement",
+            "max_delta_bic",
+            "tie_margin",
+            "discover_alternatives",
+        )
         data = {k: v for k, v in asdict(self).items() if k not in skip}
         data["procedure"] = PROCEDURE_VERSION  # stages of an older procedure are not reused
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]
@@ -371,20 +381,41 @@ class Diagnosis:
 
 
 def rank(scores: Sequence[CandidateScore], tie_margin: float = TIE_MARGIN) -> list[CandidateScore]:
-    """Candidates by dBIC, except that those tied with the best (dBIC within
-    ``max(TIE_ABSOLUTE, tie_margin x |best|)``) come first: accepted ones before the others, a
-    catalog effect before generated (discovered) terms that fit as well (named physics over a
-    generic form: n_p|n_p| terms imitate a propeller walk), then by held-out improvement."""
-    by_bic = sorted(scores, key=lambda c: c.delta_bic)
+    """The order of the verdict.
+
+    Accepted candidates come first, by the typical held-out improvement: acceptance (dBIC
+    against the control, at the calibrated threshold) says an effect is there; between effects
+    that each pass, the one that predicts windows it was not fitted to decides (a force fixed to
+    the basin and one that builds up in time can fit the training windows nearly alike and part
+    on the others). One exception: a catalog effect whose dBIC is tied with a generated
+    (discovered) one's goes before it (named physics over a generic form that fits as well:
+    n_p|n_p| terms imitate a propeller walk).
+
+    The others follow by dBIC, except that those tied with the best (dBIC within
+    ``max(TIE_ABSOLUTE, tie_margin x |best|)``) come first, by held-out improvement."""
+
+    def tied(a: CandidateScore, b: CandidateScore) -> bool:
+        margin = max(TIE_ABSOLUTE, tie_margin * max(abs(a.delta_bic), abs(b.delta_bic)))
+        return abs(a.delta_bic - b.delta_bic) <= margin
+
+    accepted = sorted((c for c in scores if c.accepted), key=lambda c: -c.improvement)
+    if accepted:
+        lead = accepted[0]
+        if lead.effect.startswith(DISCOVERED_PREFIX):
+            named = [
+                c for c in accepted if not c.effect.startswith(DISCOVERED_PREFIX) and tied(c, lead)
+            ]
+            if named:
+                accepted.remove(named[0])
+                accepted.insert(0, named[0])
+    by_bic = sorted((c for c in scores if not c.accepted), key=lambda c: c.delta_bic)
     if not by_bic:
-        return []
+        return accepted
     best = by_bic[0].delta_bic
     margin = max(TIE_ABSOLUTE, tie_margin * abs(best)) if math.isfinite(best) else 0.0
-    tied = [c for c in by_bic if c.delta_bic - best <= margin]
-    tied.sort(
-        key=lambda c: (not c.accepted, c.effect.startswith(DISCOVERED_PREFIX), -c.improvement)
-    )
-    return tied + [c for c in by_bic if c not in tied]
+    head = [c for c in by_bic if c.delta_bic - best <= margin]
+    head.sort(key=lambda c: (c.effect.startswith(DISCOVERED_PREFIX), -c.improvement))
+    return accepted + head + [c for c in by_bic if c not in head]
 
 
 def heldout_per_window(
@@ -607,11 +638,17 @@ def diagnose(
             windows,
             noise,
             np.random.default_rng(s.seed + 13),
-            DiscoverySettings(max_terms=s.discover_terms, null_draws=s.null_draws, alpha=s.alpha),
+            DiscoverySettings(
+                max_terms=s.discover_terms,
+                null_draws=s.null_draws,
+                alpha=s.alpha,
+                alternatives=s.discover_alternatives,
+            ),
             log=log,
         )
-        if proposal.proposed:
-            extra_effects.append(proposal.effect())
+        for eff in proposal.effects():  # the proposal and its alternatives (step 4b)
+            if all(e.name != eff.name for e in extra_effects):
+                extra_effects.append(eff)
     trajectory: TrajectorySelection | None = None
     if s.discover:
         # discovery in trajectory space: the library terms that explain most of the base's
@@ -713,7 +750,17 @@ def diagnose(
     # refinement: the leading candidates and the control, each continued from its fold fits
     # with more Levenberg-Marquardt iterations (a joint fit that must undo what the base had
     # absorbed can still be descending after the first iterations)
+    threshold = null.threshold if s.max_delta_bic is None else s.max_delta_bic
     leaders = [c.effect for c in sorted(scores, key=lambda c: c.delta_bic)[: s.refine_top]]
+    # ... and every discovered candidate that passes the threshold already: a proposal's
+    # alternatives compete on the held-out windows, so each needs its refined score
+    leaders += [
+        c.effect
+        for c in scores
+        if c.effect.startswith(DISCOVERED_PREFIX)
+        and c.delta_bic <= threshold
+        and c.effect not in leaders
+    ]
     if s.refine_top > 0 and s.refine_iterations > 0:
         control_folds, J_ho_control = folds("control-refined", (), refine_settings, control_folds)
         by_name = {e.name: e for e in effects}
@@ -730,7 +777,6 @@ def diagnose(
             refined.append(c)
         others = [c for c in scores if c.effect not in leaders]
         scores = refined + others
-    threshold = null.threshold if s.max_delta_bic is None else s.max_delta_bic
     log(
         f"acceptance: dBIC <= {threshold:.1f} ("
         + (

@@ -24,6 +24,7 @@ from sweep.data.objective import OBJECTIVES, Objective, split_recording
 from sweep.data.recordings import Recording, RecordingWarning
 from sweep.diagnose.fit import from_full_vector, full_vector, joint_box
 from sweep.identification.cmaes import Settings, State, optimise, restart_table
+from sweep.identification.polish import LAMBDA_TRIALS, PolishSettings, polish
 from sweep.service.outcome import SUBSETS, JobOutcome, complete_subsets, config_hash, make_job_key
 
 #: test-set labels of conf/test/paper.yaml -> metric suffixes
@@ -67,6 +68,19 @@ class JobSpec:
 def job_key(objective: str, train: str, seed: int) -> str:
     """The stable key of a job: ``objective=J2,seed=0,train=R`` (sorted like Hydra's dirs)."""
     return make_job_key(objective=objective, train=train, seed=seed)
+
+
+#: Levenberg-Marquardt iterations of ``cmaes.polish=true``
+POLISH_ITERATIONS = 100
+
+
+def polish_iterations(config: Mapping[str, Any]) -> int:
+    """Iterations of the refinement after CMA-ES: ``cmaes.polish`` true (the default number),
+    a count, or false / 0 / absent (none: the paper's pure CMA-ES)."""
+    value = config.get("cmaes", {}).get("polish", False)
+    if isinstance(value, bool):
+        return POLISH_ITERATIONS if value else 0
+    return int(value)
 
 
 def settings_of(config: Mapping[str, Any], seed: int) -> Settings:
@@ -189,6 +203,31 @@ def run_job(
         evaluator.close()
     sim_seconds = float(getattr(evaluator, "sim_seconds", 0.0))
     best = from_full_vector(result.theta, efd_parameters(), effects)
+    polished: dict[str, Any] | None = None
+    iterations = polish_iterations(cfg)
+    if iterations > 0:
+        # Levenberg-Marquardt from the CMA-ES result (deterministic: a job resumed after an
+        # interruption repeats it from the same checkpointed result)
+        lm = polish(
+            objective,
+            box,
+            result.theta,
+            PolishSettings(
+                max_iterations=iterations,
+                rtol=1e-4,
+                max_evaluations=iterations * (box.lower.size + 1 + len(LAMBDA_TRIALS)) + 1,
+            ),
+        )
+        refined = from_full_vector(lm.theta, efd_parameters(), effects)
+        polished = {
+            "f_start": lm.f_start,
+            "f": lm.f,
+            "evaluations": lm.evaluations,
+            "iterations": lm.iterations,
+            "seconds": lm.seconds,
+            "params": refined.to_dict(),
+            "test": test_metrics(refined, test, effects),
+        }
     outcome = JobOutcome(
         job_key=spec.key,
         objective=spec.objective,
@@ -206,6 +245,7 @@ def run_job(
         history=result.history,
         test=test_metrics(best, test, effects),
         sim_seconds=sim_seconds,
+        polished=polished,
     )
     files = draw_plots(result.history, best, test, spec.key) if plots else {}
     return outcome, files

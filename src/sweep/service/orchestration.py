@@ -126,7 +126,8 @@ def spec_from_config(cfg: Mapping[str, Any], job_dir: Path) -> JobSpec:
         "train": dict(cfg["train"]),
         "test": dict(cfg["test"]),
         "budget": dict(cfg["budget"]),
-        "cmaes": dict(cfg["cmaes"]),
+        # cmaes.polish only when on: plain jobs keep their configs (and hashes)
+        "cmaes": {k: v for k, v in dict(cfg["cmaes"]).items() if k != "polish" or v},
         "seed": seed,
     }
     if cfg.get("effects"):  # only when set: plain jobs keep their configs (and hashes)

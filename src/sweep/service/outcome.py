@@ -78,6 +78,10 @@ class JobOutcome:
     test: ScoreTable = field(default_factory=dict)  # {J: {subset: value}}
     sim_seconds: float = 0.0  # time spent evaluating the objective (simulator), all workers
     retries: int = 0  # resubmissions after the job was lost to the infrastructure
+    #: ``cmaes.polish``: the Levenberg-Marquardt refinement of the CMA-ES result (``params`` and
+    #: ``test`` above stay the CMA-ES result): f_start, f, evaluations, iterations, seconds,
+    #: params (:meth:`Parameters.to_dict`), test {J: {subset: value}}; None without it
+    polished: dict[str, Any] | None = None
 
 
 def _plain(value: Any) -> Any:
@@ -129,8 +133,13 @@ def make_job_key(**fields: Any) -> str:
 
 
 def metric_name(kind: str, objective: str, subset: str) -> str:
-    """``metric_name("test", "J2", "B")`` -> "test/J2/B"; kind "test" (a job) or "efd" (sweep)."""
-    if kind not in ("test", "efd") or objective not in OBJECTIVE_NAMES or subset not in SUBSETS:
+    """``metric_name("test", "J2", "B")`` -> "test/J2/B"; kind "test" (a job), "polish" (the job
+    after its refinement, ``cmaes.polish``) or "efd" (sweep)."""
+    if (
+        kind not in ("test", "polish", "efd")
+        or objective not in OBJECTIVE_NAMES
+        or subset not in SUBSETS
+    ):
         raise ValueError(f"no metric {kind}/{objective}/{subset}")
     return f"{kind}/{objective}/{subset}"
 

@@ -140,6 +140,12 @@ RULES: tuple[Rule, ...] = (
         "an integer >= 4 (the first restart's population)",
     ),
     Rule("cmaes.popsize_max", _positive_int, "a positive integer >= cmaes.popsize_start"),
+    Rule(
+        "cmaes.polish",
+        lambda v: isinstance(v, bool) or (_is_int(v) and v >= 0),
+        "true, false or a number of Levenberg-Marquardt iterations >= 0 (after CMA-ES)",
+        required=False,
+    ),
     Rule("sweep.name", _name, "a non-empty name without '/' (the MLflow parent run)"),
     Rule(
         "sweep.allow_config_change",

@@ -38,6 +38,7 @@ from mlflow import MlflowClient
 from mlflow.entities import Metric, Param, Run, ViewType
 from mlflow.exceptions import MlflowException
 
+from mmg import Parameters
 from sweep.report import job_note, sweep_note
 from sweep.service.outcome import (
     OBJECTIVE_NAMES,
@@ -274,6 +275,22 @@ def outcome_metrics(outcome: JobOutcome) -> dict[str, float]:
         for s in SUBSETS
         if s in outcome.test[J]
     }
+    if outcome.polished:
+        pol = outcome.polished
+        metrics.update(
+            {
+                metric_name("polish", J, s): float(pol["test"][J][s])
+                for J in OBJECTIVE_NAMES
+                if J in pol["test"]
+                for s in SUBSETS
+                if s in pol["test"][J]
+            }
+        )
+        metrics.update(
+            polish_f=float(pol["f"]),
+            polish_evaluations=float(pol["evaluations"]),
+            polish_seconds=float(pol["seconds"]),
+        )
     metrics.update(
         best_f=float(outcome.f),
         evaluations=float(outcome.evaluations),
@@ -319,6 +336,15 @@ def write_job_artifacts(outcome: JobOutcome, out: Path) -> list[Path]:
         for effect, params in values["effects"].items():
             writer.writerows((f"{effect}.{k}", repr(float(v))) for k, v in params.items())
     pd.DataFrame(outcome.history).to_csv(paths[2], index=False)
+    if outcome.polished:  # the refined parameters beside the CMA-ES result
+        refined = out / "polished_params.json"
+        Parameters.from_dict(outcome.polished["params"]).save_json(
+            refined,
+            **meta,
+            f_cmaes=outcome.polished["f_start"],
+            f_polished=outcome.polished["f"],
+        )
+        paths.append(refined)
     for name, data in (("restarts.json", outcome.restarts), ("config.json", outcome.config)):
         path = out / name
         path.write_text(json.dumps(data, indent=2, sort_keys=True, default=str) + "\n")
@@ -332,7 +358,8 @@ def outcome_record(
     """A finished job as the report reads it.
 
     Keys: run_id, job_key, objective, train, seed (int), config_hash, stop_reason, f,
-    evaluations (int), seconds, rejected (bool), test ({J: {subset: value}}), metrics (all).
+    evaluations (int), seconds, rejected (bool), test ({J: {subset: value}}), polish (the same
+    after the refinement of ``cmaes.polish``; empty without it), metrics (all).
     """
     return {
         "run_id": run_id,
@@ -347,6 +374,7 @@ def outcome_record(
         "seconds": float(metrics.get("seconds", float("nan"))),
         "rejected": bool(metrics.get("rejected", 0.0)),
         "test": scores_from_metrics(metrics, "test"),
+        "polish": scores_from_metrics(metrics, "polish"),
         "metrics": dict(metrics),
     }
 

@@ -229,29 +229,22 @@ def test_rank_breaks_near_ties_of_dbic_by_held_out_improvement():
     assert [x.effect for x in rank([disc, walk, lag])] == ["walk", "discovered:N_nn+Y_nn", "lag"]
 
 
-def test_rank_puts_the_accepted_candidate_that_carries_over_to_held_out_windows_first():
-    """Planted case 35 (a side force building up in time): given both, the position terms fit
-    the training halves a little better (dBIC -1080 against -1015) but improve the typical
-    held-out window by 32 % against the time terms' 62 %. Both pass the threshold: the one
-    that carries over wins. A catalog effect tied on dBIC with a discovered one still goes
-    first, and candidates that are not accepted follow by dBIC."""
+def test_rank_keeps_the_dbic_winner_among_accepted_candidates_whatever_the_held_out_order():
+    """The real Train-R recordings: N_s3b (dBIC -68.1, typical held-out window +0.4 %) against
+    position terms N_x + N_var + Y_dnn (dBIC -56.7, +12.9 %), both accepted. Ranked by the
+    held-out windows the position terms won and made the test set 11 % worse (2757 -> 3051);
+    the dBIC winner makes it 2 % better. Outside the tie margin dBIC decides."""
     from sweep.diagnose.run import CandidateScore, rank
 
-    def c(name: str, bic: float, imp: float, accepted: bool = True) -> CandidateScore:
-        return CandidateScore(name, "", "", {}, 1.0, 1.0, imp, bic, accepted=accepted)
+    def c(name: str, bic: float, imp: float) -> CandidateScore:
+        return CandidateScore(name, "", "", {}, 1.0, 1.0, imp, bic, accepted=True)
 
-    position = c("discovered:N_x+Y_x", -1080.0, 0.319)
-    time_terms = c("discovered:Y_t+N_t", -1015.0, 0.616)
-    const = c("discovered:Y_one+N_one", -364.0, 0.538)
-    bias = c("heading_bias", -54.0, 0.7, accepted=False)
-    got = [x.effect for x in rank([position, time_terms, const, bias])]
-    assert got == [time_terms.effect, const.effect, position.effect, "heading_bias"]
-    # a named effect tied on dBIC (within 5 %) with the held-out leader goes first
-    walk = c("propeller_walk", -2034.0, 0.973)
-    disc = c("discovered:N_nn+Y_nn", -2040.0, 0.977)
-    offset = c("rudder_offset", -1019.0, 0.99)  # not tied: the better held-out wins
-    assert [x.effect for x in rank([disc, walk])] == ["propeller_walk", disc.effect]
-    assert rank([disc, walk, offset])[0].effect == "rudder_offset"
+    s3b = c("discovered:N_s3b", -68.1, 0.004)
+    position = c("discovered:N_x+N_var+Y_dnn", -56.7, 0.129)
+    assert [x.effect for x in rank([position, s3b])] == [s3b.effect, position.effect]
+    # within the margin (here the absolute 10), the held-out windows decide
+    close = c("discovered:N_x+N_var+Y_dnn", -60.0, 0.129)
+    assert [x.effect for x in rank([s3b, close])] == [close.effect, s3b.effect]
 
 
 def test_held_out_improvement_is_the_typical_window_not_one_outlier():

@@ -301,11 +301,16 @@ def test_cmaes_polish_refines_the_result_and_reports_it_as_its_own_row(tmp_path,
     spec = spec_from_config(cfg, tmp_path / "polish")
     assert spec.config["cmaes"]["polish"] == 3 and spec.config_hash != plain.config_hash
     tracker = NullTracker()
-    summary = run_sweep("polish", [spec], LocalExecutor(plots=False), tracker, efd, tmp_path,
+    executor = LocalExecutor(plots=False)
+    summary = run_sweep("polish", [spec], executor, tracker, efd, tmp_path,
                         progress=Progress(io.StringIO()))  # fmt: skip
     assert summary.ok, summary.failed
     (record,) = tracker.job_outcomes(summary.parent_id)
     m = record["metrics"]
+    # the job's last status is the refinement's (the progress display shows its iterations)
+    last = executor.status(0)
+    assert last is not None and 1 <= last["lm_iteration"] <= last["lm_iterations"] == 3
+    assert last["lm_f"] == pytest.approx(m["polish_f"]) and last["evaluations"] == 60
     assert m["polish_f"] < m["best_f"]  # 60 CMA-ES evaluations leave LM plenty to gain
     assert m["polish_evaluations"] > 3 * 57
     assert record["polish"]["J2"]["total"] == m["polish/J2/total"] != m["test/J2/total"]

@@ -185,9 +185,24 @@ def run_job(
     if spec.checkpoint is None:  # with a storage URI the job needs no directory on its node
         spec.job_dir.mkdir(parents=True, exist_ok=True)
 
+    last: dict[str, float] = {}
+
     def progress(state: State, row: dict[str, float]) -> None:
+        last.update(row)
         if status is not None:
             status({**row, "budget": float(settings.max_evaluations)})
+
+    def lm_progress(row: dict[str, float]) -> None:
+        if status is not None:  # the CMA-ES figures stay; the refinement's are added
+            status(
+                {
+                    **last,
+                    "budget": float(settings.max_evaluations),
+                    "lm_iteration": row["iteration"],
+                    "lm_iterations": float(iterations),
+                    "lm_f": row["f"],
+                }
+            )
 
     evaluator = make_evaluator(objective)
     try:
@@ -217,6 +232,7 @@ def run_job(
                 rtol=1e-4,
                 max_evaluations=iterations * (box.lower.size + 1 + len(LAMBDA_TRIALS)) + 1,
             ),
+            progress=lm_progress,
         )
         refined = from_full_vector(lm.theta, efd_parameters(), effects)
         polished = {

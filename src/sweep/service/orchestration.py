@@ -320,7 +320,14 @@ def run_sweep(
             ]
             for h, spec in running.items():
                 st = executor.status(h) or {}
-                if st:
+                if "lm_iteration" in st:  # cmaes.polish: the refinement after the restarts
+                    lines.append(
+                        f"  {spec.key}: Levenberg-Marquardt iteration "
+                        f"{int(st['lm_iteration'])}/{int(st.get('lm_iterations', 0))} "
+                        f"J {st['lm_f']:.1f} "
+                        f"(CMA-ES best {st.get('best_so_far', float('nan')):.1f})"
+                    )
+                elif st:
                     lines.append(
                         f"  {spec.key}: restart {int(st.get('restart', 0))} "
                         f"pop {int(st.get('popsize', 0))} "

@@ -80,6 +80,17 @@ def case_name(objective: str, train: str, variant: str = "") -> str:
     return f"{objective}-{train}{variant}"
 
 
+def _flat_scores(data: Mapping[str, Any], kind: str) -> dict[str, dict[str, float]]:
+    """{J: {subset: value}} from flat metrics "{kind}/J/subset", at the top level of ``data``
+    or under its "metrics"."""
+    out: dict[str, dict[str, float]] = {}
+    for key, value in {**data, **data.get("metrics", {})}.items():
+        parts = str(key).split("/")
+        if len(parts) == 3 and parts[0] == kind:
+            out.setdefault(parts[1], {})[parts[2]] = float(value)
+    return out
+
+
 def _records(outcome: JobOutcome | Mapping[str, Any]) -> list[dict[str, Any]]:
     """The job's record and, when the job refined its CMA-ES result (``cmaes.polish``), the
     refined result's record (variant ``+LM``: its own row in the tables)."""
@@ -87,13 +98,7 @@ def _records(outcome: JobOutcome | Mapping[str, Any]) -> list[dict[str, Any]]:
     if isinstance(outcome, JobOutcome):
         polished = outcome.polished["test"] if outcome.polished else {}
     else:
-        polished = dict(outcome.get("polish") or {})
-        if not polished:  # flat metrics "polish/J/subset"
-            flat = {**outcome, **outcome.get("metrics", {})}
-            for key, value in flat.items():
-                parts = str(key).split("/")
-                if len(parts) == 3 and parts[0] == "polish":
-                    polished.setdefault(parts[1], {})[parts[2]] = float(value)
+        polished = dict(outcome.get("polish") or {}) or _flat_scores(outcome, "polish")
     if not polished:
         return [main]
     refined = {
@@ -117,14 +122,7 @@ def _record(outcome: JobOutcome | Mapping[str, Any]) -> dict[str, Any]:
         }
     else:
         data = dict(outcome)
-    test = data.get("test")
-    if not test:  # flat metrics "test/J/subset", at the top level or under "metrics"
-        flat = {**data, **data.get("metrics", {})}
-        test = {}
-        for key, value in flat.items():
-            parts = str(key).split("/")
-            if len(parts) == 3 and parts[0] == "test":
-                test.setdefault(parts[1], {})[parts[2]] = float(value)
+    test = data.get("test") or _flat_scores(data, "test")
     rejected = data.get("rejected", False)
     if isinstance(rejected, str):
         rejected = rejected.strip().lower() in ("1", "true", "yes")

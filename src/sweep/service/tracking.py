@@ -227,15 +227,21 @@ def flatten_config(config: Mapping[str, Any], prefix: str = "") -> dict[str, str
     return out
 
 
+def score_metrics(kind: str, scores: ScoreTable) -> dict[str, float]:
+    """{"{kind}/J1/B-S": value, ...} for every objective and subset present (inverse of
+    :func:`scores_from_metrics`)."""
+    return {
+        metric_name(kind, J, s): float(scores[J][s])
+        for J in OBJECTIVE_NAMES
+        if J in scores
+        for s in SUBSETS
+        if s in scores[J]
+    }
+
+
 def efd_metrics(efd: ScoreTable) -> dict[str, float]:
     """{"efd/J1/B-S": value, ...} for every objective and subset present."""
-    return {
-        metric_name("efd", J, s): float(efd[J][s])
-        for J in OBJECTIVE_NAMES
-        if J in efd
-        for s in SUBSETS
-        if s in efd[J]
-    }
+    return score_metrics("efd", efd)
 
 
 def scores_from_metrics(metrics: Mapping[str, float], kind: str) -> ScoreTable:
@@ -268,24 +274,10 @@ def outcome_tags(outcome: JobOutcome, parent_id: str) -> dict[str, str]:
 
 def outcome_metrics(outcome: JobOutcome) -> dict[str, float]:
     """The child run's scalar metrics: test/{J}/{subset}, best_f, evaluations, seconds, ..."""
-    metrics = {
-        metric_name("test", J, s): float(outcome.test[J][s])
-        for J in OBJECTIVE_NAMES
-        if J in outcome.test
-        for s in SUBSETS
-        if s in outcome.test[J]
-    }
+    metrics = score_metrics("test", outcome.test)
     if outcome.polished:
         pol = outcome.polished
-        metrics.update(
-            {
-                metric_name("polish", J, s): float(pol["test"][J][s])
-                for J in OBJECTIVE_NAMES
-                if J in pol["test"]
-                for s in SUBSETS
-                if s in pol["test"][J]
-            }
-        )
+        metrics.update(score_metrics("polish", pol["test"]))
         metrics.update(
             polish_f=float(pol["f"]),
             polish_evaluations=float(pol["evaluations"]),

@@ -30,7 +30,8 @@ the catalog's effects by the same rules (:mod:`sweep.diagnose.run`).
    training windows about equally. For every such kind of variable in the selection, the
    selection is repeated without the terms of that kind; a set that reaches at least
    ``alternative_ratio`` of the held-out R^2 is proposed beside it (up to ``alternatives``), and
-   the trajectory fits decide which carries over to windows they were not fitted to.
+   the trajectory fits decide: every set is fitted and ranked like any candidate (dBIC, the
+   held-out windows as veto and tie-break; :func:`sweep.diagnose.run.rank`).
 5. **Calibration on a null.** The base model is simulated on the same windows with noise of the
    estimated level and colour (:mod:`sweep.diagnose.floor`) and the *same* procedure run on
    each such recording set: the statistic's distribution when nothing is missing. The terms are

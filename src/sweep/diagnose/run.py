@@ -735,8 +735,9 @@ def diagnose(
     # absorbed can still be descending after the first iterations)
     threshold = null.threshold if s.max_delta_bic is None else s.max_delta_bic
     leaders = [c.effect for c in sorted(scores, key=lambda c: c.delta_bic)[: s.refine_top]]
-    # ... and every discovered candidate that passes the threshold already: a proposal's
-    # alternatives compete on the held-out windows, so each needs its refined score
+    # ... and every discovered candidate that passes the threshold already: a proposal and its
+    # alternatives (step 4b of sweep.diagnose.discover) are ranked against each other, so each
+    # needs its refined score (only refined candidates can be accepted)
     leaders += [
         c.effect
         for c in scores

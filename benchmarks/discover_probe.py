@@ -52,7 +52,7 @@ def main() -> None:
         sel = p.selection
         print(
             f"{form:17s} misfit {m.ratio:6.2f} x floor (z {m.z:7.1f}) | "
-            f"{' + '.join(sel.terms) or '-':28s} coef {[round(c, 4) for c in sel.coefficients]} "
+            f"{' + '.join(sel.labels) or '-':28s} coef {[round(c, 4) for c in sel.coefficients]} "
             f"held-out R^2 {100 * sel.cv_r2:.2f} % vs null {100 * p.threshold:.2f} % -> "
             f"{'proposed' if p.proposed else 'not proposed'} ({time.perf_counter() - t0:.0f} s)",
             flush=True,

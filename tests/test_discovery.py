@@ -228,3 +228,86 @@ def test_a_time_term_that_fits_nearly_as_well_as_a_position_term_is_proposed_bes
     )
     sel2 = select(data2, DiscoverySettings(max_terms=2))
     assert "Y_t" in sel2.terms and sel2.alternatives == []
+
+
+def test_a_step_across_the_basin_is_a_library_term_with_a_centre_and_a_width():
+    """The position steps U^2 tanh((y0 - c) / W) (Y_Usy, N_Usy) carry their centre and width as
+    named parameters: at the planted bank's values they reproduce its force exactly (Y = q C_b
+    U^2 tanh((y0 - y_b) / W_b), N = -0.2 L Y), at every position; the proposal's grid lays the
+    centres at quantiles of the positions and the widths at shares of their range, and the
+    trajectory fits search within a box around the chosen grid point."""
+    from mmg.discovered import with_bounds
+    from mmg.library import CENTRE_QUANTILES, library_columns, shape_box, term
+    from sweep.diagnose.planted import UNLISTED
+
+    eff = get_effect(effect_name(["Y_Usy", "N_Usy"]))
+    assert eff.param_names == ("C_Y_Usy", "c_Y_Usy", "W_Y_Usy", "C_N_Usy", "c_N_Usy", "W_N_Usy")
+    assert "U^2 tanh((y0 - c_Y_Usy) / W_Y_Usy)" in eff.description
+    planted = UNLISTED["bank"]
+    C_b, y_b, W_b = 0.003, 1.5, 2.5
+    p = efd_parameters()
+    u = np.array([0.1, 10.0])
+    w = np.array([1.0, 0.3])
+    terms = with_effects(p, (eff,), [C_b, y_b, W_b, -0.2 * C_b, y_b, W_b])
+    true = with_effects(p, (planted,), [C_b, y_b, W_b])
+    neutral = with_effects(p, (eff,))
+    for y0 in (-6.0, 0.5, 1.5, 2.0, 9.0):
+        x = np.array([3.0, 0.4, y0, -0.06, 0.3, 0.01])
+        d_terms = derivatives(x, u, w, terms, (eff,), t=np.array(50.0))
+        d_true = derivatives(x, u, w, true, (planted,), t=np.array(50.0))
+        d0 = derivatives(x, u, w, neutral, (eff,), t=np.array(50.0))
+        if y0 != y_b:
+            assert abs(d_true[3] - d0[3]) > 1e-6
+        np.testing.assert_allclose(d_terms, d_true, rtol=1e-9, atol=1e-14)
+    # the grid: five centres at quantiles of y0, two widths each; tau on its own grid
+    y0s = np.linspace(-10.0, 30.0, 401)
+    cols = library_columns(["Y_Usy", "N_bt", "Y_vav"], {"x0": y0s * 0.0, "y0": y0s})
+    usy = [dict(c.shape) for c in cols if c.term == "Y_Usy"]
+    assert len(usy) == 10
+    np.testing.assert_allclose(
+        sorted({s["c"] for s in usy}), np.quantile(y0s, CENTRE_QUANTILES), rtol=1e-12
+    )
+    assert sorted({s["W"] for s in usy}) == pytest.approx([0.1 * 36.0, 0.3 * 36.0])
+    assert [dict(c.shape)["tau"] for c in cols if c.term == "N_bt"] == [100.0, 300.0, 1000.0]
+    assert [c.label for c in cols if c.term == "Y_vav"] == ["Y_vav"]
+    box = shape_box(term("Y_Usy"), {"c": 2.0, "W": 1.0})
+    assert box == {"c": (-1.0, 5.0), "W": (0.25, 4.0)}
+    boxed = with_bounds(eff, [0.01, 0.002], {"Y_Usy": {"c": 2.0, "W": 1.0}})
+    by = {q.name: q for q in boxed.params}
+    assert (by["c_Y_Usy"].neutral, by["c_Y_Usy"].lower, by["c_Y_Usy"].upper) == (2.0, -1.0, 5.0)
+    assert (by["C_N_Usy"].lower, by["C_N_Usy"].upper) == (-0.002, 0.002)
+    assert by["W_N_Usy"] == next(q for q in eff.params if q.name == "W_N_Usy")  # untouched
+
+
+def test_the_selection_takes_a_shaped_term_once_at_its_best_grid_point():
+    """A term with a shape enters the regression as one column per grid point; the selection
+    picks the grid point that explains the residual, never two points of the same term, and
+    reports the shape it chose."""
+    from mmg.library import Column
+    from sweep.diagnose.discover import DiscoverySettings, EquationData, select
+
+    rng = np.random.default_rng(3)
+    n, windows = 1200, 12
+    t = np.tile(np.linspace(0.0, 1500.0, n // windows), windows) + np.repeat(
+        rng.uniform(0.0, 2000.0, windows), n // windows
+    )
+    hull = rng.normal(size=n)
+    y = 2.0 * (1.0 - np.exp(-t / 300.0)) + 0.3 * hull + 0.5 * rng.normal(size=n)
+    cols = [Column("Y_bt", (("tau", tau),)) for tau in (100.0, 300.0, 1000.0)]
+    cols.append(Column("Y_vv"))
+    C = np.stack([1.0 - np.exp(-t / tau) for tau in (100.0, 300.0, 1000.0)] + [hull], axis=1)
+    data = EquationData(
+        y=y,
+        C=C,
+        B=rng.normal(size=(n, 3)),
+        groups=np.repeat(np.arange(windows), n // windows),
+        term_ids=[c.term for c in cols],
+        scale=np.ones(3),
+        columns=cols,
+    )
+    sel = select(data, DiscoverySettings(max_terms=3, min_gain=0.0))
+    assert sorted(sel.terms) == ["Y_bt", "Y_vv"]  # Y_bt once, although its columns correlate
+    assert sel.shapes == {"Y_bt": {"tau": 300.0}}
+    assert "Y_bt(tau=300 s)" in sel.labels
+    alone = {r["term"]: r["cv_r2"] for r in sel.single}
+    assert alone["Y_bt(tau=300 s)"] > max(alone["Y_bt(tau=100 s)"], alone["Y_bt(tau=1000 s)"])

@@ -296,21 +296,32 @@ def test_time_terms_see_the_recordings_clock():
 
 def test_a_discovered_effect_pickles_into_a_fresh_process():
     """Ray workers receive effects pickled: a generated effect's module is not on the import
-    path, so it travels by name and search intervals and is rebuilt from the library there."""
+    path, so it travels by name and parameter table and is rebuilt from the library there."""
     import pickle
     import subprocess
     import sys
 
     from mmg.discovered import with_bounds
 
-    eff = with_bounds(get_effect("discovered:N_s3b+Y_t"), [0.3, 0.2])
+    eff = with_bounds(
+        get_effect("discovered:N_s3b+Y_t+N_bt"), [0.3, 0.2, 0.1], {"N_bt": {"tau": 600.0}}
+    )
     code = (
         "import pickle, sys; e = pickle.loads(sys.stdin.buffer.read()); "
-        "print(e.name, [q.upper for q in e.params], e.force_at is not None)"
+        "print(e.name, [q.upper for q in e.params], e.neutral()[-1], e.force_at is not None)"
     )
     out = subprocess.run(
         [sys.executable, "-c", code], input=pickle.dumps(eff), capture_output=True, check=True
     )
-    assert out.stdout.decode().split() == ["discovered:N_s3b+Y_t", "[0.3,", "0.2]", "True"]
+    # the shape parameter (tau of N_bt) travels with its start and box (150-2400 s)
+    assert out.stdout.decode().split() == [
+        "discovered:N_s3b+Y_t+N_bt",
+        "[0.3,",
+        "0.2,",
+        "0.1,",
+        "2400.0]",
+        "600.0",
+        "True",
+    ]
     catalog_effect = get_effect("current")  # field by field, as before
     assert pickle.loads(pickle.dumps(catalog_effect)) == catalog_effect

@@ -1,7 +1,8 @@
 """Effects generated at run time from library terms (:mod:`mmg.library`).
 
 ``discovered_effect(["Y_vav", "N_rrr"])`` writes a small module with a parameter NamedTuple (one
-coefficient ``C_<term>`` per term) and a ``force_at`` hook that adds the terms' forces, imports
+coefficient ``C_<term>`` per term, followed by the term's shape parameters, e.g. ``tau_N_bt``,
+if it has any) and a ``force_at`` hook that adds the terms' forces, imports
 it and registers the effect as ``discovered:Y_vav+N_rrr``. The module is generated from the
 library alone, so any process (a Ray worker, ``python -m sweep.evaluate`` on a saved parameter
 file) rebuilds the same effect from its name: :func:`mmg.get_effect` does so on first use.
@@ -15,10 +16,13 @@ import importlib.util
 import os
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 from mmg.effects import DISCOVERED_PREFIX, Effect, EffectParam, register
-from mmg.library import T_REF, U_0, U_REF, Term, term
+from mmg.library import T_REF, U_0, U_REF, Column, Term, shape_box, term
+
+FloatArray = Any  # numpy array (numpy is imported lazily here)
 
 #: default search interval of a coefficient (the diagnosis narrows it around its estimate)
 DEFAULT_BOUND = 1.0
@@ -74,12 +78,17 @@ def _source(name: str, terms: Sequence[Term], key: str) -> str:
     for t in terms:
         # terms without a velocity (heading, position, constant) carry U_ref^2 = 1 m^2/s^2
         for eq, expr, formula in t.components:
-            lines.append(f"    {eq} += e.{t.coefficient} * ({expr})  # {formula}")
+            code = t.written(expr, "e.")
+            lines.append(f"    {eq} += e.{t.coefficient} * ({code})  # {t.written(formula)}")
+    fields = []
+    for t in terms:
+        fields.append(f"    {t.coefficient}: float  # {t.written(t.formula)}")
+        fields += [f"    {t.shape_param(s)}: float  # {s.role} [{s.unit}]" for s in t.shape]
     return _TEMPLATE.format(
         name=name,
         ptype=f"DiscoveredParams_{key}",
         func=f"discovered_force_{key}",
-        fields="\n".join(f"    {t.coefficient}: float  # {t.formula}" for t in terms),
+        fields="\n".join(fields),
         ids=", ".join(t.id for t in terms),
         lines="\n".join(lines),
         U_0=U_0,
@@ -121,37 +130,84 @@ def discovered_effect(term_ids: Sequence[str], bound: float = DEFAULT_BOUND) -> 
             module = importlib.util.module_from_spec(spec)
             sys.modules[module_name] = module
             spec.loader.exec_module(module)
-    params = tuple(
-        EffectParam(t.coefficient, "-", 0.0, -bound, bound, t.force_formula()) for t in terms
-    )
+    params: list[EffectParam] = []
+    for t in terms:
+        params.append(EffectParam(t.coefficient, "-", 0.0, -bound, bound, t.force_formula()))
+        params += [
+            EffectParam(t.shape_param(s), s.unit, s.default, s.lower, s.upper, f"{s.role}, {t.id}")
+            for s in t.shape
+        ]
     effect = Effect(
         name=name,
         description="discovered terms " + "; ".join(t.force_formula() for t in terms),
         regime=", ".join(dict.fromkeys(t.kind for t in terms)),
-        params=params,
+        params=tuple(params),
         param_type=getattr(module, f"DiscoveredParams_{key}"),
         force_at=getattr(module, f"discovered_force_{key}"),
     )
     return register(effect)
 
 
-def with_bounds(effect: Effect, half_widths: Sequence[float]) -> Effect:
-    """``effect`` with the search interval of coefficient j set to [-h_j, h_j] (same hooks)."""
+def coefficient_names(effect: Effect) -> list[str]:
+    """The coefficients ``C_<term>`` of a generated effect, in term order."""
+    return [q.name for q in effect.params if q.name.startswith("C_")]
+
+
+def with_bounds(
+    effect: Effect,
+    half_widths: Sequence[float],
+    shapes: Mapping[str, Mapping[str, float]] | None = None,
+) -> Effect:
+    """``effect`` with the search interval of coefficient j set to [-h_j, h_j] (same hooks);
+    with ``shapes`` ({term id: {placeholder: value}}, e.g. ``{"N_bt": {"tau": 300.0}}``) each
+    such term's shape parameters start at these values (their neutral values: with the
+    coefficient at 0 the term vanishes whatever its shape) within :func:`mmg.library.shape_box`."""
     from dataclasses import replace
 
-    params = tuple(
-        q._replace(lower=-float(h), upper=float(h))
-        for q, h in zip(effect.params, half_widths, strict=True)
-    )
-    return replace(effect, params=params)
+    half = dict(zip(coefficient_names(effect), half_widths, strict=True))
+    boxes: dict[str, tuple[float, float, float]] = {}
+    for tid, values in (shapes or {}).items():
+        t = term(tid)
+        for s_name, (lo, hi) in shape_box(t, values).items():
+            shape = next(s for s in t.shape if s.name == s_name)
+            boxes[t.shape_param(shape)] = (float(values[s_name]), lo, hi)
+    params = []
+    for q in effect.params:
+        if q.name in half:
+            q = q._replace(lower=-float(half[q.name]), upper=float(half[q.name]))
+        elif q.name in boxes:
+            v, lo, hi = boxes[q.name]
+            q = q._replace(neutral=v, lower=lo, upper=hi)
+        params.append(q)
+    return replace(effect, params=tuple(params))
 
 
-def rebuild(name: str, half_widths: Sequence[float]) -> Effect:
-    """The generated effect ``name`` (``discovered:<terms>``) with coefficient intervals
-    [-h_j, h_j]: how a pickled discovered effect is restored in another process."""
+def rebuild(name: str, params: Sequence[Sequence[object]]) -> Effect:
+    """The generated effect ``name`` (``discovered:<terms>``) with the parameter table
+    ``params`` (neutral values and search intervals as they were): how a pickled discovered
+    effect is restored in another process."""
+    from dataclasses import replace
+
     if not name.startswith(DISCOVERED_PREFIX):
         raise ValueError(f"{name!r} is not a discovered effect")
     effect = discovered_effect(name[len(DISCOVERED_PREFIX) :].split("+"))
-    if all(q.upper == float(h) for q, h in zip(effect.params, half_widths, strict=True)):
+    table = tuple(EffectParam(*p) for p in params)  # type: ignore[arg-type]
+    if table == effect.params:
         return effect
-    return with_bounds(effect, half_widths)
+    return replace(effect, params=table)
+
+
+def unit_rows(effect: Effect, columns: Sequence[Column], step: float = 1.0) -> FloatArray:
+    """(len(columns), k) values of a generated effect's parameters, one row per column: that
+    column's coefficient at ``step`` and its term's shape at the column's grid point, every
+    other coefficient 0 (shape parameters of other terms at their neutral values)."""
+    import numpy as np
+
+    names = list(effect.param_names)
+    base = np.asarray(effect.neutral(), dtype=np.float64)
+    rows = np.repeat(base[None, :], len(columns), axis=0)
+    for i, c in enumerate(columns):
+        rows[i, names.index(term(c.term).coefficient)] = step
+        for n, v in c.values().items():
+            rows[i, names.index(n)] = v
+    return rows

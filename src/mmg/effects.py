@@ -80,14 +80,14 @@ class Effect:
             )
 
     def __reduce__(self) -> tuple[Any, ...]:
-        """Pickle a generated (discovered) effect by its name and search intervals: its module
+        """Pickle a generated (discovered) effect by its name and parameter table: its module
         lives in the kernel directory, not on the import path, so another process (a Ray
         worker) rebuilds it from the library, as :func:`get_effect` does. Other effects pickle
         field by field (their hooks are importable module-level functions)."""
         if self.name.startswith(DISCOVERED_PREFIX):
             from mmg.discovered import rebuild
 
-            return (rebuild, (self.name, tuple(p.upper for p in self.params)))
+            return (rebuild, (self.name, tuple(tuple(p) for p in self.params)))
         values = tuple(getattr(self, f) for f in self.__dataclass_fields__)
         return (Effect, values)
 

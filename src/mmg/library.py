@@ -9,10 +9,18 @@ with g [m^2/s^2] a function of the state (through the water), the controls, the 
 heading and the position. Hull terms are products of u, v_m and r L_pp (the MMG polynomials
 times U^2, with their |.| forms; third-order ones divided by U_e = sqrt(U^2 + U_0^2), which keeps
 them finite at rest); propeller terms use n_p D_p; rudder terms delta; wind terms the apparent wind
-scaled to the above-water areas; heading and position terms describe a force fixed to the basin;
-time terms a force that builds up or dies away over a run (polynomials of t / T_ref and
-transients exp(-t / tau) and 1 - exp(-t / tau) with tau = 100, 300 and 1,000 s).
+scaled to the above-water areas; heading and position terms describe a force fixed to the basin
+(linear in x0, y0, or a step across a line, tanh((y0 - c) / W), that saturates on either side:
+a bank, the edge of a shallow patch); time terms a force that builds up or dies away over a run
+(polynomials of t / T_ref and transients exp(-t / tau) and 1 - exp(-t / tau)).
 ``X_...``, ``Y_...`` and ``N_...`` are the equations the term enters.
+
+Some terms have a *shape* (:class:`Shape`): a time constant tau, or the centre c and width W of
+a step. They are named parameters of the generated effect beside the coefficient (``tau_N_bt``,
+``c_Y_Usy``, ``W_Y_Usy``). The proposal regresses on every point of a grid of shapes
+(:func:`library_columns`: tau = 100, 300, 1,000 s; centres at quantiles of the positions the
+data cover, widths at shares of their range); the trajectory fits then move the shape with the
+coefficient, within a box around the chosen point (:func:`shape_box`).
 
 Each term is one scalar Python expression, compiled into the hook of a generated effect
 (:mod:`mmg.discovered`), over these names:
@@ -31,7 +39,11 @@ single-equation heading terms could only approximate with separate coefficients.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
 
 #: speed that keeps third-order terms finite at rest [m/s] (a few per cent of the service speed)
 U_0 = 0.05
@@ -42,17 +54,51 @@ T_REF = 1000.0
 
 
 @dataclass(frozen=True)
+class Shape:
+    """A shape parameter of a library term: a time constant, or the centre or width of a step
+    in a variable. The term is linear in its coefficient, not in its shape: the proposal searches
+    the shape on a grid (:func:`library_columns`), the trajectory fits then move it within a box
+    around the grid point (:func:`shape_box`)."""
+
+    name: str  # placeholder in the term's expression and formula, e.g. ``tau``
+    unit: str
+    role: str  # "time constant", "centre" or "width"
+    variable: str = ""  # x0 or y0 for a centre or width
+    default: float = 1.0  # value of a term rebuilt by name alone (a parameter file sets its own)
+    lower: float = -1e4  # ... and its search interval then
+    upper: float = 1e4
+
+
+TAU = Shape("tau", "s", "time constant", default=300.0, lower=1.0, upper=1e5)
+#: time constants of the grid [s], half a decade apart
+TAU_GRID = (100.0, 300.0, 1000.0)
+#: centres of a step at these quantiles of the variable over the training windows ...
+CENTRE_QUANTILES = (0.1, 0.3, 0.5, 0.7, 0.9)
+#: ... and widths at these shares of its 5-95 % range
+WIDTH_SHARES = (0.1, 0.3)
+
+
+def _across(variable: str) -> tuple[Shape, Shape]:
+    return (
+        Shape("c", "m", "centre", variable, default=0.0),
+        Shape("W", "m", "width", variable, default=10.0, lower=1e-3, upper=1e4),
+    )
+
+
+@dataclass(frozen=True)
 class Term:
     """One library term: ``id`` (equation_name), its expression g, formula and kind.
 
     ``parts``, when given, are the (equation, expression, formula) of a term that enters several
-    equations with one coefficient (then ``expr`` and ``formula`` describe it as a whole)."""
+    equations with one coefficient (then ``expr`` and ``formula`` describe it as a whole).
+    ``shape``: its shape parameters, written ``{name}`` in the expression and formula."""
 
     id: str
     expr: str
     formula: str  # g in the paper's notation
     kind: str  # hull, propeller, rudder, wind, quadrant, heading, position, time
     parts: tuple[tuple[str, str, str], ...] = ()
+    shape: tuple[Shape, ...] = ()
 
     @property
     def components(self) -> tuple[tuple[str, str, str], ...]:
@@ -69,18 +115,31 @@ class Term:
         """Name of the term's coefficient (a parameter of the generated effect)."""
         return f"C_{self.id}"
 
+    def shape_param(self, shape: Shape) -> str:
+        """Name of a shape parameter of this term in the generated effect, e.g. ``tau_N_bt``."""
+        return f"{shape.name}_{self.id}"
+
+    def written(self, text: str, prefix: str = "") -> str:
+        """``text`` with the shape placeholders replaced by the parameter names (after
+        ``prefix``, e.g. ``e.`` in the generated code)."""
+        if not self.shape:
+            return text
+        return text.format(**{s.name: prefix + self.shape_param(s) for s in self.shape})
+
     def force_formula(self) -> str:
         """The term as a force in the paper's notation, with units."""
         out = []
         for eq, _, formula in self.components:
             scale = "0.5 rho L_pp^2 d" if eq == "N" else "0.5 rho L_pp d"
             unit = "N m" if eq == "N" else "N"
-            out.append(f"{eq} += {scale} {self.coefficient} {formula}  [{unit}]")
+            out.append(f"{eq} += {scale} {self.coefficient} {self.written(formula)}  [{unit}]")
         return ", ".join(out)
 
 
-def _t(eqs: str, name: str, expr: str, formula: str, kind: str) -> list[Term]:
-    return [Term(f"{e}_{name}", expr, formula, kind) for e in eqs]
+def _t(
+    eqs: str, name: str, expr: str, formula: str, kind: str, shape: tuple[Shape, ...] = ()
+) -> list[Term]:
+    return [Term(f"{e}_{name}", expr, formula, kind, shape=shape) for e in eqs]
 
 
 _TERMS: list[Term] = [
@@ -136,15 +195,46 @@ _TERMS: list[Term] = [
     # a force that changes over the run (on the recording's clock)
     *_t("XYN", "t", "t / T_ref", "U_ref^2 t / T_ref", "time"),
     *_t("XYN", "tt", "(t / T_ref) ** 2", "U_ref^2 (t / T_ref)^2", "time"),
-    # ... and a transient after the start of the run, half a decade of time apart: one dying
-    # away (settling) and one building up to a steady level (a circulation developing in the
-    # basin), which is a single term, not a constant minus a decay, for the sparse selection
-    *_t("XYN", "e100", "math.exp(-t / 100.0)", "U_ref^2 exp(-t / 100 s)", "time"),
-    *_t("XYN", "e300", "math.exp(-t / 300.0)", "U_ref^2 exp(-t / 300 s)", "time"),
-    *_t("XYN", "e1000", "math.exp(-t / 1000.0)", "U_ref^2 exp(-t / 1000 s)", "time"),
-    *_t("XYN", "b100", "1.0 - math.exp(-t / 100.0)", "U_ref^2 (1 - exp(-t / 100 s))", "time"),
-    *_t("XYN", "b300", "1.0 - math.exp(-t / 300.0)", "U_ref^2 (1 - exp(-t / 300 s))", "time"),
-    *_t("XYN", "b1000", "1.0 - math.exp(-t / 1000.0)", "U_ref^2 (1 - exp(-t / 1000 s))", "time"),
+    # ... and a transient after the start of the run with its own time constant tau (a shape
+    # parameter: searched on a grid half a decade apart, then fitted with the coefficient): one
+    # dying away (settling) and one building up to a steady level (a circulation developing in
+    # the basin), which is a single term, not a constant minus a decay, for the sparse selection
+    *_t("XYN", "et", "math.exp(-t / {tau})", "U_ref^2 exp(-t / {tau})", "time", (TAU,)),
+    *_t("XYN", "bt", "1.0 - math.exp(-t / {tau})", "U_ref^2 (1 - exp(-t / {tau}))", "time", (TAU,)),
+    # a force fixed to the basin that changes sign across a line (a bank, the edge of a shallow
+    # patch): a step of width W centred at c, saturating on either side, alone and times U^2
+    *_t(
+        "XYN",
+        "sx",
+        "math.tanh((x0 - {c}) / {W})",
+        "U_ref^2 tanh((x0 - {c}) / {W})",
+        "position",
+        _across("x0"),
+    ),
+    *_t(
+        "XYN",
+        "sy",
+        "math.tanh((y0 - {c}) / {W})",
+        "U_ref^2 tanh((y0 - {c}) / {W})",
+        "position",
+        _across("y0"),
+    ),
+    *_t(
+        "XYN",
+        "Usx",
+        "U2 * math.tanh((x0 - {c}) / {W})",
+        "U^2 tanh((x0 - {c}) / {W})",
+        "position",
+        _across("x0"),
+    ),
+    *_t(
+        "XYN",
+        "Usy",
+        "U2 * math.tanh((y0 - {c}) / {W})",
+        "U^2 tanh((y0 - {c}) / {W})",
+        "position",
+        _across("y0"),
+    ),
     # a steady force fixed to the basin, along x0 or y0, on the ship's axes (Eq. (1)'s rotation)
     Term(
         "E_x0",
@@ -179,3 +269,63 @@ def term(term_id: str) -> Term:
         raise ValueError(
             f"unknown library term {term_id!r}; known terms: {', '.join(TERMS)}"
         ) from None
+
+
+@dataclass(frozen=True)
+class Column:
+    """One column of the proposal's regression: a term, at one grid point of its shape."""
+
+    term: str
+    shape: tuple[tuple[str, float], ...] = ()  # (placeholder name, value)
+
+    @property
+    def label(self) -> str:
+        """``Y_Usy(c=2.1 m, W=1.5 m)``; a term without shape: its id."""
+        if not self.shape:
+            return self.term
+        units = {s.name: s.unit for s in term(self.term).shape}
+        return f"{self.term}(" + ", ".join(f"{n}={v:.4g} {units[n]}" for n, v in self.shape) + ")"
+
+    def values(self) -> dict[str, float]:
+        """The shape values by parameter name in the generated effect (``tau_N_bt``)."""
+        t = term(self.term)
+        return {f"{n}_{t.id}": float(v) for n, v in self.shape}
+
+
+def shape_grid(t: Term, spans: Mapping[str, Any]) -> list[tuple[tuple[str, float], ...]]:
+    """The grid points of a term's shape (empty tuple for a term without one). ``spans``: the
+    values of x0 and y0 over the data, for the centres and widths of steps."""
+    if not t.shape:
+        return [()]
+    names = {s.role: s.name for s in t.shape}
+    if set(names) == {"time constant"}:
+        return [((names["time constant"], tau),) for tau in TAU_GRID]
+    variable = next(s.variable for s in t.shape if s.role == "centre")
+    z = np.asarray(spans[variable], dtype=np.float64)
+    q = np.quantile(z, [*CENTRE_QUANTILES, 0.05, 0.95])
+    width = max(float(q[-1] - q[-2]), 1e-3)
+    return [
+        ((names["centre"], float(c)), (names["width"], share * width))
+        for c in q[: len(CENTRE_QUANTILES)]
+        for share in WIDTH_SHARES
+    ]
+
+
+def shape_box(t: Term, values: Mapping[str, float]) -> dict[str, tuple[float, float]]:
+    """Search interval of each shape parameter of ``t`` around the values ``values`` (by
+    placeholder name) that the proposal chose: a time constant or a width within a factor 4,
+    a centre within 3 widths."""
+    out: dict[str, tuple[float, float]] = {}
+    width = next((values[s.name] for s in t.shape if s.role == "width"), 0.0)
+    for s in t.shape:
+        v = float(values[s.name])
+        if s.role == "centre":
+            out[s.name] = (v - 3.0 * width, v + 3.0 * width)
+        else:
+            out[s.name] = (max(v / 4.0, s.lower), min(v * 4.0, s.upper))
+    return out
+
+
+def library_columns(term_ids: Sequence[str], spans: Mapping[str, Any]) -> list[Column]:
+    """Every column of the proposal's regression: each term, at every grid point of its shape."""
+    return [Column(i, g) for i in term_ids for g in shape_grid(term(i), spans)]

@@ -13,8 +13,9 @@ the catalog's effects by the same rules (:mod:`sweep.diagnose.run`).
 2. **Regressors.** Each library term (:mod:`mmg.library`) adds a force; its column is the
    acceleration that force with a unit coefficient causes (through the same mass matrix, added
    masses and x_G coupling as the model: the columns are computed by the model's own kernel, with
-   the term as an effect). The base model's own regressors are the derivatives of its
-   accelerations with respect to the 57 parameters.
+   the term as an effect). A term with a shape (a time constant, a step's centre and width:
+   :class:`mmg.library.Shape`) gives one column per point of its grid. The base model's own
+   regressors are the derivatives of its accelerations with respect to the 57 parameters.
 3. **Cancellation.** Refitting the base can reproduce part of any term. Residual and term columns
    are projected onto the complement of the base regressors (Frisch-Waugh-Lovell: equivalent to
    a joint refit of base and term, linearised); the *absorbed fraction* of a term is the share of
@@ -22,8 +23,9 @@ the catalog's effects by the same rules (:mod:`sweep.diagnose.run`).
 4. **Selection.** Forward stepwise: the term that most reduces the residual on *held-out
    windows* (cross-validation over whole windows, which are nearly independent, whereas
    neighbouring samples are not), then the next, up to ``max_terms``, while each step adds at
-   least ``min_gain`` times the held-out R^2 reached so far. The statistic is the held-out R^2
-   of the selection.
+   least ``min_gain`` times the held-out R^2 reached so far; a term enters once, at the grid
+   point of its shape that serves best (the trajectory fits then move the shape). The statistic
+   is the held-out R^2 of the selection; the null runs the same selection over the same grid.
 4b. **Alternatives.** Heading, position and the time in the run drift together over a few
    windows (the ship crosses the basin as the run goes on), so the equation residual cannot
    always tell a force fixed to the basin from one that builds up in time, and both explain the
@@ -49,8 +51,8 @@ from numpy.typing import NDArray
 from scipy.signal import savgol_filter
 
 from mmg import Effect, Parameters, bounds, derivatives, get_effect
-from mmg.discovered import discovered_effect, with_bounds
-from mmg.library import TERMS, term
+from mmg.discovered import discovered_effect, unit_rows, with_bounds
+from mmg.library import TERMS, Column, library_columns, term
 from mmg.params import N_THETA
 from sweep.data.recordings import Recording
 from sweep.diagnose.fit import effect_values
@@ -91,19 +93,39 @@ class EquationData:
     C: FloatArray  # (3M, T) term columns
     B: FloatArray  # (3M, 57) base regressors
     groups: NDArray[np.int64]  # (3M,) window of each row
-    term_ids: list[str]
+    term_ids: list[str]  # (T,) the term of each column (a term with a shape has several)
     scale: FloatArray  # (3,) channel weights applied (1 / RMS of the residual)
+    columns: list[Column] = field(default_factory=list)  # (T,) term and shape grid point
+
+    @property
+    def labels(self) -> list[str]:
+        """(T,) a unique label per column (the term id, with its shape if it has one)."""
+        return [c.label for c in self.columns] if self.columns else list(self.term_ids)
 
 
 def _smooth(a: FloatArray, m: int) -> FloatArray:
     return np.asarray(savgol_filter(a, m, 3, axis=0))
 
 
+def spans(windows: Sequence[Recording]) -> dict[str, FloatArray]:
+    """The positions x0, y0 [m] over the windows: where the grid of a step's centre and width
+    lies (:func:`mmg.library.shape_grid`)."""
+    return {
+        "x0": np.concatenate([np.asarray(w.x)[:, 0] for w in windows]),
+        "y0": np.concatenate([np.asarray(w.x)[:, 2] for w in windows]),
+    }
+
+
 def equation_data(
-    params: Parameters, windows: Sequence[Recording], settings: DiscoverySettings
+    params: Parameters,
+    windows: Sequence[Recording],
+    settings: DiscoverySettings,
+    where: dict[str, FloatArray] | None = None,
 ) -> EquationData:
-    """Residuals and regressors (see the module docstring, steps 1-2)."""
+    """Residuals and regressors (see the module docstring, steps 1-2). ``where``: the positions
+    the shapes' grid is laid over (default: these windows')."""
     ids = list(settings.terms or TERMS)
+    columns = library_columns(ids, where if where is not None else spans(windows))
     lib = discovered_effect(ids)
     base_effects = tuple(get_effect(n) for n, _ in params.effects)
     effects = (*base_effects, lib)
@@ -111,12 +133,14 @@ def equation_data(
     lo, hi = bounds()
     steps = 1e-3 * (hi - lo)
     theta0 = params.vector()
-    extra0 = np.concatenate([effect_values(params, base_effects), np.zeros(len(ids))])
-    # parameter rows: the base, each base parameter stepped, each term at coefficient 1
+    extra0 = np.concatenate([effect_values(params, base_effects), lib.neutral()])
+    # parameter rows: the base, each base parameter stepped, each column (a term at one point of
+    # its shape's grid) at coefficient 1
     p0 = np.concatenate([theta0, extra0])
-    P = np.repeat(p0[None, :], 1 + N_THETA + len(ids), axis=0)  # (R, n_params)
+    T = len(columns)
+    P = np.repeat(p0[None, :], 1 + N_THETA + T, axis=0)  # (R, n_params)
     P[1 + np.arange(N_THETA), np.arange(N_THETA)] += steps
-    P[1 + N_THETA + np.arange(len(ids)), p0.size - len(ids) + np.arange(len(ids))] = 1.0
+    P[1 + N_THETA :, p0.size - len(lib.params) :] = unit_rows(lib, columns, 1.0)
     R = P.shape[0]
     for g, w in enumerate(windows):
         dt = w.dt
@@ -160,11 +184,12 @@ def equation_data(
     M = y.shape[0]
     return EquationData(
         y=y.T.reshape(3 * M),
-        C=np.moveaxis(Cm, 2, 0).reshape(3 * M, len(ids)),
+        C=np.moveaxis(Cm, 2, 0).reshape(3 * M, T),
         B=np.moveaxis(Bm, 2, 0).reshape(3 * M, N_THETA),
         groups=np.tile(grp, 3),
-        term_ids=ids,
+        term_ids=[c.term for c in columns],
         scale=scale,
+        columns=columns,
     )
 
 
@@ -180,6 +205,9 @@ class Selection:
     single: list[dict[str, float | str]]  # every term alone: held-out R^2, absorbed fraction
     #: step 4b: term sets without one kind of variable that explain nearly as much
     alternatives: list[Alternative] = field(default_factory=list)
+    #: the chosen shape of each selected term that has one: {term: {placeholder: value}}
+    shapes: dict[str, dict[str, float]] = field(default_factory=dict)
+    labels: list[str] = field(default_factory=list)  # the selected columns, with their shapes
 
 
 @dataclass
@@ -190,6 +218,16 @@ class Alternative:
     coefficients: list[float]
     cv_r2: float
     without: str
+    shapes: dict[str, dict[str, float]] = field(default_factory=dict)
+
+
+def _shapes(data: EquationData, chosen: Sequence[int]) -> dict[str, dict[str, float]]:
+    """{term: {placeholder: value}} of the chosen columns whose term has a shape."""
+    out: dict[str, dict[str, float]] = {}
+    for k in chosen:
+        if data.columns and data.columns[k].shape:
+            out[data.term_ids[k]] = dict(data.columns[k].shape)
+    return out
 
 
 def _cv_r2(y: FloatArray, X: FloatArray, folds: list[NDArray[np.bool_]]) -> float:
@@ -219,11 +257,12 @@ def regression_view(data: EquationData, terms: Sequence[str], bins: int = 10) ->
     partial-regression points (the term's fitted contribution against the residual left by the
     other terms, both in units of the channel's residual RMS), for the report's figure."""
     y, C = _projected(data)
-    ks = [data.term_ids.index(t) for t in terms if t in data.term_ids]
+    labels = data.labels
+    ks = [labels.index(t) for t in terms if t in labels]
     M = y.size // 3
     beta = np.linalg.lstsq(C[:, ks], y, rcond=None)[0] if ks else np.zeros(0)
     fit = C[:, ks] @ beta if ks else np.zeros_like(y)
-    out: dict[str, Any] = {"terms": [data.term_ids[k] for k in ks], "channels": []}
+    out: dict[str, Any] = {"terms": [labels[k] for k in ks], "channels": []}
     for c, name in enumerate(CHANNEL_NAMES):
         rows = slice(c * M, (c + 1) * M)
         yc, fc = y[rows], fit[rows]
@@ -247,7 +286,7 @@ def regression_view(data: EquationData, terms: Sequence[str], bins: int = 10) ->
                 for b in range(edges.size - 1)
                 if np.any(idx == b)
             ]
-            channel["partial"].append({"term": data.term_ids[k], "points": pts})
+            channel["partial"].append({"term": labels[k], "points": pts})
         out["channels"].append(channel)
     return out
 
@@ -265,21 +304,20 @@ def select(
     windows = np.unique(data.groups)
     F = max(2, min(settings.folds, windows.size))
     folds = [np.isin(data.groups, windows[f::F]) for f in range(F)]
+    labels = data.labels
     single: list[dict[str, float | str]] = []
     for k in usable:
         single.append(
             {
-                "term": data.term_ids[k],
+                "term": labels[k],
                 "cv_r2": _cv_r2(y, C[:, [k]], folds),
                 "absorbed": float(absorbed[k]),
             }
         )
     single.sort(key=lambda r: r["cv_r2"], reverse=True)
-    chosen, best, steps = _forward(y, C, usable, folds, settings)
+    chosen, best, steps = _forward(y, C, usable, folds, settings, data.term_ids)
     names = [data.term_ids[k] for k in chosen]
-    path: list[dict[str, float | str]] = [
-        {"term": data.term_ids[k], "cv_r2": r2} for k, r2 in steps
-    ]
+    path: list[dict[str, float | str]] = [{"term": labels[k], "cv_r2": r2} for k, r2 in steps]
     alternatives: list[Alternative] = []
     if with_alternatives and chosen:
         seen = {frozenset(names)}
@@ -289,12 +327,14 @@ def select(
             if all(term(n).kind != kind for n in names):
                 continue
             rest = [k for k in usable if term(data.term_ids[k]).kind != kind]
-            alt, r2, _steps = _forward(y, C, rest, folds, settings)
+            alt, r2, _steps = _forward(y, C, rest, folds, settings, data.term_ids)
             alt_names = [data.term_ids[k] for k in alt]
             if not alt or r2 < settings.alternative_ratio * best or frozenset(alt_names) in seen:
                 continue
             seen.add(frozenset(alt_names))
-            alternatives.append(Alternative(alt_names, _coefficients(y, C, alt), r2, kind))
+            alternatives.append(
+                Alternative(alt_names, _coefficients(y, C, alt), r2, kind, _shapes(data, alt))
+            )
     return Selection(
         terms=names,
         coefficients=_coefficients(y, C, chosen),
@@ -303,6 +343,8 @@ def select(
         absorbed={data.term_ids[k]: float(absorbed[k]) for k in chosen},
         single=single[:12],
         alternatives=alternatives,
+        shapes=_shapes(data, chosen),
+        labels=[labels[k] for k in chosen],
     )
 
 
@@ -312,14 +354,19 @@ def _forward(
     usable: Sequence[int],
     folds: list[NDArray[np.bool_]],
     settings: DiscoverySettings,
+    term_ids: Sequence[str],
 ) -> tuple[list[int], float, list[tuple[int, float]]]:
     """Forward stepwise selection among the columns ``usable`` (step 4): (chosen columns, their
-    held-out R^2, the path as (column, held-out R^2) per step)."""
+    held-out R^2, the path as (column, held-out R^2) per step). A term enters once (at one point
+    of its shape's grid)."""
     chosen: list[int] = []
     path: list[tuple[int, float]] = []
     best = 0.0
     for _ in range(settings.max_terms):
-        trials = [(_cv_r2(y, C[:, [*chosen, k]], folds), k) for k in usable if k not in chosen]
+        taken = {term_ids[k] for k in chosen}
+        trials = [
+            (_cv_r2(y, C[:, [*chosen, k]], folds), k) for k in usable if term_ids[k] not in taken
+        ]
         if not trials:
             break
         r2, k = max(trials)
@@ -357,21 +404,30 @@ class Proposal:
 
     def effect(self, widen: float = 4.0) -> Effect:
         """The generated effect of the proposed terms, its box +-``widen`` x the estimate."""
-        return _boxed(self.selection.terms, self.selection.coefficients, widen)
+        sel = self.selection
+        return _boxed(sel.terms, sel.coefficients, widen, sel.shapes)
 
     def effects(self, widen: float = 4.0) -> list[Effect]:
         """The proposed effect and its alternatives (step 4b), each boxed like :meth:`effect`;
         none when nothing is proposed."""
         if not self.proposed:
             return []
-        alts = [_boxed(a.terms, a.coefficients, widen) for a in self.selection.alternatives]
+        alts = [
+            _boxed(a.terms, a.coefficients, widen, a.shapes) for a in self.selection.alternatives
+        ]
         return [self.effect(widen), *alts]
 
 
-def _boxed(terms: Sequence[str], coefficients: Sequence[float], widen: float) -> Effect:
-    """The generated effect of ``terms``, its box +-``widen`` x the equation-level estimates."""
+def _boxed(
+    terms: Sequence[str],
+    coefficients: Sequence[float],
+    widen: float,
+    shapes: dict[str, dict[str, float]] | None = None,
+) -> Effect:
+    """The generated effect of ``terms``, its box +-``widen`` x the equation-level estimates,
+    the shapes starting at the grid points chosen (:func:`mmg.discovered.with_bounds`)."""
     half = [max(widen * abs(c), 1e-6) for c in coefficients]
-    return with_bounds(discovered_effect(terms), half)
+    return with_bounds(discovered_effect(terms), half, shapes)
 
 
 def null_sets(
@@ -409,19 +465,20 @@ def discover(
     for t in s.terms:
         term(t)  # unknown ids fail here, naming the library
     t0 = time.perf_counter()
-    data = equation_data(params, windows, s)
+    where = spans(windows)  # the shapes' grid, the same for the null's copies
+    data = equation_data(params, windows, s, where)
     sel = select(data, s)
     # the regression view: the selected terms, or (none selected) the three best alone
-    shown = sel.terms or [str(r["term"]) for r in sel.single[:3]]
+    shown = sel.labels or [str(r["term"]) for r in sel.single[:3]]
     view = regression_view(data, shown)
     null: list[float] = []
     for recs in null_sets(params, windows, noise, rng, s.null_draws):
-        null.append(select(equation_data(params, recs, s), s, with_alternatives=False).cv_r2)
+        null.append(select(equation_data(params, recs, s, where), s, with_alternatives=False).cv_r2)
     threshold = float(np.quantile(null, 1.0 - s.alpha)) if null else 0.0
     proposed = bool(sel.terms) and sel.cv_r2 > threshold
     if log is not None:
         log(
-            f"discovery: {' + '.join(sel.terms) or 'no term'} explains {100 * sel.cv_r2:.1f} % of "
+            f"discovery: {' + '.join(sel.labels) or 'no term'} explains {100 * sel.cv_r2:.1f} % of "
             f"the held-out equation residual (null {1 - s.alpha:.0%} quantile "
             f"{100 * threshold:.1f} %) -> {'proposed' if proposed else 'not proposed'}"
         )

@@ -186,6 +186,7 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
             {
                 "proposed": prop.proposed,
                 "terms": prop.selection.terms,
+                "shapes": prop.selection.shapes,
                 "equation_coefficients": prop.selection.coefficients,
                 "heldout_r2": prop.selection.cv_r2,
                 "threshold": prop.threshold,
@@ -394,6 +395,13 @@ def _trajectory_md(d: Diagnosis) -> list[str]:
     ]
 
 
+def _labelled(a: Any) -> list[str]:
+    """The terms of a selection or alternative, each with the shape chosen for it."""
+    from mmg.library import Column
+
+    return [Column(t, tuple(a.shapes.get(t, {}).items())).label for t in a.terms]
+
+
 def _discovery_md(d: Diagnosis) -> list[str]:
     p = d.proposal
     if p is None:
@@ -401,14 +409,15 @@ def _discovery_md(d: Diagnosis) -> list[str]:
     sel = p.selection
     lines = [
         *_trajectory_md(d),
-        f"Selected: {' + '.join(sel.terms) or 'no term'}; held-out R^2 of the equation residual "
+        f"Selected: {' + '.join(sel.labels or sel.terms) or 'no term'}; held-out R^2 of the "
+        "equation residual "
         f"{100 * sel.cv_r2:.2f} % against the null's {100 * (1 - p.alpha):.0f} % quantile "
         f"{100 * p.threshold:.2f} % ({len(p.null)} noise-only copies of the windows: "
         f"{', '.join(f'{100 * v:.2f}' for v in sorted(p.null))} %) -> "
         + ("proposed as a candidate." if p.proposed else "not proposed."),
         "",
         *(
-            f"Alternative without the {a.without} terms: {' + '.join(a.terms)}, held-out R^2 "
+            f"Alternative without the {a.without} terms: {' + '.join(_labelled(a))}, held-out R^2 "
             f"{100 * a.cv_r2:.2f} %"
             + (" (proposed beside it; the trajectories decide)." if p.proposed else ".")
             for a in sel.alternatives
@@ -420,9 +429,10 @@ def _discovery_md(d: Diagnosis) -> list[str]:
     from mmg.library import term
 
     for r in sel.single[:8]:
-        t = term(str(r["term"]))
+        label = str(r["term"])  # the term with its shape grid point, if it has one
+        t = term(label.split("(")[0])
         lines.append(
-            f"| {t.id} | {t.force_formula()} | {100 * float(r['cv_r2']):.2f} % | "
+            f"| {label} | {t.force_formula()} | {100 * float(r['cv_r2']):.2f} % | "
             f"{100 * float(r['absorbed']):.0f} % |"
         )
     return lines

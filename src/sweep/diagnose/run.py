@@ -646,7 +646,7 @@ def diagnose(
         )
         if proposed:
             half = [max(4.0 * abs(c), 1e-6) for c in trajectory.coefficients]
-            eff = with_bounds(discovered_effect(trajectory.terms), half)
+            eff = with_bounds(discovered_effect(trajectory.terms), half, trajectory.shapes)
             if all(e.name != eff.name for e in extra_effects):
                 extra_effects.append(eff)
 

@@ -41,12 +41,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mmg import Effect, Parameters, bounds, get_effect
-from mmg.discovered import discovered_effect
-from mmg.library import TERMS
+from mmg.discovered import discovered_effect, unit_rows
+from mmg.library import TERMS, Column, library_columns
 from mmg.params import N_THETA
 from sweep.data.objective import Objective
 from sweep.data.recordings import Recording
-from sweep.diagnose.discover import null_sets
+from sweep.diagnose.discover import null_sets, spans
 from sweep.diagnose.fit import effect_values
 from sweep.diagnose.floor import NoiseModel
 from sweep.identification.polish import residual_vectors
@@ -164,14 +164,17 @@ def _direction_gain(G: FloatArray, R: FloatArray) -> FloatArray:
 
 
 def _greedy(
-    parts: Sequence[tuple[FloatArray, FloatArray, FloatArray]], max_terms: int
+    parts: Sequence[tuple[FloatArray, FloatArray, FloatArray]],
+    max_terms: int,
+    groups: Sequence[str] | None = None,
 ) -> tuple[FloatArray, list[list[int]]]:
     """Greedy forward selection of library columns, the same terms in every fold.
 
     ``parts`` holds per fold (columns (m, T), residuals (m, D)) in an orthonormal basis of that
     fold, the columns scaled by their norm *before* the base was projected out, so that a
     column's squared norm is the share of the term the base cannot imitate; a term the base
-    imitates beyond ``1 - MIN_FREE`` in a fold counts nothing there. Returns the summed gains
+    imitates beyond ``1 - MIN_FREE`` in a fold counts nothing there; columns of one group (one
+    term at several points of its shape's grid) enter once. Returns the summed gains
     (max_terms, D) (row t: with t + 1 terms) and the chosen columns of each residual.
     """
     D = parts[0][1].shape[1]
@@ -188,6 +191,9 @@ def _greedy(
                 cn = (C * C).sum(axis=0)
                 score += np.where(cn > MIN_FREE, (C.T @ r) ** 2 / np.maximum(cn, 1e-300), 0.0)
             score[chosen] = -1.0
+            if groups is not None:
+                taken = {groups[c] for c in chosen}
+                score[[i for i, g in enumerate(groups) if g in taken]] = -1.0
             j = int(np.argmax(score))
             if score[j] <= 0:
                 out[t:, d] = gain
@@ -255,6 +261,8 @@ class TrajectorySelection:
     coefficients: list[float]  # linearised estimates, in the terms' coefficient units
     heldout_gain: list[float]  # held-out gain with 1, 2, ... of the terms, share of the fit J
     dbic: float  # in-sample linearised dBIC of the terms
+    #: the grid point of each chosen term that has a shape: {term: {placeholder: value}}
+    shapes: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 class Linearised:
@@ -301,19 +309,22 @@ class Linearised:
             d, g = _effect_directions(o, th, eff, re)
             self.cand[eff.name] = (d, g, len(eff.params))
         self.lib: FloatArray | None = None
+        #: the library's columns: each term at every point of its shape's grid
+        self.columns: list[Column] = []
         if library_terms > 0:
             ids = list(TERMS)
             leff = discovered_effect(ids)
+            self.columns = library_columns(ids, spans(windows))
             o = Objective(windows, objective, effects=(*self.base_effects, leff), ship=ship)
-            th = np.concatenate([theta_b, np.zeros(len(ids))])
-            rl = np.repeat(th[None, :], len(ids), axis=0)
-            rl[np.arange(len(ids)), theta_b.size + np.arange(len(ids))] = LIBRARY_STEP
+            th = np.concatenate([theta_b, np.asarray(leff.neutral(), dtype=np.float64)])
+            rl = np.repeat(th[None, :], len(self.columns), axis=0)
+            rl[:, theta_b.size :] = unit_rows(leff, self.columns, LIBRARY_STEP)
             lib = np.moveaxis((_residuals(o, rl) - r0[None]) / LIBRARY_STEP, 0, -1)  # (S, M, T)
             self.lib = np.where(np.isfinite(lib), lib, 0.0)
         self.A = A
         self.folds = [_Fold(list(idx), A, float(prior_weight)) for idx in folds]
         self.all = _Fold(list(range(len(self.windows))), A, float(prior_weight))
-        self.term_ids = list(TERMS) if library_terms > 0 else []
+        self.term_ids = [c.term for c in self.columns]  # (T,) the term of each column
 
     def select(self, r: FloatArray, n_eff: float, min_gain: float = 0.15) -> TrajectorySelection:
         """Discovery in trajectory space for the base's residual ``r`` (S, M).
@@ -359,8 +370,11 @@ class Linearised:
         path_gain: list[float] = []
         best = 0.0
         for _ in range(self.library_terms):
+            taken = {self.term_ids[c] for c in chosen}
             scores = [
-                (heldout([*chosen, t]), t) for t in range(len(self.term_ids)) if t not in chosen
+                (heldout([*chosen, t]), t)
+                for t in range(len(self.term_ids))
+                if self.term_ids[t] not in taken
             ]
             g, t = max(scores)
             if not np.isfinite(g) or g <= best * (1.0 + min_gain) or g <= 0.0:
@@ -381,6 +395,11 @@ class Linearised:
             coefficients=[float(c) for c in coef],
             heldout_gain=[g / J0 for g in path_gain],
             dbic=dbic if k else 0.0,
+            shapes={
+                self.term_ids[j]: dict(self.columns[j].shape)
+                for j in chosen
+                if self.columns[j].shape
+            },
         )
 
     def residuals(self, recordings: Sequence[Recording]) -> FloatArray:
@@ -410,7 +429,7 @@ class Linearised:
                 lib_parts.append(_library_part(fold, self.lib, Rf))
         out = {name: (gains[name], k) for name, (_, _, k) in self.cand.items()}
         if self.lib is not None:
-            lib_gain, _ = _greedy(lib_parts, self.library_terms)
+            lib_gain, _ = _greedy(lib_parts, self.library_terms, self.term_ids)
             for t in range(self.library_terms):
                 out[f"discovered/{t + 1}"] = (lib_gain[t], t + 1)
         return J0, out

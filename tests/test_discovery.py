@@ -311,3 +311,22 @@ def test_the_selection_takes_a_shaped_term_once_at_its_best_grid_point():
     assert "Y_bt(tau=300 s)" in sel.labels
     alone = {r["term"]: r["cv_r2"] for r in sel.single}
     assert alone["Y_bt(tau=300 s)"] > max(alone["Y_bt(tau=100 s)"], alone["Y_bt(tau=1000 s)"])
+
+
+def test_former_fixed_time_constant_terms_still_load_and_equal_the_shaped_term():
+    """Parameter files of earlier versions name transients at fixed time constants
+    (``discovered:N_b300``): they still load, are no longer searched, and give the force of the
+    shaped term at that time constant."""
+    from mmg.library import SEARCHED, TERMS
+
+    assert "N_b300" in TERMS and "N_b300" not in SEARCHED and "N_bt" in SEARCHED
+    old = get_effect(effect_name(["N_b300"]))
+    new = get_effect(effect_name(["N_bt"]))
+    p = efd_parameters()
+    x = np.array([3.0, 0.4, 1.0, -0.06, 0.3, 0.01])
+    u = np.array([0.1, 10.0])
+    w = np.array([1.0, 0.3])
+    for t in (0.0, 120.0, 900.0):
+        d_old = derivatives(x, u, w, with_effects(p, (old,), [0.01]), (old,), t=np.array(t))
+        d_new = derivatives(x, u, w, with_effects(p, (new,), [0.01, 300.0]), (new,), t=np.array(t))
+        np.testing.assert_allclose(d_old, d_new, rtol=1e-12, atol=1e-15)

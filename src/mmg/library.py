@@ -255,10 +255,27 @@ _TERMS: list[Term] = [
     ),
 ]
 
+#: terms of earlier versions of the library, kept so that parameter files and reports that name
+#: them still load, but no longer searched: the transients at fixed time constants, now one
+#: term each with tau as its shape (``X_bt`` at tau = 300 s is ``X_b300``)
+_FORMER: list[Term] = [
+    *(
+        Term(f"{e}_{k}{tau}", expr.format(tau=f"{tau}.0"), formula.format(tau=f"{tau} s"), "time")
+        for e in "XYN"
+        for k, expr, formula in (
+            ("e", "math.exp(-t / {tau})", "U_ref^2 exp(-t / {tau})"),
+            ("b", "1.0 - math.exp(-t / {tau})", "U_ref^2 (1 - exp(-t / {tau}))"),
+        )
+        for tau in (100, 300, 1000)
+    )
+]
+
 #: every library term by id
-TERMS: dict[str, Term] = {t.id: t for t in _TERMS}
-if len(TERMS) != len(_TERMS):  # pragma: no cover - a typo in the table above
+TERMS: dict[str, Term] = {t.id: t for t in (*_TERMS, *_FORMER)}
+if len(TERMS) != len(_TERMS) + len(_FORMER):  # pragma: no cover - a typo in the tables above
     raise RuntimeError("duplicate library term ids")
+#: the terms discovery searches (all but the former ones), in table order
+SEARCHED: tuple[str, ...] = tuple(t.id for t in _TERMS)
 
 
 def term(term_id: str) -> Term:

@@ -52,7 +52,7 @@ from scipy.signal import savgol_filter
 
 from mmg import Effect, Parameters, bounds, derivatives, get_effect
 from mmg.discovered import discovered_effect, unit_rows, with_bounds
-from mmg.library import TERMS, Column, library_columns, term
+from mmg.library import SEARCHED, Column, library_columns, term
 from mmg.params import N_THETA
 from sweep.data.recordings import Recording
 from sweep.diagnose.fit import effect_values
@@ -124,7 +124,7 @@ def equation_data(
 ) -> EquationData:
     """Residuals and regressors (see the module docstring, steps 1-2). ``where``: the positions
     the shapes' grid is laid over (default: these windows')."""
-    ids = list(settings.terms or TERMS)
+    ids = list(settings.terms or SEARCHED)
     columns = library_columns(ids, where if where is not None else spans(windows))
     lib = discovered_effect(ids)
     base_effects = tuple(get_effect(n) for n, _ in params.effects)

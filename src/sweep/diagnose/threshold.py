@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 
 from mmg import Effect, Parameters, bounds, get_effect
 from mmg.discovered import discovered_effect, unit_rows
-from mmg.library import TERMS, Column, library_columns
+from mmg.library import SEARCHED, Column, library_columns
 from mmg.params import N_THETA
 from sweep.data.objective import Objective
 from sweep.data.recordings import Recording
@@ -312,7 +312,7 @@ class Linearised:
         #: the library's columns: each term at every point of its shape's grid
         self.columns: list[Column] = []
         if library_terms > 0:
-            ids = list(TERMS)
+            ids = list(SEARCHED)
             leff = discovered_effect(ids)
             self.columns = library_columns(ids, spans(windows))
             o = Objective(windows, objective, effects=(*self.base_effects, leff), ship=ship)

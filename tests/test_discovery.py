@@ -309,7 +309,7 @@ def test_the_selection_takes_a_shaped_term_once_at_its_best_grid_point():
     assert sorted(sel.terms) == ["Y_bt", "Y_vv"]  # Y_bt once, although its columns correlate
     assert sel.shapes == {"Y_bt": {"tau": 300.0}}
     assert "Y_bt(tau=300 s)" in sel.labels
-    alone = {r["term"]: r["cv_r2"] for r in sel.single}
+    alone = {str(r["term"]): float(r["cv_r2"]) for r in sel.single}
     assert alone["Y_bt(tau=300 s)"] > max(alone["Y_bt(tau=100 s)"], alone["Y_bt(tau=1000 s)"])
 
 

@@ -17,12 +17,14 @@ import os
 import sys
 import threading
 from collections.abc import Mapping, Sequence
-from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
 
 from mmg.effects import DISCOVERED_PREFIX, Effect, EffectParam, register
 from mmg.library import T_REF, U_0, U_REF, Column, Term, shape_box, term
 
-FloatArray = Any  # numpy array (numpy is imported lazily here)
+FloatArray = NDArray[np.float64]
 
 #: default search interval of a coefficient (the diagnosis narrows it around its estimate)
 DEFAULT_BOUND = 1.0
@@ -201,8 +203,6 @@ def unit_rows(effect: Effect, columns: Sequence[Column], step: float = 1.0) -> F
     """(len(columns), k) values of a generated effect's parameters, one row per column: that
     column's coefficient at ``step`` and its term's shape at the column's grid point, every
     other coefficient 0 (shape parameters of other terms at their neutral values)."""
-    import numpy as np
-
     names = list(effect.param_names)
     base = np.asarray(effect.neutral(), dtype=np.float64)
     rows = np.repeat(base[None, :], len(columns), axis=0)

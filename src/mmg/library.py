@@ -259,15 +259,13 @@ _TERMS: list[Term] = [
 #: them still load, but no longer searched: the transients at fixed time constants, now one
 #: term each with tau as its shape (``X_bt`` at tau = 300 s is ``X_b300``)
 _FORMER: list[Term] = [
-    *(
-        Term(f"{e}_{k}{tau}", expr.format(tau=f"{tau}.0"), formula.format(tau=f"{tau} s"), "time")
-        for e in "XYN"
-        for k, expr, formula in (
-            ("e", "math.exp(-t / {tau})", "U_ref^2 exp(-t / {tau})"),
-            ("b", "1.0 - math.exp(-t / {tau})", "U_ref^2 (1 - exp(-t / {tau}))"),
-        )
-        for tau in (100, 300, 1000)
+    Term(f"{e}_{k}{tau}", expr.format(tau=f"{tau}.0"), formula.format(tau=f"{tau} s"), "time")
+    for e in "XYN"
+    for k, expr, formula in (
+        ("e", "math.exp(-t / {tau})", "U_ref^2 exp(-t / {tau})"),
+        ("b", "1.0 - math.exp(-t / {tau})", "U_ref^2 (1 - exp(-t / {tau}))"),
     )
+    for tau in (100, 300, 1000)
 ]
 
 #: every library term by id

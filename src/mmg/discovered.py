@@ -85,7 +85,7 @@ def _source(name: str, terms: Sequence[Term], key: str) -> str:
     fields = []
     for t in terms:
         fields.append(f"    {t.coefficient}: float  # {t.written(t.formula)}")
-        fields += [f"    {t.shape_param(s)}: float  # {s.role} [{s.unit}]" for s in t.shape]
+        fields += [f"    {t.shape_param(s.name)}: float  # {s.role} [{s.unit}]" for s in t.shape]
     return _TEMPLATE.format(
         name=name,
         ptype=f"DiscoveredParams_{key}",
@@ -136,7 +136,9 @@ def discovered_effect(term_ids: Sequence[str], bound: float = DEFAULT_BOUND) -> 
     for t in terms:
         params.append(EffectParam(t.coefficient, "-", 0.0, -bound, bound, t.force_formula()))
         params += [
-            EffectParam(t.shape_param(s), s.unit, s.default, s.lower, s.upper, f"{s.role}, {t.id}")
+            EffectParam(
+                t.shape_param(s.name), s.unit, s.default, s.lower, s.upper, f"{s.role}, {t.id}"
+            )
             for s in t.shape
         ]
     effect = Effect(
@@ -171,8 +173,7 @@ def with_bounds(
     for tid, values in (shapes or {}).items():
         t = term(tid)
         for s_name, (lo, hi) in shape_box(t, values).items():
-            shape = next(s for s in t.shape if s.name == s_name)
-            boxes[t.shape_param(shape)] = (float(values[s_name]), lo, hi)
+            boxes[t.shape_param(s_name)] = (float(values[s_name]), lo, hi)
     params = []
     for q in effect.params:
         if q.name in half:

@@ -115,16 +115,17 @@ class Term:
         """Name of the term's coefficient (a parameter of the generated effect)."""
         return f"C_{self.id}"
 
-    def shape_param(self, shape: Shape) -> str:
-        """Name of a shape parameter of this term in the generated effect, e.g. ``tau_N_bt``."""
-        return f"{shape.name}_{self.id}"
+    def shape_param(self, name: str) -> str:
+        """Name of the shape parameter ``name`` (its placeholder, e.g. ``tau``) of this term in
+        the generated effect, e.g. ``tau_N_bt``."""
+        return f"{name}_{self.id}"
 
     def written(self, text: str, prefix: str = "") -> str:
         """``text`` with the shape placeholders replaced by the parameter names (after
         ``prefix``, e.g. ``e.`` in the generated code)."""
         if not self.shape:
             return text
-        return text.format(**{s.name: prefix + self.shape_param(s) for s in self.shape})
+        return text.format(**{s.name: prefix + self.shape_param(s.name) for s in self.shape})
 
     def force_formula(self) -> str:
         """The term as a force in the paper's notation, with units."""
@@ -304,7 +305,7 @@ class Column:
     def values(self) -> dict[str, float]:
         """The shape values by parameter name in the generated effect (``tau_N_bt``)."""
         t = term(self.term)
-        return {f"{n}_{t.id}": float(v) for n, v in self.shape}
+        return {t.shape_param(n): float(v) for n, v in self.shape}
 
 
 def shape_grid(t: Term, spans: Mapping[str, Any]) -> list[tuple[tuple[str, float], ...]]:
@@ -339,6 +340,12 @@ def shape_box(t: Term, values: Mapping[str, float]) -> dict[str, tuple[float, fl
         else:
             out[s.name] = (max(v / 4.0, s.lower), min(v * 4.0, s.upper))
     return out
+
+
+def chosen_shapes(columns: Sequence[Column]) -> dict[str, dict[str, float]]:
+    """{term: {placeholder: value}} of the columns whose term has a shape: how a selection
+    hands the grid points it chose to :func:`mmg.discovered.with_bounds`."""
+    return {c.term: dict(c.shape) for c in columns if c.shape}
 
 
 def library_columns(term_ids: Sequence[str], spans: Mapping[str, Any]) -> list[Column]:

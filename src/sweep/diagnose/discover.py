@@ -52,7 +52,7 @@ from scipy.signal import savgol_filter
 
 from mmg import Effect, Parameters, bounds, derivatives, get_effect
 from mmg.discovered import discovered_effect, unit_rows, with_bounds
-from mmg.library import SEARCHED, Column, library_columns, term
+from mmg.library import SEARCHED, Column, chosen_shapes, library_columns, term
 from mmg.params import N_THETA
 from sweep.data.recordings import Recording
 from sweep.diagnose.fit import effect_values
@@ -219,15 +219,12 @@ class Alternative:
     cv_r2: float
     without: str
     shapes: dict[str, dict[str, float]] = field(default_factory=dict)
+    labels: list[str] = field(default_factory=list)  # the terms with their shapes
 
 
 def _shapes(data: EquationData, chosen: Sequence[int]) -> dict[str, dict[str, float]]:
     """{term: {placeholder: value}} of the chosen columns whose term has a shape."""
-    out: dict[str, dict[str, float]] = {}
-    for k in chosen:
-        if data.columns and data.columns[k].shape:
-            out[data.term_ids[k]] = dict(data.columns[k].shape)
-    return out
+    return chosen_shapes([data.columns[k] for k in chosen]) if data.columns else {}
 
 
 def _cv_r2(y: FloatArray, X: FloatArray, folds: list[NDArray[np.bool_]]) -> float:
@@ -310,6 +307,7 @@ def select(
         single.append(
             {
                 "term": labels[k],
+                "id": data.term_ids[k],
                 "cv_r2": _cv_r2(y, C[:, [k]], folds),
                 "absorbed": float(absorbed[k]),
             }
@@ -333,7 +331,14 @@ def select(
                 continue
             seen.add(frozenset(alt_names))
             alternatives.append(
-                Alternative(alt_names, _coefficients(y, C, alt), r2, kind, _shapes(data, alt))
+                Alternative(
+                    alt_names,
+                    _coefficients(y, C, alt),
+                    r2,
+                    kind,
+                    _shapes(data, alt),
+                    [labels[k] for k in alt],
+                )
             )
     return Selection(
         terms=names,

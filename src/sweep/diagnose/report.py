@@ -395,13 +395,6 @@ def _trajectory_md(d: Diagnosis) -> list[str]:
     ]
 
 
-def _labelled(a: Any) -> list[str]:
-    """The terms of a selection or alternative, each with the shape chosen for it."""
-    from mmg.library import Column
-
-    return [Column(t, tuple(a.shapes.get(t, {}).items())).label for t in a.terms]
-
-
 def _discovery_md(d: Diagnosis) -> list[str]:
     p = d.proposal
     if p is None:
@@ -417,8 +410,8 @@ def _discovery_md(d: Diagnosis) -> list[str]:
         + ("proposed as a candidate." if p.proposed else "not proposed."),
         "",
         *(
-            f"Alternative without the {a.without} terms: {' + '.join(_labelled(a))}, held-out R^2 "
-            f"{100 * a.cv_r2:.2f} %"
+            f"Alternative without the {a.without} terms: {' + '.join(a.labels or a.terms)}, "
+            f"held-out R^2 {100 * a.cv_r2:.2f} %"
             + (" (proposed beside it; the trajectories decide)." if p.proposed else ".")
             for a in sel.alternatives
         ),
@@ -430,7 +423,7 @@ def _discovery_md(d: Diagnosis) -> list[str]:
 
     for r in sel.single[:8]:
         label = str(r["term"])  # the term with its shape grid point, if it has one
-        t = term(label.split("(")[0])
+        t = term(str(r.get("id", label)))
         lines.append(
             f"| {label} | {t.force_formula()} | {100 * float(r['cv_r2']):.2f} % | "
             f"{100 * float(r['absorbed']):.0f} % |"

@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 
 from mmg import Effect, Parameters, bounds, get_effect
 from mmg.discovered import discovered_effect, unit_rows
-from mmg.library import SEARCHED, Column, library_columns
+from mmg.library import SEARCHED, Column, chosen_shapes, library_columns
 from mmg.params import N_THETA
 from sweep.data.objective import Objective
 from sweep.data.recordings import Recording
@@ -395,11 +395,7 @@ class Linearised:
             coefficients=[float(c) for c in coef],
             heldout_gain=[g / J0 for g in path_gain],
             dbic=dbic if k else 0.0,
-            shapes={
-                self.term_ids[j]: dict(self.columns[j].shape)
-                for j in chosen
-                if self.columns[j].shape
-            },
+            shapes=chosen_shapes([self.columns[j] for j in chosen]),
         )
 
     def residuals(self, recordings: Sequence[Recording]) -> FloatArray:

@@ -105,9 +105,15 @@ def test_planted_rudder_offset_is_found_end_to_end(runs, tmp_path, capsys):
     )
     assert table["J2"]["Total"] == pytest.approx(after, rel=1e-9)
 
-    # a second run resumes every stage instead of fitting again
+    # a second run resumes every stage instead of fitting again; the re-identification's prior
+    # is in its stages' names, so another weight refits those two stages only
     assert _diagnose(case, out, "--no-tracking") == 0
-    assert capsys.readouterr().err.count("resumed from") >= 5
+    err = capsys.readouterr().err
+    assert err.count("resumed from") >= 5 and "final-w0.01-base.json" in err
+    assert _diagnose(case, out, "--no-tracking", "--final-prior-weight", "0.02") == 0
+    err = capsys.readouterr().err
+    assert "final-w0.02-base: J =" in err and "final-w0.02-3-rudder_offset: J =" in err
+    assert "base.json" in err and "final-w0.01" not in err
 
 
 def test_no_planted_effect_gives_verdict_none(runs, tmp_path):
@@ -128,6 +134,8 @@ def test_user_mistakes_are_one_line_errors(runs, tmp_path, capsys):
     assert "unknown effect" in capsys.readouterr().err
     assert _diagnose(case, tmp_path / "o1", "--prior-weight", "-1") == 2
     assert "--prior-weight must be >= 0" in capsys.readouterr().err
+    assert _diagnose(case, tmp_path / "o1", "--final-prior-weight", "nan") == 2
+    assert "--final-prior-weight must be >= 0" in capsys.readouterr().err
     assert _diagnose(case, tmp_path / "o1", "--base-descent", "-5") == 2
     assert "--base-descent must be >= 0" in capsys.readouterr().err
     one = tmp_path / "one"

@@ -121,8 +121,17 @@ def derivatives(
     U = np.broadcast_to(u_arr, (*shape, 2)).reshape(M, 2)
     Wd = np.broadcast_to(w_arr, (*shape, 2)).reshape(M, 2)
     if isinstance(p, np.ndarray) and p.ndim > 1:
-        p = np.broadcast_to(p, (*shape, p.shape[-1])).reshape(M, p.shape[-1])
-    P = parameter_matrix(p, M, effects)
+        # one parameter set per point: written straight into the kernel's (n_params, M) layout
+        # (reshaping a broadcast (..., n_params) view and then transposing it copied the whole
+        # matrix twice, the second time across the cache; equation-level discovery passes
+        # hundreds of parameter rows per sample)
+        n = N_THETA + sum(len(e.params) for e in effects)
+        if p.shape[-1] != n:
+            raise ValueError(f"parameter array must have {n} columns; got {p.shape}")
+        P = np.empty((n, M))
+        P.reshape(n, *shape)[...] = np.moveaxis(np.broadcast_to(p, (*shape, n)), -1, 0)
+    else:
+        P = parameter_matrix(p, M, effects)
     kern = load_kernel(effects)
     out = np.empty((6, M))
     kern.rhs_lanes(

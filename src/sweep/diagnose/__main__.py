@@ -106,6 +106,12 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         default=d.prior_weight,
         help="weight of the prior toward --params (J per squared normalised coordinate)",
     )
+    ap.add_argument(
+        "--final-prior-weight",
+        type=float,
+        default=d.final_prior_weight,
+        help="... in the re-identification on all training windows",
+    )
     ap.add_argument("--max-delta-bic", type=float, default=d.max_delta_bic)
     ap.add_argument(
         "--no-discovery",
@@ -154,6 +160,8 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
         raise UserError(f"--base-descent must be >= 0 iterations; got {args.base_descent}")
     if not args.prior_weight >= 0.0:
         raise UserError(f"--prior-weight must be >= 0; got {args.prior_weight}")
+    if not args.final_prior_weight >= 0.0:
+        raise UserError(f"--final-prior-weight must be >= 0; got {args.final_prior_weight}")
     start = load_parameters(args.params)
     train, _ = _recordings(args.train, "--train", "train", args.data_dir)
     test: list[Recording] = []
@@ -171,6 +179,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
         min_improvement=args.min_improvement,
         max_delta_bic=args.max_delta_bic,
         prior_weight=args.prior_weight,
+        final_prior_weight=args.final_prior_weight,
         discover=not args.no_discovery,
         discover_terms=args.discover_terms,
         alpha=args.alpha,

@@ -143,12 +143,14 @@ TIE_ABSOLUTE = 10.0
 PRIOR_WEIGHT = 1.0
 #: weight of the same prior in the re-identification on all training windows (step 6). The
 #: prior above holds the fold fits on half the windows together; on all of them it costs more
-#: than the data can tell apart: a ship 15 % off its captive-model values per parameter is 0.008
-#: of a coordinate's interval away, and the prior's pull toward the start (about 1 % of the
-#: training J) outweighs the J differences along the directions the windows leave flat. Measured
-#: on the planted benchmark (Levenberg-Marquardt continued from each case's final model, 25
-#: cases): the test J2 over the true model's went from 1.0-4.3 x to 1.0-1.7 x at 0.01, the
-#: catalog parameters' errors fell (k_aH 3.2 -> 0.5 %); at 0 some ends wandered (5.2 x).
+#: than the data can tell apart: the search boxes of m_x, m_y and J_zz are narrow (EFD +- 30 %),
+#: so a ship 15 % off its captive-model masses pays about 0.06 of J per mass at weight 1 (a
+#: tenth of a 12-window training J at the noise level; the other 54 parameters, boxes +- 10 x,
+#: pay 0.00006 each): the prior pinned the masses and the rest compensated along the directions
+#: the windows leave flat. Measured on the planted benchmark (``benchmarks/final_prior_probe.py``:
+#: Levenberg-Marquardt continued from each case's final model, 25 cases): the test J2 over the
+#: true model's went from 1.0-4.3 x to 1.0-1.7 x at 0.01, the catalog parameters' errors fell
+#: (k_aH 3.2 -> 0.5 %); at 0 some ends wandered (5.2 x).
 FINAL_PRIOR_WEIGHT = 0.01
 #: version of the fitting procedure; raise it when a change alters what a stage computes
 PROCEDURE_VERSION = 7

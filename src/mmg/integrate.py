@@ -11,6 +11,7 @@ array (n,) or (B, n) of flat vectors (57 explored values, then the effects' valu
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -73,9 +74,14 @@ def parameter_matrix(p: ParamsLike, B: int, effects: tuple[Effect, ...] = ()) ->
         arr = np.asarray(p, dtype=np.float64)
         if arr.ndim == 1:
             arr = np.broadcast_to(arr, (B, arr.shape[0]))
-        if arr.shape != (B, n):
+        if arr.shape[-1] != n or math.prod(arr.shape[:-1]) != B:
             raise ValueError(f"parameter array must have shape ({n},) or ({B}, {n}); got {p.shape}")
-        return kernel_array(arr.T)
+        # written straight into the kernel's layout, whatever the leading shape (reshaping a
+        # broadcast (..., n) view to (B, n) and then transposing it copied the matrix twice;
+        # equation-level discovery passes hundreds of parameter rows per sample)
+        P = np.empty((n, B))
+        P.reshape(n, *arr.shape[:-1])[...] = np.moveaxis(arr, -1, 0)
+        return P
     rows = [np.concatenate([q.vector(), effect_vector(q, effects)]) for q in p]
     if len(rows) != B:
         raise ValueError(f"{len(rows)} parameter sets for {B} trajectories")
@@ -121,17 +127,8 @@ def derivatives(
     U = np.broadcast_to(u_arr, (*shape, 2)).reshape(M, 2)
     Wd = np.broadcast_to(w_arr, (*shape, 2)).reshape(M, 2)
     if isinstance(p, np.ndarray) and p.ndim > 1:
-        # one parameter set per point: written straight into the kernel's (n_params, M) layout
-        # (reshaping a broadcast (..., n_params) view and then transposing it copied the whole
-        # matrix twice, the second time across the cache; equation-level discovery passes
-        # hundreds of parameter rows per sample)
-        n = N_THETA + sum(len(e.params) for e in effects)
-        if p.shape[-1] != n:
-            raise ValueError(f"parameter array must have {n} columns; got {p.shape}")
-        P = np.empty((n, M))
-        P.reshape(n, *shape)[...] = np.moveaxis(np.broadcast_to(p, (*shape, n)), -1, 0)
-    else:
-        P = parameter_matrix(p, M, effects)
+        p = np.broadcast_to(p, (*shape, p.shape[-1]))  # one parameter set per point
+    P = parameter_matrix(p, M, effects)
     kern = load_kernel(effects)
     out = np.empty((6, M))
     kern.rhs_lanes(

@@ -23,7 +23,6 @@ import warnings
 from pathlib import Path
 
 from mmg import Effect, Parameters, efd_parameters, get_effect
-from mmg.discovered import discovered_effect
 from mmg.params import N_THETA
 from sweep.data.objective import Objective
 from sweep.data.recordings import read_recordings
@@ -33,13 +32,17 @@ from sweep.diagnose.run import cut_windows
 from sweep.identification.polish import PolishSettings
 
 
-def final_stage(stages: Path, prefix: str, verdict: str) -> Path:
-    """The stored final model of a case: the base's, or the best of the effect's starts."""
-    if verdict in ("none", "unexplained"):
+def final_stage(stages: Path, prefix: str, effect: str) -> Path:
+    """The stored final model of a case: the base's (``effect`` empty) or the effect's. A
+    directory resumed across procedures holds the final stages of other proposals too, so the
+    stage is the one whose parameters carry ``effect``."""
+    if not effect:
         return stages / f"{prefix}-base.json"
-    effect = "discovered-" if verdict == "discovered" else verdict
-    pattern = f"final3-{effect}*.json" if prefix == "final" else f"{prefix}-3-{effect}*.json"
-    return min(stages.glob(pattern), key=lambda p: json.loads(p.read_text())["f"])
+    pattern = "final3-*.json" if prefix == "final" else f"{prefix}-3-*.json"
+    for path in sorted(stages.glob(pattern)):
+        if effect in json.loads(path.read_text())["params"]["effects"]:
+            return path
+    raise FileNotFoundError(f"no {pattern} stage with {effect} in {stages}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -58,13 +61,10 @@ def main(argv: list[str] | None = None) -> int:
         case = root / f"case-{c:02d}-0"
         res = json.loads((root / f"result-{c:02d}-0.json").read_text())
         verdict = res["verdict"]
-        effects: tuple[Effect, ...] = ()
-        if verdict == "discovered":
-            name = next(iter(res["after_effect_params"]))
-            effects = (discovered_effect(name.split(":", 1)[1].split("+")),)
-        elif verdict not in ("none", "unexplained"):
-            effects = (get_effect(verdict),)
-        stage = final_stage(case / "diagnosis" / "stages", args.stage, verdict)
+        # the verdict's effect by name (get_effect rebuilds a discovered one from its terms)
+        name = next(iter(res["after_effect_params"]), "")
+        effects: tuple[Effect, ...] = (get_effect(name),) if name else ()
+        stage = final_stage(case / "diagnosis" / "stages", args.stage, name)
         p0 = Parameters.from_dict(json.loads(stage.read_text())["params"])
         if args.from_truth:
             truth = json.loads((case / "truth.json").read_text())

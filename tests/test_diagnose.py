@@ -125,6 +125,32 @@ def test_no_planted_effect_gives_verdict_none(runs, tmp_path):
     assert report["verdict"] == "none"
     assert "Nothing significant" in report["statement"]
     assert report["fitted_effect_params"] == {}
+    gen = report["generalisation"]
+    assert gen is not None and not gen["significant"] and gen["J"] < gen["limit"]
+
+
+def test_an_effect_only_the_test_recordings_excite_is_flagged_unexplained(runs, tmp_path):
+    """Training windows without missing physics, a test window (zigzag) with a 2.9-deg rudder
+    zero error: the training fit is at the floor and no candidate is accepted, but the model does
+    not carry over to the test recording, so the verdict is ``unexplained``, not ``none``."""
+    rng = np.random.default_rng(3)
+    wins = pick_windows(runs, {"random": 3, "turning": 1, "zigzag": 1}, rng)
+    noise = noise_levels([r for v in runs.values() for r in v])
+    ship = efd_parameters()
+    train, _ = generate(wins[:4], ship, PlantedSpec("none"), noise, rng)
+    test, _ = generate(wins[4:], ship, PlantedSpec("rudder_offset", {"delta_0": 0.05}), noise, rng)
+    case = tmp_path / "case"
+    write_case(case, train, test, PlantedSpec("none"), ship)
+    out = tmp_path / "out"
+    assert _diagnose(case, out, "--no-tracking") == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["verdict"] == "unexplained"
+    assert not report["misfit"]["significant"]
+    gen = report["generalisation"]
+    assert gen["significant"] and gen["J"] > 3.0 * gen["median"]
+    assert gen["per_run"][0]["significant"]
+    assert "not fitted to" in report["statement"]
+    assert "does the model carry over" in (out / "report.md").read_text()
 
 
 def test_user_mistakes_are_one_line_errors(runs, tmp_path, capsys):

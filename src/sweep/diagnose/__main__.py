@@ -213,6 +213,9 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
         if result.misfit is not None:
             metrics["misfit/ratio_to_floor"] = result.misfit.ratio
             metrics["misfit/z"] = result.misfit.z
+        if result.generalisation is not None:
+            metrics["generalisation/ratio_to_median"] = result.generalisation.ratio
+            metrics["generalisation/significant"] = float(result.generalisation.significant)
         for when, table in (("before", result.test_before), ("after", result.test_after)):
             for J, row in table.items():
                 for label, value in row.items():

@@ -17,6 +17,7 @@ import pandas as pd
 
 from mmg import Parameters, get_effect, simulate_batch
 from sweep.data.recordings import Recording
+from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
 from sweep.diagnose.run import Diagnosis
 
@@ -52,6 +53,27 @@ def misfit_text(d: Diagnosis) -> str:
         f"the floor that measurement noise alone gives ({m.floor:.3g}, z = {m.z:.1f}; "
         f"significant above {1 + m.margin:.2f} x and z > {m.z_crit:.0f}).{refit}"
     )
+
+
+def generalisation_text(d: Diagnosis) -> str:
+    """The test recordings' misfit against a model exact in form, in words."""
+    g = d.generalisation
+    if g is None:
+        return ""
+    text = (
+        f"On the test recordings (not fitted to) the re-identified base model's {g.objective} is "
+        f"{g.J:.3g}, {g.ratio:.2f} x the median of what a model exact in form, identified on "
+        f"these training windows with noise of the estimated level, reaches there ({g.median:.3g}"
+        f"; {100 * (1 - g.alpha):.0f} % quantile {g.quantile:.3g}, significant above "
+        f"{1 + g.margin:.2f} x it): "
+        + ("it does not carry over." if g.significant else "within what noise explains.")
+    )
+    ga = d.generalisation_after
+    if ga is not None:
+        text += f" With the chosen effect: {ga.J:.3g}, {ga.ratio:.2f} x " + (
+            "(still significant)." if ga.significant else "(within)."
+        )
+    return text
 
 
 def _with_value(formula: str, name: str, values: dict[str, float]) -> str:
@@ -101,11 +123,27 @@ def statement(d: Diagnosis) -> str:
         m = d.misfit
         assert m is not None
         best = d.candidates[0] if d.candidates else None
-        text = (
-            f"Unexplained misfit: the base model misses by {m.ratio:.1f} x what measurement noise "
-            f"alone gives ({s.objective} {m.J:.3g} against a floor of {m.floor:.3g}, z = "
-            f"{m.z:.0f}), and no candidate (catalog or discovered) was accepted."
-        )
+        g = d.generalisation
+        if m.significant or g is None:
+            text = (
+                f"Unexplained misfit: the base model misses by {m.ratio:.1f} x what measurement "
+                f"noise alone gives ({s.objective} {m.J:.3g} against a floor of {m.floor:.3g}, "
+                f"z = {m.z:.0f}), and no candidate (catalog or discovered) was accepted."
+            )
+        else:
+            beyond = ", ".join(
+                f"{r['run']} ({r['ratio']:.1f} x)" for r in g.per_run if r["significant"]
+            )
+            text = (
+                f"Unexplained misfit on recordings the model was not fitted to: on the training "
+                f"windows the base model is at the noise floor ({m.ratio:.2f} x), but on the "
+                f"test recordings its {g.objective} is {g.J:.3g}, {g.ratio:.1f} x the median of "
+                f"what a model exact in form, identified on the same training windows, reaches "
+                f"there ({g.median:.3g}; significant above {g.limit:.3g}). Something the "
+                f"training manoeuvres do not excite is missing: no candidate (catalog or "
+                f"discovered) could be fitted to it. Runs beyond their own limit: "
+                f"{beyond or 'none alone'}; add training recordings of their regime."
+            )
         conf = d.extra.get("confirmation")
         if conf:
             text += (
@@ -113,7 +151,7 @@ def statement(d: Diagnosis) -> str:
                 f"it does not lower J beyond the threshold: dBIC {conf['delta_bic']:.1f}; it "
                 "only re-balanced the base parameters.)"
             )
-        if m.per_run:
+        if m.per_run and m.significant:
             worst = m.per_run[0]
             ch = max(worst["channels"], key=worst["channels"].get)
             text += f" Worst run: {worst['run']} ({worst['ratio']:.1f} x its floor, most in {ch})."
@@ -137,7 +175,7 @@ def statement(d: Diagnosis) -> str:
                 f" The best candidate was {best.effect} (dBIC {best.delta_bic:.1f}, held-out "
                 f"change {100 * best.improvement:+.1f} %)."
             )
-        return text + " " + misfit_text(d)
+        return text + " " + misfit_text(d) + (" " + generalisation_text(d)).rstrip()
     c = d.chosen
     assert c is not None
     after = dict(next(v for n, v in d.after.params.effects if n == d.verdict_effect))
@@ -171,6 +209,17 @@ def statement(d: Diagnosis) -> str:
     return text
 
 
+def _generalisation_dict(g: GeneralisationTest | None) -> dict[str, Any] | None:
+    if g is None:
+        return None
+    return {
+        **asdict(g),
+        "ratio": g.ratio,
+        "limit": g.limit,
+        "method": "parametric bootstrap, identification linearised (sweep.diagnose.generalise)",
+    }
+
+
 def report_dict(d: Diagnosis) -> dict[str, Any]:
     """Everything of ``report.json``."""
     chosen = d.chosen
@@ -181,6 +230,8 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
         "statement": statement(d),
         "discovered": discovered_entry(d),
         "misfit": asdict(d.misfit) if d.misfit is not None else None,
+        "generalisation": _generalisation_dict(d.generalisation),
+        "generalisation_after": _generalisation_dict(d.generalisation_after),
         "noise_model": d.extra.get("noise", {}),
         "discovery": (
             {
@@ -395,6 +446,26 @@ def _trajectory_md(d: Diagnosis) -> list[str]:
     ]
 
 
+def _generalisation_md(d: Diagnosis) -> list[str]:
+    g = d.generalisation
+    if g is None:
+        return []
+    return [
+        "### On the test recordings: does the model carry over?",
+        "",
+        generalisation_text(d),
+        "",
+        "| test run | J | null median | null quantile | J / median | beyond the limit |",
+        "|---|---:|---:|---:|---:|---|",
+        *(
+            f"| {r['run']} | {r['J']:.3g} | {r['median']:.3g} | {r['quantile']:.3g} | "
+            f"{r['ratio']:.2f} | {'yes' if r['significant'] else 'no'} |"
+            for r in g.per_run
+        ),
+        "",
+    ]
+
+
 def _discovery_md(d: Diagnosis) -> list[str]:
     p = d.proposal
     if p is None:
@@ -532,6 +603,7 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
             for r in (d.misfit.per_run[:8] if d.misfit else [])
         ),
         "",
+        *_generalisation_md(d),
         "## Discovery: equation-level residuals regressed on the term library",
         "",
         *_discovery_md(d),

@@ -56,7 +56,9 @@ Procedure (:func:`diagnose`), all on the training recordings unless said otherwi
    typical held-out window by 12.9 % and made the test set 11 % worse, where the dBIC winner
    (N_s3b) made it 2 % better. With no accepted candidate the verdict is ``unexplained`` when
    the misfit test (:mod:`sweep.diagnose.floor`) finds the base model significantly above the
-   noise floor, ``none`` when it does not.
+   noise floor, or when the base re-identified in step 6 misses the test recordings beyond what
+   a model exact in form, identified on these windows, would (:mod:`sweep.diagnose.generalise`:
+   an effect the training manoeuvres do not excite); ``none`` when neither does.
    Discovery adds candidates before the fits: terms of the library proposed from the
    equation-level residuals (:mod:`sweep.diagnose.discover`; with up to two alternatives
    without the heading, position or time terms of the proposal, step 4b there) and terms
@@ -103,6 +105,10 @@ from sweep.diagnose.floor import (
     noise_floor,
     run_of,
 )
+from sweep.diagnose.generalise import ALPHA as GENERALISATION_ALPHA
+from sweep.diagnose.generalise import DRAWS as GENERALISATION_DRAWS
+from sweep.diagnose.generalise import MARGIN as GENERALISATION_MARGIN
+from sweep.diagnose.generalise import GeneralisationTest, generalisation_test
 from sweep.diagnose.locate import (
     equation_residuals,
     locate,
@@ -200,6 +206,10 @@ class DiagnoseSettings:
     alpha: float = DiscoverySettings.alpha
     floor_draws: int = 12  # noise draws of the J floor
     floor_margin: float = 0.10  # the misfit must exceed the floor by this share (and z > 3)
+    #: noise-only copies of the generalisation test on the test recordings (0: no test)
+    generalisation_draws: int = GENERALISATION_DRAWS
+    generalisation_alpha: float = GENERALISATION_ALPHA
+    generalisation_margin: float = GENERALISATION_MARGIN
     #: a misfit above the floor first gets the base a second CMA-ES start (another seed)
     base_retry: bool = True
 
@@ -219,6 +229,9 @@ class DiagnoseSettings:
             "tie_margin",
             "discover_alternatives",
             "final_prior_weight",  # (in the final stages' names)
+            "generalisation_draws",
+            "generalisation_alpha",
+            "generalisation_margin",
         )
         data = {k: v for k, v in asdict(self).items() if k not in skip}
         data["procedure"] = PROCEDURE_VERSION  # stages of an older procedure are not reused
@@ -382,6 +395,9 @@ class Diagnosis:
     n_eff: float
     misfit: MisfitTest | None = None
     proposal: Proposal | None = None
+    #: the test recordings' J of the model before (after) against a model exact in form
+    generalisation: GeneralisationTest | None = None
+    generalisation_after: GeneralisationTest | None = None
     #: the chosen candidate's effect name (the verdict is ``discovered`` for a generated one)
     verdict_effect: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
@@ -880,6 +896,41 @@ def diagnose(
             f"test {s.objective}: before {test_before[s.objective]['Total']:.1f}, "
             f"after {test_after[s.objective]['Total']:.1f}"
         )
+    # does the model carry over to the test recordings? (an effect the training manoeuvres do
+    # not excite leaves the training windows at the floor)
+    gen: GeneralisationTest | None = None
+    gen_after: GeneralisationTest | None = None
+    test_w = cut_windows(test) if test and s.generalisation_draws > 0 else []
+    if test_w:
+
+        def carry_over(p: Parameters) -> GeneralisationTest:
+            return generalisation_test(
+                p,
+                windows,
+                test_w,
+                noise,
+                np.random.default_rng(s.seed + 17),
+                objective=s.objective,
+                prior_weight=s.final_prior_weight,
+                draws=s.generalisation_draws,
+                alpha=s.generalisation_alpha,
+                margin=s.generalisation_margin,
+            )
+
+        gen = carry_over(before.params)
+        if verdict_effect:
+            gen_after = carry_over(after.params)
+        for label, g in (("before", gen), ("after", gen_after)):
+            if g is not None:
+                log(
+                    f"test recordings ({label}): {s.objective} {g.J:.3g}, {g.ratio:.2f} x the "
+                    f"median of a model exact in form identified on these windows "
+                    f"({g.median:.3g}; {100 * (1 - g.alpha):.0f} % quantile {g.quantile:.3g}): "
+                    + ("significant" if g.significant else "within")
+                )
+        if not verdict_effect and gen.significant and verdict == "none":
+            verdict = "unexplained"
+            log("verdict: unexplained (the model does not carry over to the test recordings)")
     return Diagnosis(
         settings=s,
         train_windows=len(windows),
@@ -900,6 +951,8 @@ def diagnose(
         n_eff=n_eff,
         misfit=misfit,
         proposal=proposal,
+        generalisation=gen,
+        generalisation_after=gen_after,
         verdict_effect=verdict_effect,
         extra={
             "J_heldout_control": float(J_ho_control.sum()),

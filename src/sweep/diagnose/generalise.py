@@ -1,0 +1,150 @@
+"""Does the model carry over? Its misfit on recordings it was not fitted to, against the floor.
+
+The misfit test of :mod:`sweep.diagnose.floor` looks at the training windows. An effect that the
+training manoeuvres do not excite (a crossflow that only acts going astern, when no training run
+goes astern) leaves the identified model at the noise floor there and shows only on other
+recordings. The test recordings (the paper's test set) are windows the model was not fitted to:
+a model exact in form, identified on the training windows, misses them by the measurement noise
+of the test recordings plus what the noise of the training windows moved its parameters by. The
+null distribution of that J comes from a parametric bootstrap with the identification linearised
+(Gauss-Newton, as in :mod:`sweep.diagnose.threshold`):
+
+1. ``draws`` noise-only copies of the training windows (the model's simulation plus noise of the
+   estimated level and colour, :mod:`sweep.diagnose.floor`); the linearised refit of the 57
+   parameters on each (with the refinement's prior at the model's weight) moves them by ``dz_d``;
+2. on ``draws`` noise-only copies of the test windows, the model's residual plus the test
+   Jacobian times ``dz_d`` is the residual of that refitted model there: J of it is one draw.
+
+The model misses the test recordings significantly when their J exceeds the ``1 - alpha``
+quantile of the null by more than ``margin``, an allowance for identifications that stop short of
+the least-squares optimum (in the planted benchmark, models identified on data without missing
+physics reached up to 1.15 x that 99 % quantile: :data:`MARGIN`). The same comparison per test
+run says where.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mmg import Parameters
+from sweep.data.recordings import Recording
+from sweep.diagnose.discover import null_sets
+from sweep.diagnose.floor import NoiseModel, run_of
+from sweep.diagnose.threshold import Linearised
+
+FloatArray = NDArray[np.float64]
+
+#: false-alarm rate of the test, before the margin
+ALPHA = 0.01
+#: the test J must exceed the null's 1 - ALPHA quantile by this share. Measured on the planted
+#: benchmark's eight no-effect cases (procedure 10): test J at 0.47-1.15 x that quantile, the
+#: highest a base whose training J had stopped 8 % above the floor of a fitted model
+MARGIN = 0.25
+#: noise-only copies of the training and of the test windows
+DRAWS = 100
+#: copies processed at once (bounds the memory of the residual stacks on long test sets)
+CHUNK = 25
+
+
+@dataclass
+class GeneralisationTest:
+    """A model's J on the test recordings against the null of a model exact in form."""
+
+    objective: str
+    J: float  # the model's J on the test windows
+    median: float  # median of the null
+    quantile: float  # its 1 - alpha quantile
+    alpha: float
+    margin: float
+    p_value: float  # share of the null at or above J
+    significant: bool
+    draws: int
+    prior_weight: float  # of the linearised refit (the model's own identification)
+    per_run: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def ratio(self) -> float:
+        """J over the null's median."""
+        return self.J / self.median if self.median > 0 else float("inf")
+
+    @property
+    def limit(self) -> float:
+        """The J above which the misfit is significant."""
+        return (1.0 + self.margin) * self.quantile
+
+
+def generalisation_test(
+    params: Parameters,
+    train: Sequence[Recording],
+    test: Sequence[Recording],
+    noise: NoiseModel,
+    rng: np.random.Generator,
+    *,
+    objective: str = "J2",
+    prior_weight: float = 1.0,
+    draws: int = DRAWS,
+    alpha: float = ALPHA,
+    margin: float = MARGIN,
+) -> GeneralisationTest:
+    """The test of the module docstring for ``params`` identified on the windows ``train``,
+    judged on the windows ``test`` (both cut as the objective cuts them, e.g. by
+    :func:`sweep.diagnose.run.cut_windows`)."""
+    if not test:
+        raise ValueError("the generalisation test needs test recordings")
+    lin = Linearised(params, train, [], (), objective=objective, prior_weight=prior_weight)
+    lte = Linearised(params, test, [], (), objective=objective, prior_weight=prior_weight)
+    r_act = lte.residuals(test)  # (S, M)
+    A_te = lte.A  # (S, M, 57)
+    runs = [run_of(w) for w in test]
+    names = list(dict.fromkeys(runs))
+    rows = {n: [i for i, r in enumerate(runs) if r == n] for n in names}
+    null = np.zeros(draws)
+    null_run = np.zeros((len(names), draws))
+    done = 0
+    while done < draws:
+        k = min(CHUNK, draws - done)
+        R_tr = np.stack([lin.residuals(c) for c in null_sets(params, train, noise, rng, k)], -1)
+        R_te = np.stack([lte.residuals(c) for c in null_sets(params, test, noise, rng, k)], -1)
+        coef = lin.all.base_coef(lin.all.stack(R_tr))  # (57, k): least squares with the prior
+        E = R_te - np.einsum("smp,pd->smd", A_te, coef)  # residual of the refitted model
+        per_window = (E * E).sum(axis=1)  # (S, k)
+        null[done : done + k] = per_window.sum(axis=0)
+        for j, n in enumerate(names):
+            null_run[j, done : done + k] = per_window[rows[n]].sum(axis=0)
+        done += k
+    J = float((r_act * r_act).sum())
+    q = float(np.quantile(null, 1.0 - alpha))
+    per_run: list[dict[str, Any]] = []
+    for j, n in enumerate(names):
+        Jr = float((r_act[rows[n]] ** 2).sum())
+        med = float(np.median(null_run[j]))
+        qr = float(np.quantile(null_run[j], 1.0 - alpha))
+        per_run.append(
+            {
+                "run": n,
+                "J": Jr,
+                "median": med,
+                "quantile": qr,
+                "ratio": Jr / med if med > 0 else float("inf"),
+                "significant": bool(Jr > (1.0 + margin) * qr),
+            }
+        )
+    per_run.sort(key=lambda r: r["ratio"], reverse=True)
+    return GeneralisationTest(
+        objective=objective,
+        J=J,
+        median=float(np.median(null)),
+        quantile=q,
+        alpha=alpha,
+        margin=margin,
+        p_value=float(np.mean(null >= J)),
+        significant=bool((1.0 + margin) * q < J),
+        draws=draws,
+        prior_weight=prior_weight,
+        per_run=per_run,
+    )

@@ -174,6 +174,9 @@ _TERMS: list[Term] = [
     *_t("YN", "duu", "delta * u * abs(u)", "delta u|u|", "rudder"),
     *_t("YN", "dnn", "delta * nD * nD", "delta (n_p D_p)^2", "rudder"),
     *_t("YN", "dddu", "delta * delta * delta * u * abs(u)", "delta^3 u|u|", "rudder"),
+    # ... and in the propeller slipstream (the rudder's lift curve bends off the straight line
+    # at large angles, by the flow the propeller drives as by the ship's speed)
+    *_t("YN", "dddnn", "delta * delta * delta * nD * nD", "delta^3 (n_p D_p)^2", "rudder"),
     *_t("X", "dduu", "delta * delta * u * abs(u)", "delta^2 u|u|", "rudder"),
     *_t("X", "ddnn", "delta * delta * nD * nD", "delta^2 (n_p D_p)^2", "rudder"),
     # quadrants: astern (u < 0) and reversed propeller (n_p < 0)

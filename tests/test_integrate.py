@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+import pytest
 from scipy.linalg import expm
 
 from mmg import bounds, derivatives, efd_parameters, simulate, simulate_batch
@@ -83,6 +84,34 @@ def test_results_do_not_depend_on_chunking_or_batch_companions():
     c = simulate_batch(x0[5:6], u[5:6], w[5:6], theta[5:6]).states
     assert np.array_equal(a, b)
     assert np.array_equal(a[5], c[0])
+
+
+def test_derivatives_of_many_parameter_rows_equal_the_per_point_evaluation():
+    """derivatives_rows (each point reads its set from R columns) gives bit for bit what
+    derivatives gives with the sets broadcast to every point, with an effect and time."""
+    from mmg import get_effect
+    from mmg.integrate import derivatives, derivatives_rows
+
+    rng = np.random.default_rng(4)
+    x0, u, w = _random_inputs(rng, 1, 30)
+    eff = get_effect("discovered:N_dnn+Y_t")
+    rows = np.concatenate([_perturbed(rng, 5), rng.normal(0.0, 1e-3, (5, 2))], axis=1)
+    x = np.repeat(x0, 30, axis=0) + rng.normal(0.0, 0.01, (30, 6))
+    t = np.linspace(0.0, 90.0, 30)
+    got = derivatives_rows(x, u[0], w[0], rows, (eff,), t=t)
+    ref = derivatives(
+        np.broadcast_to(x, (5, 30, 6)),
+        np.broadcast_to(u[0], (5, 30, 2)),
+        np.broadcast_to(w[0], (5, 30, 2)),
+        np.broadcast_to(rows[:, None, :], (5, 30, rows.shape[1])),
+        (eff,),
+        t=np.broadcast_to(t, (5, 30)),
+    )
+    assert got.shape == (5, 30, 6)
+    assert np.array_equal(got, ref)
+    assert not np.array_equal(got[0], got[1])  # the rows differ
+    with pytest.raises(ValueError, match="rows must have shape"):
+        derivatives_rows(x, u[0], w[0], rows[:, :10], (eff,))
 
 
 def test_diverging_candidate_is_flagged_and_does_not_spoil_the_batch():

@@ -145,6 +145,58 @@ def derivatives(
     return out.T.reshape(*shape, 6)
 
 
+def derivatives_rows(
+    x: Any,
+    u: Any,
+    w: Any,
+    rows: Any,
+    effects: tuple[Effect, ...] = (),
+    ship: Ship | None = None,
+    t: Any = 0.0,
+) -> FloatArray:
+    """State derivatives xdot (R, ..., 6) of each of R parameter sets ``rows`` (R, n) at every
+    point of x (..., 6), u (..., 2), w (..., 2), t (...) (leading shapes broadcast).
+
+    The same numbers as :func:`derivatives` with the parameters broadcast to every point, but
+    the kernel reads each point's set from the R columns: no (n, R x points) copy of them (with
+    hundreds of sets, as equation-level discovery has, that copy cost more than the physics).
+    """
+    x_arr = np.asarray(x, dtype=np.float64)
+    u_arr = np.asarray(u, dtype=np.float64)
+    w_arr = np.asarray(w, dtype=np.float64)
+    t_arr = np.asarray(t, dtype=np.float64)
+    P_rows = np.asarray(rows, dtype=np.float64)
+    n = N_THETA + sum(len(e.params) for e in effects)
+    if P_rows.ndim != 2 or P_rows.shape[1] != n:
+        raise ValueError(f"rows must have shape (R, {n}); got {P_rows.shape}")
+    shape = np.broadcast_shapes(x_arr.shape[:-1], u_arr.shape[:-1], w_arr.shape[:-1], t_arr.shape)
+    M = int(np.prod(shape))
+    R = P_rows.shape[0]
+
+    def lanes(a: FloatArray, k: int) -> FloatArray:  # (M, k) points -> (k, R * M) lanes
+        pts = np.broadcast_to(a, (*shape, k)).reshape(M, k).T
+        return kernel_array(np.broadcast_to(pts[:, None, :], (k, R, M)).reshape(k, R * M))
+
+    X = lanes(x_arr, 6)
+    U = lanes(u_arr, 2)
+    Wd = lanes(w_arr, 2)
+    T = lanes(t_arr[..., None], 1)[0]
+    out = np.empty((6, R * M))
+    load_kernel(effects).rhs_rows(
+        kernel_array(T),
+        X,
+        kernel_array(U[0]),
+        kernel_array(U[1]),
+        kernel_array(Wd[0]),
+        kernel_array(Wd[1]),
+        kernel_array(P_rows.T),
+        kernel_array(np.repeat(np.arange(R, dtype=np.int64), M), np.int64),
+        ship if ship is not None else ESSO_OSAKA,
+        out,
+    )
+    return np.moveaxis(out.reshape(6, R, *shape), 0, -1)
+
+
 def chunk_width(B: int, chunk: int = DEFAULT_CHUNK) -> int:
     """Lanes per chunk: at most ``chunk``, with a number of chunks that the threads share evenly."""
     threads = numba.get_num_threads()

@@ -393,6 +393,21 @@ def rhs_lanes(T, X, delta, n_p, U_T, gamma_T, P, sh, out):
         )
         for j in range(6):
             out[j, i] = d[j]
+
+
+@numba.njit(cache=True, **JIT_OPTIONS)
+def rhs_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
+    """xdot for M points, point i with the parameter column row[i] of P (N_PARAMS, R): many
+    points share a few parameter sets without a per-point copy of them -> out (6, M)."""
+    for i in range(X.shape[1]):
+        sin_d, cos_d = sincos(delta[i])
+        sin_g, cos_g = sincos(gamma_T[i])
+        d = rhs(
+            T[i], X[0, i], X[1, i], X[2, i], X[3, i], X[4, i], X[5, i],
+            delta[i], sin_d, cos_d, n_p[i], U_T[i], gamma_T[i], sin_g, cos_g, P, row[i], sh,
+        )
+        for j in range(6):
+            out[j, i] = d[j]
 '''
 
 _MMG_RHS = """\
@@ -556,8 +571,8 @@ def _fingerprint(source: str, effects: tuple[Effect, ...], rhs_override: object 
 def load_kernel(effects: tuple[Effect, ...] = (), rhs_override: object | None = None) -> ModuleType:
     """Generate (if needed), import and return the kernel module for ``effects``.
 
-    The module exposes ``simulate_lanes``, ``moments_lanes``, ``rhs_lanes``, ``rhs`` and
-    ``N_PARAMS``.
+    The module exposes ``simulate_lanes``, ``moments_lanes``, ``rhs_lanes``, ``rhs_rows``,
+    ``rhs`` and ``N_PARAMS``.
     """
     source = render(effects, rhs_override)
     key = _fingerprint(source, effects, rhs_override)

@@ -52,6 +52,7 @@ from scipy.signal import savgol_filter
 
 from mmg import Effect, Parameters, bounds, derivatives, get_effect
 from mmg.discovered import discovered_effect, unit_rows, with_bounds
+from mmg.integrate import derivatives_rows
 from mmg.library import SEARCHED, Column, chosen_shapes, library_columns, term
 from mmg.params import N_THETA
 from sweep.data.recordings import Recording
@@ -141,7 +142,6 @@ def equation_data(
     P = np.repeat(p0[None, :], 1 + N_THETA + T, axis=0)  # (R, n_params)
     P[1 + np.arange(N_THETA), np.arange(N_THETA)] += steps
     P[1 + N_THETA :, p0.size - len(lib.params) :] = unit_rows(lib, columns, 1.0)
-    R = P.shape[0]
     for g, w in enumerate(windows):
         dt = w.dt
         m = max(7, round(settings.sg_window_s / dt) | 1)
@@ -156,15 +156,7 @@ def equation_data(
         tt = np.asarray(w.t, dtype=np.float64)
         sl = slice(m // 2, x.shape[0] - m // 2, settings.stride)  # away from the filter's edges
         xs, acc, us, wind, tt = xs[sl], acc[sl], us[sl], wind[sl], tt[sl]
-        n = xs.shape[0]
-        d = derivatives(
-            np.broadcast_to(xs, (R, n, 6)),
-            np.broadcast_to(us, (R, n, 2)),
-            np.broadcast_to(wind, (R, n, 2)),
-            np.broadcast_to(P[:, None, :], (R, n, P.shape[1])),
-            effects,
-            t=np.broadcast_to(tt, (R, n)),
-        )[..., ACC]
+        d = derivatives_rows(xs, us, wind, P, effects, params.ship, tt)[..., ACC]  # (R, n, 3)
         d = np.moveaxis(d, 1, 0)  # (n, R, 3)
         base = d[:, 0]
         ys.append(acc - base)

@@ -63,6 +63,9 @@ GRID = 5
 #: a library term whose trajectory column the base imitates beyond 1 - MIN_FREE of its squared
 #: norm counts nothing (as ``DiscoverySettings.max_absorbed`` in the equation-level proposal)
 MIN_FREE = 0.01
+#: the library's span keeps the directions whose squared singular value exceeds this share of
+#: the largest (singular values down to 1e-5 of it: the Gram matrix's rounding is ~1e-16)
+GRAM_RCOND = 1e-10
 #: coefficient step of the library columns (the terms are linear in their coefficient)
 LIBRARY_STEP = 1e-4
 
@@ -222,8 +225,13 @@ def _library_part(
     n0 = np.sqrt((raw * raw).sum(axis=0))
     n0 = np.where(n0 > 1e-300, n0, np.inf)
     L = fold.resid(raw) / n0
-    U = _orth(L)
-    return U.T @ L, U.T @ Rf, n0
+    # the basis U = L V s^-1 from the eigenvectors of the Gram matrix L'L (T x T), never formed:
+    # the coordinates are U'L = s V' and U'Rf = s^-1 V'(L'Rf). The SVD of the tall L gave the
+    # same span and took most of the null's time on long recordings
+    lam, V = np.linalg.eigh(L.T @ L)
+    keep = lam > GRAM_RCOND * max(float(lam[-1]), 1e-300)
+    s, V = np.sqrt(lam[keep]), V[:, keep]
+    return s[:, None] * V.T, (V.T @ (L.T @ Rf)) / s[:, None], n0
 
 
 class _Fold:

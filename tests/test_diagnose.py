@@ -148,6 +148,8 @@ def test_an_effect_only_the_test_recordings_excite_is_flagged_unexplained(runs, 
     assert not report["misfit"]["significant"]
     gen = report["generalisation"]
     assert gen["significant"] and gen["J"] > 3.0 * gen["median"]
+    # the test judges the same J as the test table reports
+    assert gen["J"] == pytest.approx(report["J_before"]["J2"]["Total"], rel=1e-9)
     assert gen["per_run"][0]["significant"]
     assert "not fitted to" in report["statement"]
     assert "does the model carry over" in (out / "report.md").read_text()

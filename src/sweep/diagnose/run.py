@@ -238,12 +238,15 @@ class DiagnoseSettings:
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]
 
 
-def cut_windows(recordings: Sequence[Recording], t_f: float = T_F) -> list[Recording]:
-    """Each recording cut into the objective's windows (shorter than MIN_WINDOW dropped)."""
+def cut_windows(
+    recordings: Sequence[Recording], t_f: float = T_F, min_window: float = MIN_WINDOW
+) -> list[Recording]:
+    """Each recording cut into the objective's windows (shorter than ``min_window`` [s] dropped;
+    0 keeps every window the objective sums over)."""
     out: list[Recording] = []
     for rec in recordings:
         for seg in split_recording(rec, t_f):
-            if seg.n_steps * rec.dt < MIN_WINDOW - 1e-9:
+            if seg.n_steps * rec.dt < min_window - 1e-9:
                 continue
             sl = slice(seg.start, seg.start + seg.n_steps + 1)
             t = np.asarray(rec.t[sl])
@@ -900,7 +903,8 @@ def diagnose(
     # not excite leaves the training windows at the floor)
     gen: GeneralisationTest | None = None
     gen_after: GeneralisationTest | None = None
-    test_w = cut_windows(test) if test and s.generalisation_draws > 0 else []
+    # (every window the test J sums over, the short last one of each recording too)
+    test_w = cut_windows(test, min_window=0.0) if test and s.generalisation_draws > 0 else []
     if test_w:
 
         def carry_over(p: Parameters) -> GeneralisationTest:

@@ -285,6 +285,9 @@ def run_case(
         "J2_base_fit": d.base.f,
         "misfit_ratio": d.misfit.ratio if d.misfit else None,
         "misfit_significant": d.misfit.significant if d.misfit else None,
+        # the test recordings' J of the re-identified base over the null's median
+        "generalisation_ratio": d.generalisation.ratio if d.generalisation else None,
+        "generalisation_significant": d.generalisation.significant if d.generalisation else None,
         "proposed_terms": d.proposal.terms if d.proposal else [],
         "noise_phi": NOISE_PHI.get(index, 0.0),
         "seconds": seconds,

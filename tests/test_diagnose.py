@@ -74,6 +74,9 @@ def test_planted_rudder_offset_is_found_end_to_end(runs, tmp_path, capsys):
     for name in ("report.md", "candidates.png", "residual_vs_regime.png", "trajectories.png"):
         assert (out / name).stat().st_size > 0
     assert "rudder_offset" in (out / "report.md").read_text()
+    # with the effect the model carries over to the test recording: nothing more is missing
+    assert report["generalisation_after"]["significant"] is False
+    assert "more is missing" not in report["statement"]
     captured = capsys.readouterr()
     printed = captured.out
     assert "Missing physics" in printed and "MLflow run" in printed

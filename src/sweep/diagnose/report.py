@@ -206,6 +206,12 @@ def statement(d: Diagnosis) -> str:
         b, a = d.test_before[J]["Total"], d.test_after[J]["Total"]
         change = 100 * (a - b) / b
         text += f" On the test recordings {J} goes from {b:.1f} to {a:.1f} ({change:+.1f} %)."
+    ga = d.generalisation_after
+    if ga is not None and ga.significant:
+        text += (
+            f" With it the test recordings are still {ga.ratio:.1f} x what a model exact in form "
+            f"would reach there ({ga.median:.3g}): more is missing than this effect."
+        )
     return text
 
 

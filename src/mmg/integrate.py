@@ -101,6 +101,18 @@ def _ship_of(p: ParamsLike, ship: Ship | None) -> Ship:
     return ESSO_OSAKA
 
 
+def _points(
+    x: Any, u: Any, w: Any, t: Any
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, tuple[int, ...]]:
+    """x, u, w, t as float arrays and the broadcast shape of their points."""
+    x_arr = np.asarray(x, dtype=np.float64)
+    u_arr = np.asarray(u, dtype=np.float64)
+    w_arr = np.asarray(w, dtype=np.float64)
+    t_arr = np.asarray(t, dtype=np.float64)
+    shape = np.broadcast_shapes(x_arr.shape[:-1], u_arr.shape[:-1], w_arr.shape[:-1], t_arr.shape)
+    return x_arr, u_arr, w_arr, t_arr, shape
+
+
 def derivatives(
     x: Any,
     u: Any,
@@ -116,11 +128,7 @@ def derivatives(
     one per point (array (..., n) or sequence); t (...) [s] the time on the recording's clock
     (used only by effects whose forces depend on time). Leading shapes broadcast.
     """
-    x_arr = np.asarray(x, dtype=np.float64)
-    u_arr = np.asarray(u, dtype=np.float64)
-    w_arr = np.asarray(w, dtype=np.float64)
-    t_arr = np.asarray(t, dtype=np.float64)
-    shape = np.broadcast_shapes(x_arr.shape[:-1], u_arr.shape[:-1], w_arr.shape[:-1], t_arr.shape)
+    x_arr, u_arr, w_arr, t_arr, shape = _points(x, u, w, t)
     M = int(np.prod(shape))
     T = kernel_array(np.broadcast_to(t_arr, shape).reshape(M))
     X = kernel_array(np.broadcast_to(x_arr, (*shape, 6)).reshape(M, 6).T)
@@ -161,15 +169,11 @@ def derivatives_rows(
     the kernel reads each point's set from the R columns: no (n, R x points) copy of them (with
     hundreds of sets, as equation-level discovery has, that copy cost more than the physics).
     """
-    x_arr = np.asarray(x, dtype=np.float64)
-    u_arr = np.asarray(u, dtype=np.float64)
-    w_arr = np.asarray(w, dtype=np.float64)
-    t_arr = np.asarray(t, dtype=np.float64)
     P_rows = np.asarray(rows, dtype=np.float64)
     n = N_THETA + sum(len(e.params) for e in effects)
     if P_rows.ndim != 2 or P_rows.shape[1] != n:
         raise ValueError(f"rows must have shape (R, {n}); got {P_rows.shape}")
-    shape = np.broadcast_shapes(x_arr.shape[:-1], u_arr.shape[:-1], w_arr.shape[:-1], t_arr.shape)
+    x_arr, u_arr, w_arr, t_arr, shape = _points(x, u, w, t)
     M = int(np.prod(shape))
     R = P_rows.shape[0]
 
@@ -191,7 +195,7 @@ def derivatives_rows(
         kernel_array(Wd[1]),
         kernel_array(P_rows.T),
         kernel_array(np.repeat(np.arange(R, dtype=np.int64), M), np.int64),
-        ship if ship is not None else ESSO_OSAKA,
+        _ship_of(P_rows, ship),
         out,
     )
     return np.moveaxis(out.reshape(6, R, *shape), 0, -1)

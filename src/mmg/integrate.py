@@ -139,7 +139,7 @@ def derivatives(
     P = parameter_matrix(p, M, effects)
     kern = load_kernel(effects)
     out = np.empty((6, M))
-    kern.rhs_lanes(
+    kern.rhs_rows(
         T,
         X,
         kernel_array(U[:, 0]),
@@ -147,6 +147,7 @@ def derivatives(
         kernel_array(Wd[:, 0]),
         kernel_array(Wd[:, 1]),
         kernel_array(P),
+        np.arange(M, dtype=np.int64),  # point i reads column i
         _ship_of(p, ship),
         out,
     )

@@ -381,24 +381,10 @@ def moments_lanes(
 
 
 @numba.njit(cache=True, **JIT_OPTIONS)
-def rhs_lanes(T, X, delta, n_p, U_T, gamma_T, P, sh, out):
-    """xdot for M independent points: T (M,) times [s], X (6, M), inputs (M,), P (N_PARAMS, M)
-    -> out (6, M)."""
-    for i in range(X.shape[1]):
-        sin_d, cos_d = sincos(delta[i])
-        sin_g, cos_g = sincos(gamma_T[i])
-        d = rhs(
-            T[i], X[0, i], X[1, i], X[2, i], X[3, i], X[4, i], X[5, i],
-            delta[i], sin_d, cos_d, n_p[i], U_T[i], gamma_T[i], sin_g, cos_g, P, i, sh,
-        )
-        for j in range(6):
-            out[j, i] = d[j]
-
-
-@numba.njit(cache=True, **JIT_OPTIONS)
 def rhs_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
-    """xdot for M points, point i with the parameter column row[i] of P (N_PARAMS, R): many
-    points share a few parameter sets without a per-point copy of them -> out (6, M)."""
+    """xdot for M independent points: T (M,) times [s], X (6, M), inputs (M,); point i with the
+    parameter column row[i] of P (N_PARAMS, R) (many points may share one set, without a
+    per-point copy of it) -> out (6, M)."""
     for i in range(X.shape[1]):
         sin_d, cos_d = sincos(delta[i])
         sin_g, cos_g = sincos(gamma_T[i])
@@ -571,8 +557,8 @@ def _fingerprint(source: str, effects: tuple[Effect, ...], rhs_override: object 
 def load_kernel(effects: tuple[Effect, ...] = (), rhs_override: object | None = None) -> ModuleType:
     """Generate (if needed), import and return the kernel module for ``effects``.
 
-    The module exposes ``simulate_lanes``, ``moments_lanes``, ``rhs_lanes``, ``rhs_rows``,
-    ``rhs`` and ``N_PARAMS``.
+    The module exposes ``simulate_lanes``, ``moments_lanes``, ``rhs_rows``, ``rhs`` and
+    ``N_PARAMS``.
     """
     source = render(effects, rhs_override)
     key = _fingerprint(source, effects, rhs_override)

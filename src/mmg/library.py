@@ -8,7 +8,8 @@ like the MMG model's own terms (paper Eqs. (4)-(28)):
 with g [m^2/s^2] a function of the state (through the water), the controls, the true wind, the
 heading and the position. Hull terms are products of u, v_m and r L_pp (the MMG polynomials
 times U^2, with their |.| forms; third-order ones divided by U_e = sqrt(U^2 + U_0^2), which keeps
-them finite at rest); propeller terms use n_p D_p; rudder terms delta; wind terms the apparent wind
+them finite at rest); propeller terms use n_p D_p; rudder terms delta (its powers, and sin(delta)
+cos(delta), the lateral share of a force normal to the rudder); wind terms the apparent wind
 scaled to the above-water areas; heading and position terms describe a force fixed to the basin
 (linear in x0, y0, or a step across a line, tanh((y0 - c) / W), that saturates on either side:
 a bank, the edge of a shallow patch); time terms a force that builds up or dies away over a run
@@ -177,6 +178,23 @@ _TERMS: list[Term] = [
     # ... and in the propeller slipstream (the rudder's lift curve bends off the straight line
     # at large angles, by the flow the propeller drives as by the ship's speed)
     *_t("YN", "dddnn", "delta * delta * delta * nD * nD", "delta^3 (n_p D_p)^2", "rudder"),
+    # ... and the lateral part of a force normal to the rudder: a normal force growing like
+    # sin(delta), turned through delta, acts across the ship as sin(delta) cos(delta) (the
+    # shape of F_N cos(delta) in Eqs. (15)-(16) at a fixed inflow), by the slipstream or the speed
+    *_t(
+        "YN",
+        "scdnn",
+        "math.sin(delta) * math.cos(delta) * nD * nD",
+        "sin(delta) cos(delta) (n_p D_p)^2",
+        "rudder",
+    ),
+    *_t(
+        "YN",
+        "scduu",
+        "math.sin(delta) * math.cos(delta) * u * abs(u)",
+        "sin(delta) cos(delta) u|u|",
+        "rudder",
+    ),
     *_t("X", "dduu", "delta * delta * u * abs(u)", "delta^2 u|u|", "rudder"),
     *_t("X", "ddnn", "delta * delta * nD * nD", "delta^2 (n_p D_p)^2", "rudder"),
     # quadrants: astern (u < 0) and reversed propeller (n_p < 0)

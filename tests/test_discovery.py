@@ -81,6 +81,28 @@ def test_earth_fixed_force_terms_are_a_basin_force_resolved_through_the_heading(
         np.testing.assert_allclose(d_terms, d_true, rtol=1e-9, atol=1e-14)
 
 
+def test_the_rudder_normal_force_term_is_the_planted_wash_moment_at_every_angle():
+    """N_scdnn, sin(delta) cos(delta) (n_p D_p)^2, is the planted propeller-wash yaw moment
+    (C_d sin(2 delta) (n_p D_p)^2, written by the planted form's own code) with C = 2 C_d at
+    every rudder angle, where delta (n_p D_p)^2 and its cube only approximate it."""
+    from sweep.diagnose.planted import UNLISTED
+
+    eff = get_effect(effect_name(["N_scdnn"]))
+    assert "sin(delta) cos(delta) (n_p D_p)^2" in eff.description
+    planted = UNLISTED["wash_yaw"]
+    C_d = 2e-4
+    p = efd_parameters()
+    x = np.array([0.0, 0.4, 0.0, -0.06, 0.3, 0.01])
+    w = np.array([1.0, 0.3])
+    for delta in (-0.6, -0.1, 0.25, 0.61):
+        u = np.array([delta, 8.0])
+        d0 = derivatives(x, u, w, with_effects(p, (eff,)), (eff,))
+        d_term = derivatives(x, u, w, with_effects(p, (eff,), [2.0 * C_d]), (eff,))
+        d_true = derivatives(x, u, w, with_effects(p, (planted,), [C_d]), (planted,))
+        assert d_true[5] != pytest.approx(d0[5], abs=1e-9)
+        np.testing.assert_allclose(d_term, d_true, rtol=1e-9, atol=1e-14)
+
+
 def test_noise_model_recovers_coloured_noise_and_the_floor_of_a_true_model(runs):
     """AR(1) noise (phi 0.7) on a simulated ship: sigma within 10 % on the channels that set J,
     and the floor within 15 % of the J the true model reaches; the misfit test calls the true

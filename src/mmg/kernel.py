@@ -51,13 +51,15 @@ import math
 import numba
 import numpy as np
 
-from mmg._jit import JIT_OPTIONS
+from mmg._jit import FUSED_OPTIONS, JIT_OPTIONS
 from mmg.model import accelerations, aerodynamic_forces, hydrodynamic_forces, kinematics
 from mmg.params import Theta
 from mmg.trig import sincos
 {imports}
 
 N_PARAMS = {n_params}
+#: lanes per vector block of the objective's chunk loops (a multiple of the vector widths)
+LANE_BLOCK = 8
 
 
 @numba.njit(inline="always", **JIT_OPTIONS)
@@ -133,6 +135,18 @@ def rk4_step(
             ok = ok & (abs(Ks[s, 2, i]) < lim_lin) & (abs(Ks[s, 3, i]) < lim_lin)
             ok = ok & (abs(Ks[s, 4, i]) < lim_ang) & (abs(Ks[s, 5, i]) < lim_ang)
         bad[i] = k if ((not ok) and bad[i] < 0) else bad[i]
+
+
+#: the same step with fused multiply-adds (the objective's kernel, FUSED_OPTIONS)
+rk4_step_fused = numba.njit(**FUSED_OPTIONS)(rk4_step.py_func)
+
+
+@numba.njit(inline="always", **JIT_OPTIONS)
+def padded(w):
+    """w rounded up to whole vector blocks (LANE_BLOCK): every lane of a chunk runs through the
+    vectorised loop body, none through the scalar remainder, whose multiply-adds fuse
+    differently, so that a lane's result does not depend on its place in the chunk."""
+    return ((w + LANE_BLOCK - 1) // LANE_BLOCK) * LANE_BLOCK
 
 
 @numba.njit(inline="always", **JIT_OPTIONS)
@@ -284,7 +298,7 @@ def simulate_lanes(
                 bad[b] = fb[i] if fb[i] < n else -1
 
 
-@numba.njit(parallel=True, cache=True, **JIT_OPTIONS)
+@numba.njit(parallel=True, cache=True, **FUSED_OPTIONS)
 def moments_lanes(
     seg_x0, seg_t0, seg_u, seg_w, seg_ref, seg_shift, seg_steps, P, lane_cand, lane_seg,
     sh, dt, lim_lin, lim_ang, W, n_threads, mom, bad,
@@ -302,26 +316,28 @@ def moments_lanes(
     L = lane_cand.shape[0]
     NP = P.shape[0]
     n_chunks = (L + W - 1) // W
+    Wp = padded(W)
     for t in numba.prange(n_threads):
-        X = np.empty((6, W))
-        Pc = np.empty((NP, W))
-        cur = np.empty((4, W))
-        prev = np.empty((2, W))
-        ob = np.empty((3, W))
-        Ks = np.empty((4, 6, W))
-        Tr = np.empty((4, W))
-        t_f = np.empty(W)
-        t_s = np.empty(W)
-        fb = np.empty(W, dtype=np.int64)
-        seg = np.empty(W, dtype=np.int64)
-        last = np.empty(W, dtype=np.int64)
-        acc = np.empty((7, 5, W))
+        X = np.empty((6, Wp))
+        Pc = np.empty((NP, Wp))
+        cur = np.empty((4, Wp))
+        prev = np.empty((2, Wp))
+        ob = np.empty((3, Wp))
+        Ks = np.empty((4, 6, Wp))
+        Tr = np.empty((4, Wp))
+        t_f = np.empty(Wp)
+        t_s = np.empty(Wp)
+        fb = np.empty(Wp, dtype=np.int64)
+        seg = np.empty(Wp, dtype=np.int64)
+        last = np.empty(Wp, dtype=np.int64)
+        acc = np.empty((7, 5, Wp))
         for c in range(t, n_chunks, n_threads):
             lo = c * W
             w = min(lo + W, L) - lo
+            wp = padded(w)  # lanes w..wp-1 repeat lane w-1; their moments are not written
             kmax = 0
-            for i in range(w):
-                s = lane_seg[lo + i]
+            for i in range(wp):
+                s = lane_seg[lo + min(i, w - 1)]
                 seg[i] = s
                 last[i] = max(seg_steps[s] - 1, 0)
                 kmax = max(kmax, seg_steps[s])
@@ -329,14 +345,14 @@ def moments_lanes(
                 t_s[i] = seg_t0[s]
                 fb[i] = -1
                 for j in range(NP):
-                    Pc[j, i] = P[j, lane_cand[lo + i]]
+                    Pc[j, i] = P[j, lane_cand[lo + min(i, w - 1)]]
                 start_state(X, seg_x0, s, Pc, ob, i)
                 for q in range(7):
                     for m in range(5):
                         acc[q, m, i] = 0.0
             for k in range(kmax + 1):
                 # accumulate sample k (the state before step k)
-                for i in range(w):
+                for i in range(wp):
                     s = seg[i]
                     n = seg_steps[s]
                     on = 1.0 if k <= n else 0.0
@@ -366,11 +382,11 @@ def moments_lanes(
                         acc[q, 4, i] += wt * z * seg_ref[s, kk, q]
                 if k == kmax:
                     break
-                gather_inputs(cur, seg_u, seg_w, seg, last, k, w, Pc, dt)
-                transform_inputs(cur, prev, Pc, k, w, dt)
-                rk4_step(
+                gather_inputs(cur, seg_u, seg_w, seg, last, k, wp, Pc, dt)
+                transform_inputs(cur, prev, Pc, k, wp, dt)
+                rk4_step_fused(
                     X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
-                    Pc, sh, k, dt, t_f, t_s, lim_lin, lim_ang, fb, w,
+                    Pc, sh, k, dt, t_f, t_s, lim_lin, lim_ang, fb, wp,
                 )
             for i in range(w):
                 lane = lo + i

@@ -103,6 +103,32 @@ def test_the_rudder_normal_force_term_is_the_planted_wash_moment_at_every_angle(
         np.testing.assert_allclose(d_term, d_true, rtol=1e-9, atol=1e-14)
 
 
+def test_the_planted_reverse_sway_is_in_the_papers_own_form():
+    """The reversed propeller's side force of the planted benchmark is Eqs. (12)-(13) with their
+    constant coefficients shifted (planted.IN_FORM): derivatives equal in every advance-ratio
+    regime of the reversed propeller, and ahead (n_p > 0) the planted form adds nothing."""
+    from sweep.diagnose.planted import FAMILY, IN_FORM, UNLISTED, PlantedSpec
+
+    assert FAMILY["reverse_sway"] == "in_form"
+    assert PlantedSpec("reverse_sway", {"C_r": 1e-4}).expected == "none"
+    planted = UNLISTED["reverse_sway"]
+    C_r = 3e-4
+    p = efd_parameters()
+    shifted = p.replace(
+        **{name: getattr(p.theta, name) + k * C_r for name, k in IN_FORM["reverse_sway"]["C_r"]}
+    )
+    w = np.array([0.5, 1.0])
+    # J_s = u / (n_p D_p) below J_SYN, between J_SYN and J_SYN0, above J_SYN0, and astern
+    for u_ship, n_p in ((0.5, -10.0), (0.15, -10.0), (0.02, -10.0), (-0.2, -8.0), (0.5, 10.0)):
+        x = np.array([0.0, u_ship, 0.0, 0.03, 0.4, 0.005])
+        ctl = np.array([0.1, n_p])
+        d_true = derivatives(x, ctl, w, with_effects(p, (planted,), [C_r]), (planted,))
+        d_base = derivatives(x, ctl, w, p)
+        d_form = derivatives(x, ctl, w, shifted if n_p < 0 else p)
+        np.testing.assert_allclose(d_form, d_true, rtol=1e-10, atol=1e-14)
+        assert (n_p < 0) == (abs(d_true[3] - d_base[3]) > 1e-9)
+
+
 def test_noise_model_recovers_coloured_noise_and_the_floor_of_a_true_model(runs):
     """AR(1) noise (phi 0.7) on a simulated ship: sigma within 10 % on the channels that set J,
     and the floor within 15 % of the J the true model reaches; the misfit test calls the true

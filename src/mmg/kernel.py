@@ -137,8 +137,9 @@ def rk4_step(
         bad[i] = k if ((not ok) and bad[i] < 0) else bad[i]
 
 
-#: the same step with fused multiply-adds (the objective's kernel, FUSED_OPTIONS)
-rk4_step_fused = numba.njit(**FUSED_OPTIONS)(rk4_step.py_func)
+#: the same step with fused multiply-adds (the objective's kernel, FUSED_OPTIONS); with
+#: NUMBA_DISABLE_JIT, rk4_step is the plain function itself
+rk4_step_fused = numba.njit(**FUSED_OPTIONS)(getattr(rk4_step, "py_func", rk4_step))
 
 
 @numba.njit(inline="always", **JIT_OPTIONS)

@@ -12,6 +12,14 @@ from mmg._jit import subfunction
 from mmg.params import Ship, Theta
 from mmg.trig import atan2
 
+# Divisions by constants are written as products with their reciprocals, and a quantity divided
+# by twice shares one reciprocal: the divider (about 8 cycles per 4 lanes) is what bounds the
+# batched kernel, not the multiply-adds (issue 15). Results move by an ulp, nothing else.
+ONE_3RD = 1.0 / 3.0
+ONE_6TH = 1.0 / 6.0
+ONE_12TH = 1.0 / 12.0
+INV_PI = 1.0 / math.pi
+
 
 @subfunction
 def cross_flow_integrals(v_m: float, b: float, L: float) -> tuple[float, float]:
@@ -28,15 +36,18 @@ def cross_flow_integrals(v_m: float, b: float, L: float) -> tuple[float, float]:
     half = 0.5 * L
     if abs(v_m) >= abs(b) * half:
         sgn = 1.0 if v_m >= 0.0 else -1.0
-        I_0 = sgn * (v_m * v_m * L + b * b * L * L * L / 12.0)  # int s^2 dx
-        I_1 = abs(v_m) * b * L * L * L / 6.0  # sign(v_m) int s^2 x dx
+        I_0 = sgn * (v_m * v_m * L + b * b * L * L * L * ONE_12TH)  # int s^2 dx
+        I_1 = abs(v_m) * b * L * L * L * ONE_6TH  # sign(v_m) int s^2 x dx
     else:
+        inv_b = 1.0 / b  # one division for both integrals
         s1 = v_m - b * half  # s at the stern, x = -L/2
         s2 = v_m + b * half  # s at the bow, x = L/2
-        I_0 = (s2 * s2 * abs(s2) - s1 * s1 * abs(s1)) / (3.0 * b)  # Eq. (4), reference closed form
-        F2 = s2 * s2 * s2 * abs(s2) / 4.0 - v_m * s2 * s2 * abs(s2) / 3.0  # antiderivative of I_1
-        F1 = s1 * s1 * s1 * abs(s1) / 4.0 - v_m * s1 * s1 * abs(s1) / 3.0
-        I_1 = (F2 - F1) / (b * b)  # Eq. (4), reference closed form
+        q1 = s1 * s1 * abs(s1)  # |s| s^2 at the ends
+        q2 = s2 * s2 * abs(s2)
+        I_0 = (q2 - q1) * ONE_3RD * inv_b  # Eq. (4), reference closed form (s^2 |s| / (3 b))
+        F2 = q2 * (0.25 * s2 - ONE_3RD * v_m)  # antiderivative of I_1 (times b^2)
+        F1 = q1 * (0.25 * s1 - ONE_3RD * v_m)
+        I_1 = (F2 - F1) * inv_b * inv_b  # Eq. (4), reference closed form
     return I_0, I_1
 
 
@@ -47,15 +58,16 @@ def hull_forces(u: float, v_m: float, r: float, th: Theta, sh: Ship) -> tuple[fl
     u, v_m [m/s] surge and sway velocity at midship, r [rad/s] yaw rate (paper Eq. (4)).
     """
     L = sh.L_pp
+    inv_L = 1.0 / L  # the same for every trajectory: computed once per step, not per lane
     U = math.sqrt(u * u + v_m * v_m)  # speed over the water [m/s]
     beta = atan2(v_m, u)  # drift angle; only |beta| / pi enters X_H
     half_rho_Ld = 0.5 * sh.rho * L * sh.d
-    X_0 = sh.X_0F + (th.X_0A - sh.X_0F) * abs(beta) / math.pi  # Eq. (4), X_H resistance term
+    X_0 = sh.X_0F + (th.X_0A - sh.X_0F) * abs(beta) * INV_PI  # Eq. (4), X_H resistance term
     X_H = half_rho_Ld * (X_0 * u * U + th.X_vr * L * v_m * r)  # Eq. (4)
     I_Y, _ = cross_flow_integrals(v_m, th.C_rY * r, L)
     _, I_N = cross_flow_integrals(v_m, th.C_rN * r, L)
-    Y_H = half_rho_Ld * (th.Y_v * v_m * abs(u) + th.Y_r * L * r * u - th.C_D / L * I_Y)  # Eq. (4)
-    N_H = (
-        half_rho_Ld * L * (th.N_v * v_m * u + th.N_r * L * r * abs(u) - th.C_D / (L * L) * I_N)
-    )  # Eq. (4)
+    C_D_L = th.C_D * inv_L  # C_D / L
+    Y_H = half_rho_Ld * (th.Y_v * v_m * abs(u) + th.Y_r * L * r * u - C_D_L * I_Y)  # Eq. (4)
+    # Eq. (4), N_H (C_D / L^2 = C_D_L / L):
+    N_H = half_rho_Ld * L * (th.N_v * v_m * u + th.N_r * L * r * abs(u) - C_D_L * inv_L * I_N)
     return X_H, Y_H, N_H

@@ -127,8 +127,9 @@ def accelerations(
     b1 = Y - (m + m_x) * u * r  # Eq. (1), sway
     b2 = N - x_G * m * u * r  # Eq. (1), yaw
     det = a11 * a22 - a12 * a12
-    v_dot = (a22 * b1 - a12 * b2) / det
-    r_dot = (a11 * b2 - a12 * b1) / det
+    inv_det = 1.0 / det  # one division for both
+    v_dot = (a22 * b1 - a12 * b2) * inv_det
+    r_dot = (a11 * b2 - a12 * b1) * inv_det
     return u_dot, v_dot, r_dot
 
 

@@ -38,8 +38,9 @@ def wake_factor(u: float, v_m: float, r: float, th: Theta, sh: Ship) -> float:
         v_nd = 1.0e-7
         r_nd = 1.0e-7
     else:
-        v_nd = v_m / U  # v'
-        r_nd = r * sh.L_pp / U  # r'
+        inv_U = 1.0 / U  # one division for both
+        v_nd = v_m * inv_U  # v'
+        r_nd = r * sh.L_pp * inv_U  # r'
     beta_P = v_nd + th.x_P * r_nd  # v' + x'_P r', Eq. (6)
     one_minus_w = 1.0 - th.w_P0 + th.tau * abs(beta_P) + th.C_P * beta_P * beta_P  # Eq. (6)
     if one_minus_w > 1.0:

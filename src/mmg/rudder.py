@@ -13,6 +13,9 @@ import math
 from mmg._jit import subfunction
 from mmg.params import Ship, Theta
 
+#: 8 / pi of Eqs. (22) and (25), a constant factor rather than a division per call (issue 15)
+EIGHT_OVER_PI = 8.0 / math.pi
+
 
 @subfunction
 def rudder_inflow(
@@ -40,21 +43,29 @@ def rudder_inflow(
     eta = D / H_R
     u_P = one_minus_w * u
     nD = n_p * D
-    if n_p >= 0.0 and K_T > 0.0:
-        induced = math.sqrt(u_P * u_P + 8.0 * K_T * nD * nD / math.pi) - u_P
-        jet = u_P + th.k_x / th.epsilon * induced
-        u_R = th.epsilon * math.sqrt(eta * jet * jet + (1.0 - eta) * u_P * u_P)  # Eq. (22)
+    yoshimura = n_p >= 0.0 and K_T > 0.0  # else Kitagawa's form (or u_R = u astern)
+    # Each form takes two square roots; the compiled kernel evaluates every branch for a vector
+    # of lanes, so the forms share them: the first is sqrt(u_P^2 + 8/pi K_T (n_p D_p)^2) in
+    # Eq. (22) and |n_p D_p| sqrt(8/pi |K_T|) in Eq. (25); the second is u_R itself. Four square
+    # roots become two (the divider, which also takes square roots, bounds the kernel; issue 15).
+    thrust = EIGHT_OVER_PI * abs(K_T) * nD * nD
+    root_1 = math.sqrt(thrust + (u_P * u_P if yoshimura else 0.0))
+    jet = u_P + th.k_x / th.epsilon * (root_1 - u_P)  # Eq. (22)
+    u_RPR2 = u * th.epsilon * one_minus_w  # Eq. (26)
+    u_RPR1 = u_RPR2 + th.k_xPR * math.copysign(root_1, nD)  # Eq. (25)
+    u_Rsq = (
+        eta * math.copysign(u_RPR1 * u_RPR1, u_RPR1)
+        + (1.0 - eta) * math.copysign(u_RPR2 * u_RPR2, u_RPR2)
+        + th.C_PR * u * u
+    )  # Eq. (24), last term C_PR u^2 (reference: the paper prints C_PR u)
+    # u_R = fac sqrt(a) with the sign of sgn; every branch sets (fac, sgn, a) before the one root
+    if yoshimura:
+        fac, sgn, a = th.epsilon, 1.0, eta * jet * jet + (1.0 - eta) * u_P * u_P  # Eq. (22)
     elif u >= 0.0:
-        u_RPR2 = u * th.epsilon * one_minus_w  # Eq. (26)
-        u_RPR1 = u_RPR2 + nD * th.k_xPR * math.sqrt(8.0 * abs(K_T) / math.pi)  # Eq. (25)
-        u_Rsq = (
-            eta * math.copysign(u_RPR1 * u_RPR1, u_RPR1)
-            + (1.0 - eta) * math.copysign(u_RPR2 * u_RPR2, u_RPR2)
-            + th.C_PR * u * u
-        )  # Eq. (24), last term C_PR u^2 (reference: the paper prints C_PR u)
-        u_R = math.copysign(math.sqrt(abs(u_Rsq)), u_Rsq)  # Eq. (23)
-    else:
-        u_R = u  # astern without positive thrust: inflow equals the ship's motion (Kobayashi 1994)
+        fac, sgn, a = 1.0, u_Rsq, abs(u_Rsq)  # Eq. (23)
+    else:  # astern without positive thrust: u_R = u (Kobayashi 1994); sqrt(u^2) = |u| exactly
+        fac, sgn, a = 1.0, u, u * u
+    u_R = fac * math.copysign(math.sqrt(a), sgn)
     return u_R, v_R
 
 

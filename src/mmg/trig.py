@@ -84,16 +84,18 @@ def sincos(x: float) -> tuple[float, float]:
 
 
 @subfunction
-def _atan_unit(t: float) -> float:
-    """atan(t) for t in [0, 1] (Cephes atan, one reduction step)."""
-    if t > 0.66:
-        y0 = _PIO4
-        x = (t - 1.0) / (t + 1.0)
-        extra = 0.5 * _MOREBITS
-    else:
-        y0 = 0.0
-        x = t
-        extra = 0.0
+def _atan_ratio(small: float, big: float) -> float:
+    """atan(small / big) for 0 <= small <= big, big > 0 (Cephes atan, one reduction step).
+
+    The reduced argument (t - 1) / (t + 1) with t = small / big is formed as
+    (small - big) / (small + big): one division for the argument instead of two (the divider
+    bounds the batched kernel, issue 15)."""
+    reduce = small > 0.66 * big  # t > 0.66
+    p = small - big if reduce else small
+    q = small + big if reduce else big
+    x = p / q
+    y0 = _PIO4 if reduce else 0.0
+    extra = 0.5 * _MOREBITS if reduce else 0.0
     z = x * x
     num = z * ((((_P0 * z + _P1) * z + _P2) * z + _P3) * z + _P4)
     den = ((((z + _Q0) * z + _Q1) * z + _Q2) * z + _Q3) * z + _Q4
@@ -107,8 +109,7 @@ def atan2(y: float, x: float) -> float:
     ay = abs(y)
     big = ax if ax >= ay else ay
     small = ay if ax >= ay else ax
-    t = small / big if big > 0.0 else 0.0
-    a = _atan_unit(t)
+    a = _atan_ratio(small, big) if big > 0.0 else 0.0
     if ay > ax:
         a = (_PIO2 - a) + _MOREBITS
     if x < 0.0:

@@ -47,8 +47,9 @@ def wind_forces(u_A: float, v_A: float, th: Theta, sh: Ship) -> tuple[float, flo
     U_A2 = u_A * u_A + v_A * v_A
     U_A = math.sqrt(U_A2)
     if U_A > 0.0:
-        c = u_A / U_A
-        s = v_A / U_A
+        inv_U_A = 1.0 / U_A  # one division for both
+        c = u_A * inv_U_A  # cos(gamma_A)
+        s = v_A * inv_U_A  # sin(gamma_A)
     else:
         c = 1.0
         s = 0.0

@@ -76,13 +76,14 @@ def rhs(
 
 @numba.njit(**JIT_OPTIONS)
 def rk4_step(
-    X, Ks, Tr, delta, n_p, U_T, gamma_T, P, sh, k, dt, t_f, t_s, lim_lin, lim_ang, bad, W
+    X, Ks, Tr, delta, n_p, U_T, gamma_T, P, sh, k, dt, inv_t_f, t_s, lim_lin, lim_ang, bad, W
 ):
     """One RK4 step of W lanes in place; inputs held over the step (zero-order hold).
 
-    X (6, W) state, Ks (4, 6, W) and Tr (4, W) scratch, inputs (W,), P (N_PARAMS, W), t_f (W,) [s]
-    segment durations, t_s (W,) [s] the segments' start times on the recordings' clocks, bad (W,)
-    int64: first step at which the lane hit the limiter or went non-finite.
+    X (6, W) state, Ks (4, 6, W) and Tr (4, W) scratch, inputs (W,), P (N_PARAMS, W), inv_t_f
+    (W,) [1/s] the reciprocals of the segment durations t_f, t_s (W,) [s] the segments' start
+    times on the recordings' clocks, bad (W,) int64: first step at which the lane hit the limiter
+    or went non-finite.
     The limiter of Algorithm 1 clips each stage's xdot: |xdot_j| > lim_j becomes
     sign(xdot_j) (2 - t / t_f) lim_j for x0, y0, psi and sign(xdot_j) lim_j for u, v_m, r.
     """
@@ -113,7 +114,7 @@ def rk4_step(
                 t_s[i] + t, a0, a1, a2, a3, a4, a5, delta[i], Tr[0, i], Tr[1, i], n_p[i],
                 U_T[i], gamma_T[i], Tr[2, i], Tr[3, i], P, i, sh,
             )
-            scale = 2.0 - t / t_f[i]  # Algorithm 1, rows x0, y0, psi
+            scale = 2.0 - t * inv_t_f[i]  # Algorithm 1, rows x0, y0, psi: 2 - t / t_f
             Ks[s, 0, i] = math.copysign(scale * lim_lin, d0) if abs(d0) > lim_lin else d0
             Ks[s, 1, i] = math.copysign(lim_lin, d1) if abs(d1) > lim_lin else d1
             Ks[s, 2, i] = math.copysign(scale * lim_lin, d2) if abs(d2) > lim_lin else d2
@@ -250,7 +251,7 @@ def simulate_lanes(
         ob = np.empty((3, W))
         Ks = np.empty((4, 6, W))
         Tr = np.empty((4, W))
-        t_f = np.empty(W)
+        inv_t_f = np.empty(W)
         t_s = np.empty(W)
         fb = np.empty(W, dtype=np.int64)
         ids = np.empty(W, dtype=np.int64)
@@ -264,7 +265,7 @@ def simulate_lanes(
                 ids[i] = b
                 kmax = max(kmax, n_steps[b])
                 last[i] = max(n_steps[b] - 1, 0)
-                t_f[i] = n_steps[b] * dt
+                inv_t_f[i] = 1.0 / (n_steps[b] * dt)  # once per lane, not per stage
                 t_s[i] = t_start[b]
                 fb[i] = -1
                 for j in range(NP):
@@ -277,7 +278,7 @@ def simulate_lanes(
                 transform_inputs(cur, prev, Pc, k, w, dt)
                 rk4_step(
                     X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
-                    Pc, sh, k, dt, t_f, t_s, lim_lin, lim_ang, fb, w,
+                    Pc, sh, k, dt, inv_t_f, t_s, lim_lin, lim_ang, fb, w,
                 )
                 for i in range(w):
                     if k < n_steps[ids[i]]:
@@ -326,7 +327,7 @@ def moments_lanes(
         ob = np.empty((3, Wp))
         Ks = np.empty((4, 6, Wp))
         Tr = np.empty((4, Wp))
-        t_f = np.empty(Wp)
+        inv_t_f = np.empty(Wp)
         t_s = np.empty(Wp)
         fb = np.empty(Wp, dtype=np.int64)
         seg = np.empty(Wp, dtype=np.int64)
@@ -342,7 +343,7 @@ def moments_lanes(
                 seg[i] = s
                 last[i] = max(seg_steps[s] - 1, 0)
                 kmax = max(kmax, seg_steps[s])
-                t_f[i] = seg_steps[s] * dt
+                inv_t_f[i] = 1.0 / (seg_steps[s] * dt)
                 t_s[i] = seg_t0[s]
                 fb[i] = -1
                 for j in range(NP):
@@ -387,7 +388,7 @@ def moments_lanes(
                 transform_inputs(cur, prev, Pc, k, wp, dt)
                 rk4_step_fused(
                     X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
-                    Pc, sh, k, dt, t_f, t_s, lim_lin, lim_ang, fb, wp,
+                    Pc, sh, k, dt, inv_t_f, t_s, lim_lin, lim_ang, fb, wp,
                 )
             for i in range(w):
                 lane = lo + i

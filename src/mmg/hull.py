@@ -13,7 +13,7 @@ from mmg.params import Ship, Theta
 from mmg.trig import atan2
 
 # Divisions by constants are written as products with their reciprocals, and a quantity divided
-# by twice shares one reciprocal: the divider (about 8 cycles per 4 lanes) is what bounds the
+# twice shares one reciprocal: the divider (about 8 cycles per 4 lanes) is what bounds the
 # batched kernel, not the multiply-adds (issue 15). Results move by an ulp, nothing else.
 ONE_3RD = 1.0 / 3.0
 ONE_6TH = 1.0 / 6.0

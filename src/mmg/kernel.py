@@ -60,6 +60,8 @@ from mmg.trig import sincos
 N_PARAMS = {n_params}
 #: lanes per vector block of the objective's chunk loops (a multiple of the vector widths)
 LANE_BLOCK = 8
+#: points per parallel block of :func:`rhs_rows`
+POINT_BLOCK = 256
 
 
 @numba.njit(inline="always", **JIT_OPTIONS)
@@ -398,20 +400,23 @@ def moments_lanes(
                 bad[lane] = fb[i] if fb[i] < seg_steps[seg[i]] else -1
 
 
-@numba.njit(cache=True, **JIT_OPTIONS)
+@numba.njit(parallel=True, cache=True, **JIT_OPTIONS)
 def rhs_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
     """xdot for M independent points: T (M,) times [s], X (6, M), inputs (M,); point i with the
     parameter column row[i] of P (N_PARAMS, R) (many points may share one set, without a
-    per-point copy of it) -> out (6, M)."""
-    for i in range(X.shape[1]):
-        sin_d, cos_d = sincos(delta[i])
-        sin_g, cos_g = sincos(gamma_T[i])
-        d = rhs(
-            T[i], X[0, i], X[1, i], X[2, i], X[3, i], X[4, i], X[5, i],
-            delta[i], sin_d, cos_d, n_p[i], U_T[i], gamma_T[i], sin_g, cos_g, P, row[i], sh,
-        )
-        for j in range(6):
-            out[j, i] = d[j]
+    per-point copy of it) -> out (6, M). Blocks of POINT_BLOCK points run in parallel threads
+    (strict IEEE arithmetic: a point's result does not depend on its block)."""
+    M = X.shape[1]
+    for blk in numba.prange((M + POINT_BLOCK - 1) // POINT_BLOCK):
+        for i in range(blk * POINT_BLOCK, min(M, (blk + 1) * POINT_BLOCK)):
+            sin_d, cos_d = sincos(delta[i])
+            sin_g, cos_g = sincos(gamma_T[i])
+            d = rhs(
+                T[i], X[0, i], X[1, i], X[2, i], X[3, i], X[4, i], X[5, i],
+                delta[i], sin_d, cos_d, n_p[i], U_T[i], gamma_T[i], sin_g, cos_g, P, row[i], sh,
+            )
+            for j in range(6):
+                out[j, i] = d[j]
 '''
 
 _MMG_RHS = """\

@@ -24,15 +24,17 @@ Jacobian; a trial that makes another one diverge pays its penalty.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from mmg.integrate import simulate_batch
-from sweep.data.objective import CHANNELS, PENALTY_FACTOR, Objective, observables
+from sweep.data.objective import CHANNELS, PENALTY_FACTOR, Objective
 from sweep.identification.cmaes import Box
 
 FloatArray = NDArray[np.float64]
@@ -73,6 +75,69 @@ class Polished:
     history: list[dict[str, float]] = field(default_factory=list)
 
 
+@numba.njit(parallel=True, cache=True, error_model="numpy", nogil=True)
+def _standardised_residuals(
+    states: FloatArray,
+    n_steps: np.ndarray,
+    channels: np.ndarray,
+    ref: FloatArray,
+    floor: FloatArray,
+    sqrt_w: FloatArray,
+    out: FloatArray,
+    bad: np.ndarray,
+) -> None:
+    """Residual rows of B simulated subsequences in one pass per lane (parallel over lanes).
+
+    states (B, K + 1, 6) with lane b simulating subsequence b % S; n_steps (S,); channels (m,)
+    indices into the observables (x0, u, y0, v_m, sin psi, cos psi, r); ref (S, K + 1, m) the
+    standardised recording; floor (m,); sqrt_w (S, K + 1) = sqrt(w_k dt), 0 past the end.
+    out (B, (K + 1) m) receives sqrt(w_k dt) (z_hat_in - z_hat_sim) at [k m + j] (paper Eqs. (32),
+    (33)), 0 past the end and for a lane that is ``bad`` (diverged) or has a non-finite residual,
+    which is then flagged in ``bad`` (B,).
+    """
+    B = states.shape[0]
+    S = n_steps.shape[0]
+    m = channels.shape[0]
+    for b in numba.prange(B):
+        s = b % S
+        n = n_steps[s]
+        row = out[b]
+        finite = not bad[b]
+        for j in range(m):
+            q = channels[j]
+            if not finite:
+                break
+            total = 0.0  # sums of z - z_0: the variance without cancellation (x0 is tens of m)
+            square = 0.0
+            z_0 = 0.0
+            for k in range(n + 1):
+                if q == 4:
+                    z = math.sin(states[b, k, 4])
+                elif q == 5:
+                    z = math.cos(states[b, k, 4])
+                elif q == 6:
+                    z = states[b, k, 5]
+                else:
+                    z = states[b, k, q]
+                row[k * m + j] = z  # the observable, standardised below
+                if k == 0:
+                    z_0 = z
+                total += z - z_0
+                square += (z - z_0) * (z - z_0)
+            d = total / (n + 1)
+            mu = z_0 + d
+            sigma = max(math.sqrt(max(square / (n + 1) - d * d, 0.0)), floor[j])
+            for k in range(n + 1):
+                v = sqrt_w[s, k] * (ref[s, k, j] - (row[k * m + j] - mu) / sigma)  # Eq. (32)
+                row[k * m + j] = v
+                finite = finite and math.isfinite(v)
+        if not finite:
+            bad[b] = True
+            row[:] = 0.0
+        else:
+            row[(n + 1) * m :] = 0.0
+
+
 def residual_vectors(obj: Objective, thetas: FloatArray) -> tuple[FloatArray, np.ndarray]:
     """Residuals (C, S, M) and per-subsequence divergence flags (C, S) of C candidates.
 
@@ -83,18 +148,18 @@ def residual_vectors(obj: Objective, thetas: FloatArray) -> tuple[FloatArray, np
     data = obj.data
     seg = data.segments
     S, K = seg.u.shape[:2]
-    ch = list(CHANNELS[obj.name])
+    ch = np.asarray(CHANNELS[obj.name], dtype=np.int64)
     k = np.arange(K + 1)
     valid = k[None, :] <= seg.n_steps[:, None]  # (S, K + 1)
     wt = valid.astype(np.float64)
     wt[np.arange(S), 0] = 0.5
     wt[np.arange(S), seg.n_steps] = 0.5
-    sqrt_w = np.sqrt(wt * data.dt)[..., None]  # (S, K + 1, 1)
-    n = (seg.n_steps + 1.0)[:, None]
-    floor = data.floor[ch]
-    ref = seg.ref[..., ch]
+    sqrt_w = np.sqrt(wt * data.dt)  # (S, K + 1)
+    floor = np.ascontiguousarray(data.floor[ch])
+    ref = np.ascontiguousarray(seg.ref[..., ch])
+    steps = np.asarray(seg.n_steps, dtype=np.int64)
     C = thetas.shape[0]
-    out = np.zeros((C, S, (K + 1) * len(ch)))
+    out = np.empty((C, S, (K + 1) * len(ch)))
     bad = np.zeros((C, S), dtype=bool)
     per = max(1, MAX_LANES // S)
     for lo in range(0, C, per):
@@ -111,18 +176,10 @@ def residual_vectors(obj: Objective, thetas: FloatArray) -> tuple[FloatArray, np
             ship=obj.ship,
             t0=np.tile(seg.t0, c),
         )
-        z = observables(sim.states).reshape(c, S, K + 1, 7)[..., ch]
-        z = np.where(valid[None, :, :, None], z, 0.0)
-        mu = z.sum(axis=2) / n[None]
-        var = np.maximum((z * z).sum(axis=2) / n[None] - mu * mu, 0.0)
-        sigma = np.maximum(np.sqrt(var), floor)
-        z_hat = (z - mu[:, :, None, :]) / sigma[:, :, None, :]  # paper Eq. (33)
-        r = sqrt_w[None] * (ref[None] - z_hat)  # Eq. (32), as a residual
-        b = sim.bad_step.reshape(c, S) >= 0
-        b |= ~np.isfinite(r).all(axis=(2, 3))
-        r = np.where(b[:, :, None, None], 0.0, r)
-        out[lo : lo + c] = r.reshape(c, S, -1)
-        bad[lo : lo + c] = b
+        b = sim.bad_step >= 0  # (c S,)
+        rows = out[lo : lo + c].reshape(c * S, -1)  # a view: filled in place
+        _standardised_residuals(sim.states, steps, ch, ref, floor, sqrt_w, rows, b)
+        bad[lo : lo + c] = b.reshape(c, S)
     return out, bad
 
 
@@ -203,7 +260,11 @@ def polish(
             probes = z[None, :] + np.diag(h)
             rp, badp = residual_vectors(obj, to_theta(probes))
             evaluations += n
-            Jac = (rp[:, keep].reshape(n, -1) - r0[None, :]) / h[:, None]  # (n, M)
+            # (n, M), formed in place: a copy of the probes' residuals only when some
+            # subsequences are left out (tens of MB per Jacobian otherwise)
+            Jac = rp.reshape(n, -1) if keep.all() else rp[:, keep].reshape(n, -1)
+            Jac -= r0[None, :]
+            Jac /= h[:, None]
             Jac[badp[:, keep].any(axis=1)] = 0.0  # a probe that diverges: coordinate frozen
             A = Jac @ Jac.T + np.diag(pm)
             g = Jac @ r0 + pm * (z - z_prior)

@@ -248,8 +248,10 @@ def polish(
     history: list[dict[str, float]] = [{"iteration": 0, "evaluations": 1, "f": f}]
     small = 0
     it = 0
-    Jac = np.zeros((0, 0))
-    A = g = d = np.zeros(0)
+    Jac: FloatArray = np.zeros((0, 0))
+    A: FloatArray = np.zeros((0, 0))
+    g: FloatArray = np.zeros(0)
+    d: FloatArray = np.zeros(0)
     fresh = False  # whether Jac, A, g belong to the current point
     while it < s.max_iterations and evaluations + n + 1 + len(LAMBDA_TRIALS) <= s.max_evaluations:
         it += 1

@@ -572,7 +572,9 @@ def _fingerprint(source: str, effects: tuple[Effect, ...], rhs_override: object 
     files += [_module_file(f) for e in effects for f in e.hooks]
     if rhs_override is not None:
         files.append(_module_file(rhs_override))
-    for f in sorted(set(files)):
+    # in the order of the file names, not of their paths: the same sources give the same key
+    # wherever the package or the kernel directory is installed
+    for f in sorted(set(files), key=lambda f: (f.name, str(f))):
         h.update(f.read_bytes())
     return h.hexdigest()[:20]
 

@@ -46,6 +46,7 @@ def test_the_shipped_configurations_pass():
         ("seed=-1", "seed", "non-negative integer"),
         ("seed=1.5", "seed", "non-negative integer"),
         ("ray.workers_per_job=0", "ray.workers_per_job", "positive integer"),
+        ("ray.cpus_per_worker=0", "ray.cpus_per_worker", "CPUs per evaluation worker"),
         ("ray.address=nowhere", "ray.address", "host:port"),
         ("sweep.name=a/b", "sweep.name", "without '/'"),
         ("sweep.max_retries=-1", "sweep.max_retries", "non-negative integer"),

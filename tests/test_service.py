@@ -322,3 +322,47 @@ def test_cmaes_polish_refines_the_result_and_reports_it_as_its_own_row(tmp_path,
     assert list(table.index) == ["EFD", "J2-R", "J2-R+LM"]
     assert table.loc["J2-R+LM", "Total mean"] == pytest.approx(m["polish/J2/total"])
     assert table.loc["J2-R", "Total mean"] == pytest.approx(m["test/J2/total"])
+
+
+@pytest.mark.parametrize(
+    ("jobs", "slots", "k"),
+    [(27, 2, 3), (9, 2, 3), (3, 2, 3), (2, 2, 2), (1, 2, 2), (4, 2, 2), (5, 2, 2), (27, 8, 9),
+     (7, 4, 4), (100, 1, 1)],
+)  # fmt: skip
+def test_jobs_at_once_leave_no_slot_idle_in_the_last_round(jobs, slots, k):
+    from sweep.service.orchestration import balanced_concurrency
+
+    assert balanced_concurrency(jobs, slots) == k
+
+
+def test_27_jobs_on_2_cpus_run_3_at_a_time_on_shares_of_the_cores(tmp_path, data_dir):
+    """A real local Ray: three jobs' evaluation workers (2/3 CPU each) start at once."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np, ray\n"
+        "from sweep.service.raycluster import RayExecutor, RayEvaluator\n"
+        "from sweep.data.datasets import load_split\n"
+        "from sweep.data.objective import Objective\n"
+        "from mmg import efd_parameters\n"
+        "e = RayExecutor(num_cpus=2, jobs=27)\n"
+        "obj = Objective(list(load_split('R').load().values())[:1], 'J2')\n"
+        "evs = [RayEvaluator(obj, 1, e.cpus_per_worker) for _ in range(3)]\n"
+        "theta = efd_parameters().vector()[None]\n"
+        "refs = [ev.workers[0].evaluate.remote(theta) for ev in evs]\n"
+        "ready, _ = ray.wait(refs, num_returns=3, timeout=120)\n"
+        "f = [float(ray.get(r)[0]) for r in ready]\n"
+        "print(e.capacity(), e.cpus_per_worker, len(ready), float(obj.evaluate(theta)[0]), *f)\n"
+        "e.shutdown()\n"
+    )
+    env = dict(os.environ, MMG_DATA_DIR=str(data_dir), RAY_AUTH_MODE="disabled")
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
+        timeout=300,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr[-3000:]
+    capacity, share, ready, f_here, *f_workers = out.stdout.split()[-7:]
+    assert (int(capacity), float(share), int(ready)) == (3, 0.6666, 3)
+    assert [float(f) for f in f_workers] == [float(f_here)] * 3  # same numbers on a share

@@ -115,6 +115,8 @@ class MmgRayLauncher(Launcher):
             address=first.ray.address,
             num_cpus=first.ray.num_cpus,
             workers_per_job=int(first.ray.workers_per_job),
+            jobs=len(specs),
+            cpus_per_worker=first.ray.get("cpus_per_worker"),
         )
         try:
             summary = run_sweep(

@@ -17,6 +17,7 @@ or an in-memory one for tests).
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 import traceback
@@ -231,6 +232,26 @@ def _eta(done_evals: float, total_evals: float, elapsed: float) -> str:
         return "ETA --"
     seconds = (total_evals - done_evals) / (done_evals / elapsed)
     return f"ETA {int(seconds // 60)}m{int(seconds % 60):02d}s"
+
+
+def balanced_concurrency(n_jobs: int, slots: int, max_factor: float = 1.5) -> int:
+    """Jobs to run at once on ``slots`` job slots (CPUs // workers per job) so that the last
+    round does not leave slots idle: the k in [slots, max_factor x slots] that minimises
+    ceil(n_jobs / k) x max(1, k / slots), the wall time of n_jobs equal jobs in rounds of k
+    sharing the slots (the smallest such k on a tie).
+
+    27 jobs on 2 slots: 14 rounds of 2 leave one core idle for the last job's whole run
+    (14 job-lengths); 9 rounds of 3 sharing the 2 cores take 13.5, and a third job also fills
+    the gaps while the others' coordinators step CMA-ES.
+    """
+    if n_jobs <= slots or slots <= 0:
+        return max(1, slots)
+    best_k, best_t = slots, float(math.ceil(n_jobs / slots))
+    for k in range(slots + 1, int(max_factor * slots) + 1):
+        t = math.ceil(n_jobs / k) * k / slots
+        if t < best_t - 1e-9:
+            best_k, best_t = k, t
+    return best_k
 
 
 def run_sweep(

@@ -1,9 +1,13 @@
 """Ray: jobs as actors, population evaluation on worker actors. The only module importing ray.
 
 Resources never deadlock: a job's coordinator actor (:class:`JobActor`) requests no CPU and only
-steers CMA-ES; its ``workers_per_job`` evaluation workers (:class:`EvalWorker`) hold one CPU each
-and evaluate chunks of the population with the batched simulator (one Numba thread each). At most
-(cluster CPUs) // workers_per_job jobs run at once, so every running job's workers fit.
+steers CMA-ES; its ``workers_per_job`` evaluation workers (:class:`EvalWorker`) hold
+``cpus_per_worker`` CPUs each and evaluate chunks of the population with the batched simulator
+(one Numba thread each). At most (cluster CPUs) / (workers_per_job x cpus_per_worker) jobs run at
+once, so every running job's workers fit. ``cpus_per_worker`` is 1 unless the number of jobs
+would leave cores idle in the last round
+(:func:`sweep.service.orchestration.balanced_concurrency`): 27 jobs on 2 CPUs run 3 at a time
+with 2/3 CPU per worker.
 
 A dead worker (a crash, a lost node) does not lose the generation: its chunk is evaluated in the
 coordinator and the worker is replaced. A lost coordinator (its node died) is reported as lost
@@ -13,6 +17,7 @@ coordinator and the worker is replaced. A lost coordinator (its node died) is re
 from __future__ import annotations
 
 import logging
+import math
 import os
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -24,6 +29,7 @@ import ray
 from sweep.data.objective import Objective
 from sweep.identification.workers import safe_evaluate
 from sweep.service.job import JobSpec, run_job
+from sweep.service.orchestration import balanced_concurrency
 
 log = logging.getLogger(__name__)
 _remote: Any = ray.remote  # Ray's decorator overloads do not type actor classes
@@ -72,15 +78,16 @@ EvalWorker: Any = _remote(num_cpus=1)(_EvalWorker)
 class RayEvaluator:
     """Population evaluation on ``n`` :class:`EvalWorker` actors (the job's local workers)."""
 
-    def __init__(self, objective: Objective, n: int, cpus_per_worker: int = 1) -> None:
+    def __init__(self, objective: Objective, n: int, cpus_per_worker: float = 1.0) -> None:
         self.objective = objective
         self.cpus = cpus_per_worker
+        self.threads = max(1, int(cpus_per_worker))  # a share of one CPU: one thread
         self._ref = ray.put(objective)
         self.workers = [self._start() for _ in range(max(1, n))]
         self.sim_seconds = 0.0  # collected from the workers when they are closed
 
     def _start(self) -> Any:
-        return EvalWorker.options(num_cpus=self.cpus).remote(self._ref, self.cpus)
+        return EvalWorker.options(num_cpus=self.cpus).remote(self._ref, self.threads)
 
     def __call__(self, thetas: np.ndarray) -> np.ndarray:
         X = np.asarray(thetas, dtype=np.float64)
@@ -122,8 +129,8 @@ class _JobActor:
     def __init__(self) -> None:
         self._status: dict[str, float] = {}
 
-    def run(self, spec: JobSpec, workers: int, plots: bool = True) -> Any:
-        return run_job(spec, lambda obj: RayEvaluator(obj, workers), self._set, plots)
+    def run(self, spec: JobSpec, workers: int, plots: bool = True, cpus: float = 1.0) -> Any:
+        return run_job(spec, lambda obj: RayEvaluator(obj, workers, cpus), self._set, plots)
 
     def _set(self, row: dict[str, float]) -> None:
         self._status = row
@@ -146,7 +153,11 @@ class RayExecutor:
         workers_per_job: int = 1,
         plots: bool = True,
         env: Mapping[str, str] | None = None,
+        jobs: int | None = None,
+        cpus_per_worker: float | None = None,
     ) -> None:
+        """``jobs``: how many the sweep will run (to balance the rounds); ``cpus_per_worker``:
+        the CPU share of an evaluation worker, None: 1 unless balancing asks for less."""
         os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # local runs: no token file needed
         env_vars = {k: v for k, v in os.environ.items() if k.startswith(("MMG_", "NUMBA_"))}
         env_vars.update(env or {})
@@ -164,10 +175,17 @@ class RayExecutor:
         self.workers_per_job = max(1, workers_per_job)
         self.plots = plots
         self._actors: dict[Any, Any] = {}
+        if cpus_per_worker is None:
+            cpus = float(ray.cluster_resources().get("CPU", 1))
+            slots = max(1, int(cpus) // self.workers_per_job)
+            k = balanced_concurrency(jobs, slots) if jobs else slots
+            cpus_per_worker = min(1.0, cpus / (k * self.workers_per_job))
+        # Ray counts CPUs to 1e-4: rounded down, k shares of cpus / k still fit
+        self.cpus_per_worker = max(1e-4, math.floor(cpus_per_worker * 1e4) / 1e4)
 
     def capacity(self) -> int:
-        cpus = int(ray.cluster_resources().get("CPU", 1))
-        return max(1, cpus // self.workers_per_job)
+        cpus = float(ray.cluster_resources().get("CPU", 1))
+        return max(1, int(cpus / (self.workers_per_job * self.cpus_per_worker) + 1e-9))
 
     def lost(self, error: BaseException) -> bool:
         return is_lost(error)
@@ -175,7 +193,7 @@ class RayExecutor:
     def submit(self, spec: JobSpec) -> Any:
         # coordinators spread over the nodes: a lost node takes as few of them as it can
         actor = JobActor.options(scheduling_strategy="SPREAD").remote()
-        ref = actor.run.remote(spec, self.workers_per_job, self.plots)
+        ref = actor.run.remote(spec, self.workers_per_job, self.plots, self.cpus_per_worker)
         self._actors[ref] = actor
         return ref
 

@@ -188,6 +188,12 @@ RULES: tuple[Rule, ...] = (
     Rule("ray.num_cpus", _optional(_positive_int), "null or a positive integer", required=False),
     Rule("ray.workers_per_job", _positive_int, "a positive integer", required=False),
     Rule(
+        "ray.cpus_per_worker",
+        _optional(lambda v: _is_number(v) and 1e-4 <= float(v) <= 64),
+        "null (automatic) or a number of CPUs per evaluation worker in [0.0001, 64]",
+        required=False,
+    ),
+    Rule(
         "ray.max_concurrent_jobs",
         _optional(_positive_int),
         "null (as many as the cluster's CPUs allow) or a positive integer",

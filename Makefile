@@ -1,7 +1,7 @@
 # Common commands; see README.md.
 PY ?= python
 
-.PHONY: install test test-all lint format typecheck check bench bench-peak bench-diagnose data sweep \
+.PHONY: install test test-all lint format typecheck check bench bench-peak bench-lm bench-grid bench-diagnose data sweep \
 	smoke ui diagnose
 
 install:  ## install the project and its development tools
@@ -31,6 +31,12 @@ bench:  ## simulator throughput (traj-steps/s) for B = 20, 540, 19440
 
 bench-peak:  ## simulate and moments throughput as a fraction of ../shared/tools/fma_peak.py
 	PYTHONPATH=. $(PY) benchmarks/peak_fraction.py
+
+bench-lm:  ## a Levenberg-Marquardt Jacobian batch: residuals vs the simulator alone
+	PYTHONPATH=. $(PY) benchmarks/lm_residuals.py
+
+bench-grid:  ## the paper's 27-job grid at 3,000 evaluations per job: wall time, implied 100,000
+	$(PY) benchmarks/sweep_grid.py --evaluations 3000
 
 bench-diagnose:  ## planted-effect benchmark of the diagnosis (34 cases: catalog, unlisted forms, none; 1-2 h on 2 cores)
 	$(PY) benchmarks/diagnose_planted.py --out benchmarks/out/diagnose

@@ -212,6 +212,9 @@ class Objective:
         self.ship = ship
         self.data = SegmentSet(recordings, t_f, dict(floors or DEFAULT_FLOORS), labels)
         self.seconds = 0.0  # time spent simulating (the kernel and the moments-to-J algebra)
+        #: CPU time of this process in the same calls (all its threads): on a CPU shared with
+        #: other jobs' workers the wall time above also counts the time spent waiting
+        self.cpu_seconds = 0.0
 
     @property
     def n_segments(self) -> int:
@@ -232,11 +235,13 @@ class Objective:
         if not isinstance(thetas, Parameters):
             p = np.atleast_2d(np.asarray(thetas, dtype=np.float64))
         t0 = time.perf_counter()
+        c0 = time.process_time()
         mom, bad = segment_moments(
             self.data.segments, p, self.data.dt, effects=self.effects, ship=self.ship
         )
         cost = self.data.channel_costs(mom, bad)
         self.seconds += time.perf_counter() - t0
+        self.cpu_seconds += time.process_time() - c0
         return cost, bad >= 0
 
     def evaluate(self, thetas: Any, name: str | None = None) -> FloatArray:

@@ -72,8 +72,8 @@ class InProcess:
 
     @property
     def sim_seconds(self) -> float:
-        """Time spent in the objective (simulator) so far."""
-        return self.objective.seconds
+        """CPU time spent in the objective (simulator) so far, all of the kernel's threads."""
+        return self.objective.cpu_seconds
 
     def close(self) -> None:
         """Nothing to release."""

@@ -76,7 +76,7 @@ class JobOutcome:
     )  # sweep.identification.cmaes.restart_table
     history: list[dict[str, float]] = field(default_factory=list)  # one row per generation
     test: ScoreTable = field(default_factory=dict)  # {J: {subset: value}}
-    sim_seconds: float = 0.0  # time spent evaluating the objective (simulator), all workers
+    sim_seconds: float = 0.0  # CPU time spent evaluating the objective (simulator), all workers
     retries: int = 0  # resubmissions after the job was lost to the infrastructure
     #: ``cmaes.polish``: the Levenberg-Marquardt refinement of the CMA-ES result (``params`` and
     #: ``test`` above stay the CMA-ES result): f_start, f, evaluations, iterations, seconds,

@@ -128,7 +128,7 @@ def _standardised_residuals(
             mu = z_0 + d
             sigma = max(math.sqrt(max(square / (n + 1) - d * d, 0.0)), floor[j])
             for k in range(n + 1):
-                v = sqrt_w[s, k] * (ref[s, k, j] - (row[k * m + j] - mu) / sigma)  # Eq. (32)
+                v = sqrt_w[s, k] * (ref[s, k, j] - (row[k * m + j] - mu) / sigma)  # Eqs. (32), (33)
                 row[k * m + j] = v
                 finite = finite and math.isfinite(v)
         if not finite:

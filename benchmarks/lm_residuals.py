@@ -22,11 +22,10 @@ from pathlib import Path
 import numpy as np
 
 from mmg import Parameters
-from mmg.integrate import simulate_batch
 from sweep.data.datasets import load_split
 from sweep.data.objective import Objective
 from sweep.diagnose.run import cut_windows
-from sweep.identification.polish import MAX_LANES, residual_vectors
+from sweep.identification.polish import MAX_LANES, residual_vectors, simulate_subsequences
 
 
 def main() -> None:
@@ -43,19 +42,11 @@ def main() -> None:
     p = Parameters.load_json(args.params).vector()
     rng = np.random.default_rng(0)
     thetas = p[None] * (1.0 + 1e-3 * rng.standard_normal((args.candidates, p.size)))
-    seg = obj.data.segments
-    S = seg.u.shape[0]
-    per = max(1, MAX_LANES // S)
+    per = max(1, MAX_LANES // obj.data.segments.u.shape[0])
 
     def simulate_only() -> None:  # the same batches residual_vectors simulates
         for lo in range(0, len(thetas), per):
-            block = thetas[lo : lo + per]
-            c = block.shape[0]
-            simulate_batch(
-                np.tile(seg.x0, (c, 1)), np.tile(seg.u, (c, 1, 1)), np.tile(seg.w, (c, 1, 1)),
-                np.repeat(block, S, axis=0), obj.data.dt, np.tile(seg.n_steps, c),
-                ship=obj.ship, t0=np.tile(seg.t0, c),
-            )  # fmt: skip
+            simulate_subsequences(obj, thetas[lo : lo + per])
 
     def best(f: Callable[[], object]) -> float:
         times = []
@@ -69,7 +60,7 @@ def main() -> None:
     simulate_only()
     t_res = best(lambda: residual_vectors(obj, thetas))
     t_sim = best(simulate_only)
-    steps = int(seg.n_steps.sum()) * len(thetas)
+    steps = int(obj.data.segments.n_steps.sum()) * len(thetas)
     n = len(windows)
     print(f"Train-{args.train}: {n} windows, {args.candidates} candidates, {steps:,} steps")
     print(f"residual_vectors {t_res:.3f} s; simulate_batch alone {t_sim:.3f} s")

@@ -13,8 +13,8 @@ from mmg.params import Ship, Theta
 from mmg.trig import atan2
 
 # Divisions by constants are written as products with their reciprocals, and a quantity divided
-# twice shares one reciprocal: the divider (about 8 cycles per 4 lanes) is what bounds the
-# batched kernel, not the multiply-adds (issue 15). Results move by an ulp, nothing else.
+# twice shares one reciprocal: a vector division costs about 8 cycles per 4 lanes and a long
+# latency in the batched kernel, a multiply 0.5 (issue 15). Results move by an ulp, nothing else.
 ONE_3RD = 1.0 / 3.0
 ONE_6TH = 1.0 / 6.0
 ONE_12TH = 1.0 / 12.0

@@ -47,7 +47,7 @@ def rudder_inflow(
     # Each form takes two square roots; the compiled kernel evaluates every branch for a vector
     # of lanes, so the forms share them: the first is sqrt(u_P^2 + 8/pi K_T (n_p D_p)^2) in
     # Eq. (22) and |n_p D_p| sqrt(8/pi |K_T|) in Eq. (25); the second is u_R itself. Four square
-    # roots become two (the divider, which also takes square roots, bounds the kernel; issue 15).
+    # roots become two (a vector root costs about 12 cycles per 4 lanes in the divider; issue 15).
     thrust = EIGHT_OVER_PI * abs(K_T) * nD * nD
     root_1 = math.sqrt(thrust + (u_P * u_P if yoshimura else 0.0))
     jet = u_P + th.k_x / th.epsilon * (root_1 - u_P)  # Eq. (22)

@@ -33,7 +33,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from mmg.integrate import simulate_batch
+from mmg.integrate import SimulationResult, simulate_batch
 from sweep.data.objective import CHANNELS, PENALTY_FACTOR, Objective
 from sweep.identification.cmaes import Box
 
@@ -138,6 +138,25 @@ def _standardised_residuals(
             row[(n + 1) * m :] = 0.0
 
 
+def simulate_subsequences(obj: Objective, thetas: FloatArray) -> SimulationResult:
+    """Trajectories of c candidates (c, n) on every subsequence of ``obj`` (S of them), lanes
+    candidate-major (lane b: candidate b // S, subsequence b % S); states (c S, K + 1, 6)."""
+    seg = obj.data.segments
+    S = seg.u.shape[0]
+    c = thetas.shape[0]
+    return simulate_batch(
+        np.tile(seg.x0, (c, 1)),
+        np.tile(seg.u, (c, 1, 1)),
+        np.tile(seg.w, (c, 1, 1)),
+        np.repeat(thetas, S, axis=0),
+        obj.data.dt,
+        np.tile(seg.n_steps, c),
+        effects=obj.effects,
+        ship=obj.ship,
+        t0=np.tile(seg.t0, c),
+    )
+
+
 def residual_vectors(obj: Objective, thetas: FloatArray) -> tuple[FloatArray, np.ndarray]:
     """Residuals (C, S, M) and per-subsequence divergence flags (C, S) of C candidates.
 
@@ -163,19 +182,8 @@ def residual_vectors(obj: Objective, thetas: FloatArray) -> tuple[FloatArray, np
     bad = np.zeros((C, S), dtype=bool)
     per = max(1, MAX_LANES // S)
     for lo in range(0, C, per):
-        block = thetas[lo : lo + per]
-        c = block.shape[0]
-        sim = simulate_batch(
-            np.tile(seg.x0, (c, 1)),
-            np.tile(seg.u, (c, 1, 1)),
-            np.tile(seg.w, (c, 1, 1)),
-            np.repeat(block, S, axis=0),
-            data.dt,
-            np.tile(seg.n_steps, c),
-            effects=obj.effects,
-            ship=obj.ship,
-            t0=np.tile(seg.t0, c),
-        )
+        c = min(per, C - lo)
+        sim = simulate_subsequences(obj, thetas[lo : lo + c])
         b = sim.bad_step >= 0  # (c S,)
         rows = out[lo : lo + c].reshape(c * S, -1)  # a view: filled in place
         _standardised_residuals(sim.states, steps, ch, ref, floor, sqrt_w, rows, b)
@@ -307,4 +315,12 @@ def polish(
     )
 
 
-__all__ = ["PolishSettings", "Polished", "damped_step", "polish", "residual_vectors", "totals"]
+__all__ = [
+    "PolishSettings",
+    "Polished",
+    "damped_step",
+    "polish",
+    "residual_vectors",
+    "simulate_subsequences",
+    "totals",
+]

@@ -52,12 +52,16 @@ import numba
 import numpy as np
 
 from mmg._jit import FUSED_OPTIONS, JIT_OPTIONS
-from mmg.model import accelerations, aerodynamic_forces, hydrodynamic_forces, kinematics
+from mmg.model import (
+    Inertia, accelerations, aerodynamic_forces, hydrodynamic_forces, inertia, kinematics
+)
 from mmg.params import Theta
 from mmg.trig import sincos
 {imports}
 
 N_PARAMS = {n_params}
+#: rows of the per-lane inertia arrays (the fields of :class:`mmg.model.Inertia`)
+N_INERTIA = 6
 #: lanes per vector block of the objective's chunk loops (a multiple of the vector widths)
 LANE_BLOCK = 8
 #: points per parallel block of :func:`rhs_rows`
@@ -66,9 +70,10 @@ POINT_BLOCK = 256
 
 @numba.njit(inline="always", **JIT_OPTIONS)
 def rhs(
-    t, x0, u, y0, v_m, psi, r, delta, sin_d, cos_d, n_p, U_T, gamma_T, sin_g, cos_g, P, i, sh
+    t, x0, u, y0, v_m, psi, r, delta, sin_d, cos_d, n_p, U_T, gamma_T, sin_g, cos_g, P, Mi, i, sh
 ):
-    """Paper Eq. (3): xdot = f(x, u, w; theta) for lane i of the parameter matrix P.
+    """Paper Eq. (3): xdot = f(x, u, w; theta) for lane i of the parameter matrix P; Mi holds
+    the lane's :class:`mmg.model.Inertia` (rows in field order, :func:`fill_inertia`).
 
     t [s] is the time on the recording's clock (only ``force_at`` hooks of effects use it).
 
@@ -76,13 +81,28 @@ def rhs(
 {rhs_body}
 
 
+@numba.njit(inline="always", **JIT_OPTIONS)
+def fill_inertia(Mi, P, i, sh):
+    """Mi[:, i] = the fields of :func:`mmg.model.inertia` for column i of P: the left-hand side
+    of Eq. (1) depends on the parameters alone, so it is computed once per lane and chunk."""
+    th = Theta({theta_args})
+    M = inertia(th, sh)
+    Mi[0, i] = M.m_m_x
+    Mi[1, i] = M.m_m_y
+    Mi[2, i] = M.x_G_m
+    Mi[3, i] = M.a22
+    Mi[4, i] = M.inv_m_m_x
+    Mi[5, i] = M.inv_det
+
+
 @numba.njit(**JIT_OPTIONS)
 def rk4_step(
-    X, Ks, Tr, delta, n_p, U_T, gamma_T, P, sh, k, dt, inv_t_f, t_s, lim_lin, lim_ang, bad, W
+    X, Ks, Tr, delta, n_p, U_T, gamma_T, P, Mi, sh, k, dt, inv_t_f, t_s, lim_lin, lim_ang, bad, W
 ):
     """One RK4 step of W lanes in place; inputs held over the step (zero-order hold).
 
-    X (6, W) state, Ks (4, 6, W) and Tr (4, W) scratch, inputs (W,), P (N_PARAMS, W), inv_t_f
+    X (6, W) state, Ks (4, 6, W) and Tr (4, W) scratch, inputs (W,), P (N_PARAMS, W) and Mi
+    (N_INERTIA, W) the lanes' parameters and inertias, inv_t_f
     (W,) [1/s] the reciprocals of the segment durations t_f, t_s (W,) [s] the segments' start
     times on the recordings' clocks, bad (W,) int64: first step at which the lane hit the limiter
     or went non-finite.
@@ -114,7 +134,7 @@ def rk4_step(
                 a5 = X[5, i] + h * Ks[s - 1, 5, i]
             d0, d1, d2, d3, d4, d5 = rhs(
                 t_s[i] + t, a0, a1, a2, a3, a4, a5, delta[i], Tr[0, i], Tr[1, i], n_p[i],
-                U_T[i], gamma_T[i], Tr[2, i], Tr[3, i], P, i, sh,
+                U_T[i], gamma_T[i], Tr[2, i], Tr[3, i], P, Mi, i, sh,
             )
             scale = 2.0 - t * inv_t_f[i]  # Algorithm 1, rows x0, y0, psi: 2 - t / t_f
             Ks[s, 0, i] = math.copysign(scale * lim_lin, d0) if abs(d0) > lim_lin else d0
@@ -248,6 +268,7 @@ def simulate_lanes(
     for t in numba.prange(n_threads):
         X = np.empty((6, W))  # work buffers, once per thread
         Pc = np.empty((NP, W))
+        Mi = np.empty((N_INERTIA, W))
         cur = np.empty((4, W))  # delta, n_p, U_T, gamma_T of the current step
         prev = np.empty((2, W))
         ob = np.empty((3, W))
@@ -272,6 +293,7 @@ def simulate_lanes(
                 fb[i] = -1
                 for j in range(NP):
                     Pc[j, i] = P[j, b]
+                fill_inertia(Mi, Pc, i, sh)
                 for j in range(6):
                     out[b, 0, j] = x0[b, j]
                 start_state(X, x0, b, Pc, ob, i)
@@ -280,7 +302,7 @@ def simulate_lanes(
                 transform_inputs(cur, prev, Pc, k, w, dt)
                 rk4_step(
                     X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
-                    Pc, sh, k, dt, inv_t_f, t_s, lim_lin, lim_ang, fb, w,
+                    Pc, Mi, sh, k, dt, inv_t_f, t_s, lim_lin, lim_ang, fb, w,
                 )
                 for i in range(w):
                     if k < n_steps[ids[i]]:
@@ -324,6 +346,7 @@ def moments_lanes(
     for t in numba.prange(n_threads):
         X = np.empty((6, Wp))
         Pc = np.empty((NP, Wp))
+        Mi = np.empty((N_INERTIA, Wp))
         cur = np.empty((4, Wp))
         prev = np.empty((2, Wp))
         ob = np.empty((3, Wp))
@@ -335,6 +358,12 @@ def moments_lanes(
         seg = np.empty(Wp, dtype=np.int64)
         last = np.empty(Wp, dtype=np.int64)
         acc = np.empty((7, 5, Wp))
+        Z = np.empty((7, Wp))  # the observables of sample k, less the segment's shift
+        Rf = np.empty((7, Wp))  # the reference series at sample k
+        sh7 = np.empty((7, Wp))  # the segment's shift
+        nk = np.empty(Wp, dtype=np.int64)  # steps of the lane's segment
+        onv = np.empty(Wp)  # 1 while k <= steps, else 0
+        wt = np.empty(Wp)  # trapezoid weight of sample k
         for c in range(t, n_chunks, n_threads):
             lo = c * W
             w = min(lo + W, L) - lo
@@ -350,47 +379,50 @@ def moments_lanes(
                 fb[i] = -1
                 for j in range(NP):
                     Pc[j, i] = P[j, lane_cand[lo + min(i, w - 1)]]
+                fill_inertia(Mi, Pc, i, sh)
                 start_state(X, seg_x0, s, Pc, ob, i)
+                nk[i] = seg_steps[s]
                 for q in range(7):
+                    sh7[q, i] = seg_shift[s, q]
                     for m in range(5):
                         acc[q, m, i] = 0.0
             for k in range(kmax + 1):
-                # accumulate sample k (the state before step k)
+                # accumulate sample k (the state before step k), one observable at a time
+                # across the lanes so that LLVM vectorises it (a lane's sums are unchanged)
                 for i in range(wp):
-                    s = seg[i]
-                    n = seg_steps[s]
+                    n = nk[i]
                     on = 1.0 if k <= n else 0.0
-                    wt = on * (0.5 if (k == 0 or k == n) else 1.0)
+                    wt[i] = on * (0.5 if (k == 0 or k == n) else 1.0)
+                    onv[i] = on
                     kk = min(k, n)
-                    sp, cp = sincos(X[4, i] + ob[0, i])  # the logged heading
-                    u_o = X[1, i] * ob[1, i] + X[3, i] * ob[2, i]  # the logged velocities
-                    v_o = X[3, i] * ob[1, i] - X[1, i] * ob[2, i]
                     for q in range(7):
-                        if q == 1:
-                            z = u_o
-                        elif q == 3:
-                            z = v_o
-                        elif q == 4:
-                            z = sp
-                        elif q == 5:
-                            z = cp
-                        elif q == 6:
-                            z = X[5, i]
-                        else:
-                            z = X[q, i]
-                        z = z - seg_shift[s, q]
+                        Rf[q, i] = seg_ref[seg[i], kk, q]
+                for i in range(wp):
+                    sp, cp = sincos(X[4, i] + ob[0, i])  # the logged heading
+                    Z[0, i] = X[0, i] - sh7[0, i]
+                    Z[1, i] = (X[1, i] * ob[1, i] + X[3, i] * ob[2, i]) - sh7[1, i]  # logged u
+                    Z[2, i] = X[2, i] - sh7[2, i]
+                    Z[3, i] = (X[3, i] * ob[1, i] - X[1, i] * ob[2, i]) - sh7[3, i]  # logged v_m
+                    Z[4, i] = sp - sh7[4, i]
+                    Z[5, i] = cp - sh7[5, i]
+                    Z[6, i] = X[5, i] - sh7[6, i]
+                for q in range(7):
+                    for i in range(wp):
+                        z = Z[q, i]
+                        on = onv[i]
+                        w_k = wt[i]
                         acc[q, 0, i] += on * z
                         acc[q, 1, i] += on * z * z
-                        acc[q, 2, i] += wt * z
-                        acc[q, 3, i] += wt * z * z
-                        acc[q, 4, i] += wt * z * seg_ref[s, kk, q]
+                        acc[q, 2, i] += w_k * z
+                        acc[q, 3, i] += w_k * z * z
+                        acc[q, 4, i] += w_k * z * Rf[q, i]
                 if k == kmax:
                     break
                 gather_inputs(cur, seg_u, seg_w, seg, last, k, wp, Pc, dt)
                 transform_inputs(cur, prev, Pc, k, wp, dt)
                 rk4_step_fused(
                     X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
-                    Pc, sh, k, dt, inv_t_f, t_s, lim_lin, lim_ang, fb, wp,
+                    Pc, Mi, sh, k, dt, inv_t_f, t_s, lim_lin, lim_ang, fb, wp,
                 )
             for i in range(w):
                 lane = lo + i
@@ -407,13 +439,16 @@ def rhs_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
     per-point copy of it) -> out (6, M). Blocks of POINT_BLOCK points run in parallel threads
     (strict IEEE arithmetic: a point's result does not depend on its block)."""
     M = X.shape[1]
+    Mi = np.empty((N_INERTIA, P.shape[1]))
+    for j in range(P.shape[1]):
+        fill_inertia(Mi, P, j, sh)
     for blk in numba.prange((M + POINT_BLOCK - 1) // POINT_BLOCK):
         for i in range(blk * POINT_BLOCK, min(M, (blk + 1) * POINT_BLOCK)):
             sin_d, cos_d = sincos(delta[i])
             sin_g, cos_g = sincos(gamma_T[i])
             d = rhs(
                 T[i], X[0, i], X[1, i], X[2, i], X[3, i], X[4, i], X[5, i],
-                delta[i], sin_d, cos_d, n_p[i], U_T[i], gamma_T[i], sin_g, cos_g, P, row[i], sh,
+                delta[i], sin_d, cos_d, n_p[i], U_T[i], gamma_T[i], sin_g, cos_g, P, Mi, row[i], sh,
             )
             for j in range(6):
                 out[j, i] = d[j]
@@ -434,7 +469,8 @@ _MMG_RHS = """\
     Y = F[1] + F[4] + F[7] + Y_A  # Eq. (2)
     N = F[2] + F[5] + F[8] + N_A  # Eq. (2)
 {force_lines}\
-    u_dot, v_dot, r_dot = accelerations(X, Y, N, u_w, v_w, r, th, sh)  # Eq. (1)
+    M = Inertia(Mi[0, i], Mi[1, i], Mi[2, i], Mi[3, i], Mi[4, i], Mi[5, i])
+    u_dot, v_dot, r_dot = accelerations(X, Y, N, u_w, v_w, r, M)  # Eq. (1)
     u_dot += r * v_c  # uniform current rotating with the heading (zero without a current)
     v_dot -= r * u_c
     x_dot, y_dot = kinematics(u, v_m, sin_psi, cos_psi)
@@ -559,6 +595,7 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
         rhs_body=body,
         inputs_body=inputs_body,
         observe_body=observe_body,
+        theta_args=", ".join(f"P[{j}, i]" for j in range(N_THETA)),
     )
 
 

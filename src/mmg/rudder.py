@@ -50,7 +50,10 @@ def rudder_inflow(
     # roots become two (a vector root costs about 12 cycles per 4 lanes in the divider; issue 15).
     thrust = EIGHT_OVER_PI * abs(K_T) * nD * nD
     root_1 = math.sqrt(thrust + (u_P * u_P if yoshimura else 0.0))
-    jet = u_P + th.k_x / th.epsilon * (root_1 - u_P)  # Eq. (22)
+    # Eq. (22) times epsilon: epsilon u_P + k_x (root_1 - u_P) is epsilon times the bracket
+    # u_P + (k_x / epsilon)(root_1 - u_P), without the division by epsilon
+    eps_jet = th.epsilon * u_P + th.k_x * (root_1 - u_P)
+    eps_u_P = th.epsilon * u_P
     u_RPR2 = u * th.epsilon * one_minus_w  # Eq. (26)
     u_RPR1 = u_RPR2 + th.k_xPR * math.copysign(root_1, nD)  # Eq. (25)
     u_Rsq = (
@@ -58,14 +61,14 @@ def rudder_inflow(
         + (1.0 - eta) * math.copysign(u_RPR2 * u_RPR2, u_RPR2)
         + th.C_PR * u * u
     )  # Eq. (24), last term C_PR u^2 (reference: the paper prints C_PR u)
-    # u_R = fac sqrt(a) with the sign of sgn; every branch sets (fac, sgn, a) before the one root
-    if yoshimura:
-        fac, sgn, a = th.epsilon, 1.0, eta * jet * jet + (1.0 - eta) * u_P * u_P  # Eq. (22)
+    # u_R = sqrt(a) with the sign of sgn; every branch sets (sgn, a) before the one root
+    if yoshimura:  # Eq. (22): u_R = epsilon sqrt(eta jet^2 + (1 - eta) u_P^2), epsilon inside
+        sgn, a = th.epsilon, eta * eps_jet * eps_jet + (1.0 - eta) * eps_u_P * eps_u_P
     elif u >= 0.0:
-        fac, sgn, a = 1.0, u_Rsq, abs(u_Rsq)  # Eq. (23)
+        sgn, a = u_Rsq, abs(u_Rsq)  # Eq. (23)
     else:  # astern without positive thrust: u_R = u (Kobayashi 1994); sqrt(u^2) = |u| exactly
-        fac, sgn, a = 1.0, u, u * u
-    u_R = fac * math.copysign(math.sqrt(a), sgn)
+        sgn, a = u, u * u
+    u_R = math.copysign(math.sqrt(a), sgn)
     return u_R, v_R
 
 

@@ -164,6 +164,32 @@ class Box:
         return bool(np.any(t > 10.0 * np.abs(self.upper)) or np.any(t < -10.0 * np.abs(self.lower)))
 
 
+class BoundPenalty(cma.BoundPenalty):
+    """pycma's ``BoundPenalty`` with its ``repair`` (the projection onto the box) done by numpy.
+
+    pycma's own repair loops over the coordinates in Python, calling ``max`` and ``min`` per
+    coordinate; it is called for every candidate in ``ask`` and again in ``tell``, which made it
+    7.5 % of a job's time at population 20 (1.25 s of 16.6 s for 6,000 evaluations). The
+    projection is the same: each coordinate raised to its lower bound, then lowered to its
+    upper bound."""
+
+    def repair(self, x: Any, copy_if_changed: bool = True) -> Any:
+        if not self.has_bounds():
+            return x
+        x = np.array(x, dtype=np.float64, copy=True) if copy_if_changed else x
+        lower, upper = self._box(len(x))
+        np.maximum(x, lower, out=x)
+        np.minimum(x, upper, out=x)
+        return x
+
+    def _box(self, n: int) -> tuple[FloatArray, FloatArray]:
+        """The lower and upper bound vectors in n dimensions (pycma rebuilds them per call)."""
+        cache: dict[int, tuple[FloatArray, FloatArray]] = self.__dict__.setdefault("_box_of", {})
+        if n not in cache:
+            cache[n] = (self.get_bounds("lower", n), self.get_bounds("upper", n))
+        return cache[n]
+
+
 def _new_strategy(state: State, y0: FloatArray) -> cma.CMAEvolutionStrategy:
     s = state.settings
     seeds = np.random.SeedSequence(s.seed).spawn(state.restart + 1)
@@ -183,7 +209,7 @@ def _new_strategy(state: State, y0: FloatArray) -> cma.CMAEvolutionStrategy:
             raise ValueError(f"settings.stds has {len(s.stds)} entries for {y0.size} coordinates")
         opts["CMA_stds"] = list(s.stds)
     if s.bound_handling == "penalty":
-        opts.update(BoundaryHandler=cma.BoundPenalty, bounds=[0.0, 1.0])
+        opts.update(BoundaryHandler=BoundPenalty, bounds=[0.0, 1.0])
     elif s.bound_handling == "transform":
         opts.update(BoundaryHandler=cma.BoundTransform, bounds=[0.0, 1.0])
     return cma.CMAEvolutionStrategy(y0, s.sigma0, opts)

@@ -1,7 +1,7 @@
 # Common commands; see README.md.
 PY ?= python
 
-.PHONY: install test test-all lint format typecheck check bench bench-peak bench-lm bench-grid bench-diagnose data sweep \
+.PHONY: install test test-all lint format typecheck check bench bench-peak bench-lm bench-grid bench-grid-fit bench-diagnose data sweep \
 	smoke ui diagnose
 
 install:  ## install the project and its development tools
@@ -37,6 +37,9 @@ bench-lm:  ## a Levenberg-Marquardt Jacobian batch: residuals vs the simulator a
 
 bench-grid:  ## the paper's 27-job grid at 3,000 evaluations per job: wall time, implied 100,000
 	$(PY) benchmarks/sweep_grid.py --evaluations 3000
+
+bench-grid-fit:  ## the grid at 3,000 and 30,000 evaluations per job, a fixed + per-evaluation line to 100,000 (25 min on 2 cores)
+	$(PY) benchmarks/sweep_grid.py --evaluations 3000,30000
 
 bench-diagnose:  ## planted-effect benchmark of the diagnosis (34 cases: catalog, unlisted forms, none; 1-2 h on 2 cores)
 	$(PY) benchmarks/diagnose_planted.py --out benchmarks/out/diagnose

@@ -29,6 +29,7 @@ import numba
 import platformdirs
 
 from mmg.effects import Effect
+from mmg.model import Inertia
 from mmg.params import N_THETA
 
 # LLVM's loop vectoriser gives up on the lane loop ("too many memory checks needed": it cannot
@@ -61,7 +62,7 @@ from mmg.trig import sincos
 
 N_PARAMS = {n_params}
 #: rows of the per-lane inertia arrays (the fields of :class:`mmg.model.Inertia`)
-N_INERTIA = 6
+N_INERTIA = {n_inertia}
 #: lanes per vector block of the objective's chunk loops (a multiple of the vector widths)
 LANE_BLOCK = 8
 #: points per parallel block of :func:`rhs_rows`
@@ -87,12 +88,8 @@ def fill_inertia(Mi, P, i, sh):
     of Eq. (1) depends on the parameters alone, so it is computed once per lane and chunk."""
     th = Theta({theta_args})
     M = inertia(th, sh)
-    Mi[0, i] = M.m_m_x
-    Mi[1, i] = M.m_m_y
-    Mi[2, i] = M.x_G_m
-    Mi[3, i] = M.a22
-    Mi[4, i] = M.inv_m_m_x
-    Mi[5, i] = M.inv_det
+    for j in range(N_INERTIA):
+        Mi[j, i] = M[j]
 
 
 @numba.njit(**JIT_OPTIONS)
@@ -469,7 +466,7 @@ _MMG_RHS = """\
     Y = F[1] + F[4] + F[7] + Y_A  # Eq. (2)
     N = F[2] + F[5] + F[8] + N_A  # Eq. (2)
 {force_lines}\
-    M = Inertia(Mi[0, i], Mi[1, i], Mi[2, i], Mi[3, i], Mi[4, i], Mi[5, i])
+    M = Inertia({inertia_args})
     u_dot, v_dot, r_dot = accelerations(X, Y, N, u_w, v_w, r, M)  # Eq. (1)
     u_dot += r * v_c  # uniform current rotating with the heading (zero without a current)
     v_dot -= r * u_c
@@ -563,6 +560,7 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
     else:
         body = _MMG_RHS.format(
             theta_args=", ".join(f"P[{j}, i]" for j in range(N_THETA)),
+            inertia_args=", ".join(f"Mi[{j}, i]" for j in range(len(Inertia._fields))),
             effect_params="".join(effect_params),
             current_lines="".join(current_lines),
             force_lines="".join(force_lines),
@@ -596,6 +594,7 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
         inputs_body=inputs_body,
         observe_body=observe_body,
         theta_args=", ".join(f"P[{j}, i]" for j in range(N_THETA)),
+        n_inertia=len(Inertia._fields),
     )
 
 

@@ -553,13 +553,14 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
                     f"u_w, v_w, r, psi, delta, n_p, U_T, gamma_T, e{q}, th, sh)  # {eff.name}\n"
                     "    X += dX\n    Y += dY\n    N += dN\n"
                 )
+    theta_args = ", ".join(f"P[{j}, i]" for j in range(N_THETA))  # Theta of lane i
     if rhs_override is not None:
         name = getattr(rhs_override, "__name__", "")
         imports.append(f"from {rhs_override.__module__} import {name}")
         body = _CUSTOM_RHS.format(func=name)
     else:
         body = _MMG_RHS.format(
-            theta_args=", ".join(f"P[{j}, i]" for j in range(N_THETA)),
+            theta_args=theta_args,
             inertia_args=", ".join(f"Mi[{j}, i]" for j in range(len(Inertia._fields))),
             effect_params="".join(effect_params),
             current_lines="".join(current_lines),
@@ -593,7 +594,7 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
         rhs_body=body,
         inputs_body=inputs_body,
         observe_body=observe_body,
-        theta_args=", ".join(f"P[{j}, i]" for j in range(N_THETA)),
+        theta_args=theta_args,
         n_inertia=len(Inertia._fields),
     )
 

@@ -93,6 +93,7 @@ from mmg import Effect, Parameters, catalog, get_effect
 from mmg.discovered import discovered_effect, with_bounds
 from mmg.effects import DISCOVERED_PREFIX
 from mmg.params import N_THETA
+from mmg.precompile import precompile, tasks
 from sweep.data.objective import CHANNELS, OBJECTIVES, T_F, Objective, split_recording
 from sweep.data.recordings import Recording
 from sweep.diagnose.discover import DiscoverySettings, Proposal, discover, resemblance
@@ -522,6 +523,13 @@ def diagnose(
         f"{len(fit_w)} to fit, {len(held_w)} held out; {len(test)} test recording(s)"
     )
     store = StageStore(out / "stages", s.fingerprint() + _data_fingerprint(train, start))
+    # the kernels of the base model and of every catalog effect, compiled side by side where
+    # the cache lacks them (one after another as the stages reach them took minutes)
+    precompile(
+        tasks([()], ("simulate", "moments", "derivatives"))
+        + tasks((e,) for e in s.candidate_effects()),
+        log=log,
+    )
 
     def lm(iterations: int, rtol: float, prior_weight: float = s.prior_weight) -> PolishSettings:
         # every refinement carries a weak prior toward the starting parameters
@@ -684,6 +692,7 @@ def diagnose(
             if all(e.name != eff.name for e in extra_effects):
                 extra_effects.append(eff)
 
+    precompile(tasks((e,) for e in extra_effects), log=log)
     # two folds: fit on one half, judge on the other, and the other way round; every fit is the
     # same deterministic procedure from the base fitted on all windows (the effect alone on a
     # grid, then Levenberg-Marquardt on the 57 base parameters and the effect jointly), so the

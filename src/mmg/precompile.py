@@ -1,0 +1,117 @@
+"""Compile the kernels a long run will need ahead of time, several at once, in worker processes.
+
+Numba compiles one function at a time per process (a global lock), about half a minute for each
+entry point of a kernel on the development machine, and a run that tries many effects (the
+missing-physics diagnosis: the base model and every catalog effect) needs a dozen or more. On a
+machine whose kernel cache is cold that was minutes of silence, one compilation after another.
+:func:`precompile` finds the entry points whose machine code is not in the cache and compiles
+them in ``processes`` worker processes side by side (spawned, not forked: Numba's thread pool
+does not survive a fork); each writes Numba's on-disk cache, from which the calling process then
+loads them in a fraction of a second. Nothing is computed here that the run would not compile
+anyway, and a warm cache costs only the check (no process is started).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import time
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+import numpy as np
+
+from mmg.effects import Effect, get_effect
+from mmg.kernel import load_kernel
+from mmg.params import N_THETA, efd_parameters
+
+#: entry point -> the compiled function of the kernel module behind it
+ENTRIES: dict[str, str] = {
+    "simulate": "simulate_lanes",  # mmg.simulate_batch
+    "moments": "moments_lanes",  # mmg.integrate.segment_moments (the objective)
+    "derivatives": "rhs_rows",  # mmg.integrate.derivatives / derivatives_rows
+}
+
+
+def is_compiled(effects: tuple[Effect, ...], entry: str) -> bool:
+    """Whether Numba's on-disk cache holds ``entry`` of the kernel for ``effects`` (its index
+    file exists; an index written on another CPU still leads to a compilation at first use)."""
+    dispatcher = getattr(load_kernel(effects), ENTRIES[entry])
+    cache = getattr(dispatcher, "_cache", None)
+    index = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
+    return index is not None and Path(index).exists()
+
+
+def _compile(names: tuple[str, ...], entry: str) -> float:
+    """In a worker: compile ``entry`` of the kernel for the named effects; seconds taken."""
+    from mmg.integrate import Segments, derivatives, segment_moments, simulate_batch
+
+    t0 = time.perf_counter()
+    effects = tuple(get_effect(n) for n in names)
+    n = N_THETA + sum(len(e.params) for e in effects)
+    theta = np.zeros(n)
+    theta[:N_THETA] = efd_parameters().vector()
+    for i, p in enumerate(p for e in effects for p in e.params):
+        theta[N_THETA + i] = p.neutral  # any value compiles the same code
+    x0 = np.zeros((1, 6))
+    x0[0, 1] = 1.0
+    u = np.zeros((1, 2, 2))
+    if entry == "simulate":
+        simulate_batch(x0, u, u, theta, effects=effects)
+    elif entry == "moments":
+        seg = Segments(x0, u, u, np.array([2]), np.zeros((1, 3, 7)), np.zeros((1, 7)))
+        segment_moments(seg, theta[None], effects=effects)
+    else:
+        derivatives(x0[0], u[0, 0], u[0, 0], theta, effects=effects)
+    return time.perf_counter() - t0
+
+
+def tasks(
+    effect_sets: Iterable[tuple[Effect, ...]], entries: Sequence[str] = ("simulate", "moments")
+) -> list[tuple[tuple[Effect, ...], str]]:
+    """(effects, entry) for every effect set and entry point, for :func:`precompile`."""
+    unknown = [e for e in entries if e not in ENTRIES]
+    if unknown:
+        raise ValueError(f"unknown kernel entry point(s) {unknown}; known: {sorted(ENTRIES)}")
+    return [(tuple(effects), entry) for effects in effect_sets for entry in entries]
+
+
+def precompile(
+    wanted: Iterable[tuple[tuple[Effect, ...], str]],
+    processes: int | None = None,
+    log: Callable[[str], None] | None = None,
+) -> int:
+    """Compile the (effects, entry point) kernels of ``wanted`` (:func:`tasks`) that are not in
+    the cache, ``processes`` at a time (default: one per CPU); returns how many were compiled.
+    Effects travel by name (:func:`mmg.get_effect` rebuilds catalog and discovered ones in the
+    workers)."""
+    missing = [
+        (tuple(e.name for e in effects), entry)
+        for effects, entry in dict.fromkeys(wanted)
+        if not is_compiled(effects, entry)
+    ]
+    if not missing:
+        return 0
+    workers = max(1, min(len(missing), processes or os.cpu_count() or 1))
+    if log is not None:
+        log(
+            f"compiling {len(missing)} simulator kernel entry point(s) not yet in the cache, "
+            f"{workers} at a time (about half a minute each; first use only)"
+        )
+    t0 = time.perf_counter()
+    done = 0
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+        futures = {pool.submit(_compile, names, entry): (names, entry) for names, entry in missing}
+        for future in as_completed(futures):
+            names, entry = futures[future]
+            future.result()  # a failure here would fail the same way in the run: say it now
+            done += 1
+            if log is not None:
+                label = " + ".join(names) or "the base model"
+                log(
+                    f"compiled {entry} for {label} ({done}/{len(missing)}, "
+                    f"{time.perf_counter() - t0:.0f} s)"
+                )
+    return done

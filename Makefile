@@ -1,7 +1,7 @@
 # Common commands; see README.md.
 PY ?= python
 
-.PHONY: install test test-all lint format typecheck check bench bench-peak bench-lm bench-grid bench-grid-fit bench-diagnose data sweep \
+.PHONY: install test test-all lint format typecheck check bench bench-peak bench-parts bench-lm bench-grid bench-grid-fit bench-diagnose data sweep \
 	smoke ui diagnose
 
 install:  ## install the project and its development tools
@@ -31,6 +31,9 @@ bench:  ## simulator throughput (traj-steps/s) for B = 20, 540, 19440
 
 bench-peak:  ## simulate and moments throughput as a fraction of ../shared/tools/fma_peak.py
 	PYTHONPATH=. $(PY) benchmarks/peak_fraction.py
+
+bench-parts:  ## the objective kernel's time by part of the right-hand side (each left out in turn; 10 min)
+	PYTHONPATH=. $(PY) benchmarks/kernel_parts.py
 
 bench-lm:  ## a Levenberg-Marquardt Jacobian batch: residuals vs the simulator alone
 	PYTHONPATH=. $(PY) benchmarks/lm_residuals.py

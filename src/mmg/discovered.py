@@ -78,10 +78,14 @@ def effect_name(term_ids: Sequence[str]) -> str:
 def _source(name: str, terms: Sequence[Term], key: str) -> str:
     lines = []
     for t in terms:
-        # terms without a velocity (heading, position, constant) carry U_ref^2 = 1 m^2/s^2
+        # terms without a velocity (heading, position, constant) carry U_ref^2 = 1 m^2/s^2;
+        # a term whose coefficient is 0 is skipped, not multiplied by 0: the library's search
+        # effect carries every term and sets one coefficient at a time (its rows would pay for
+        # all 122 terms otherwise), and a term that is not finite somewhere adds nothing there
+        lines.append(f"    if e.{t.coefficient} != 0.0:")
         for eq, expr, formula in t.components:
             code = t.written(expr, "e.")
-            lines.append(f"    {eq} += e.{t.coefficient} * ({code})  # {t.written(formula)}")
+            lines.append(f"        {eq} += e.{t.coefficient} * ({code})  # {t.written(formula)}")
     fields = []
     for t in terms:
         fields.append(f"    {t.coefficient}: float  # {t.written(t.formula)}")

@@ -221,6 +221,7 @@ def simulate_batch(
     ship: Ship | None = None,
     chunk: int = DEFAULT_CHUNK,
     t0: Any = 0.0,
+    out: FloatArray | None = None,
 ) -> SimulationResult:
     """RK4 simulation of B trajectories with the xdot limiter of paper Algorithm 1.
 
@@ -229,6 +230,9 @@ def simulate_batch(
     (default K for all); t0 (B,) or a scalar: the start times [s] on the recordings' clocks (for
     effects whose forces depend on time). Returns states (B, K + 1, 6) and the per-trajectory
     divergence flags.
+    out: an optional C-contiguous float64 (B, K + 1, 6) array the states are written into (and
+    returned): a caller that simulates batch after batch reuses it, where a fresh array of tens
+    of MB is page-faulted in again every time (it is mapped anew by the allocator).
     A diverging trajectory never raises: it is flagged (and its states may be huge or NaN).
     """
     X0 = np.asarray(x0, dtype=np.float64)
@@ -249,7 +253,13 @@ def simulate_batch(
     P = parameter_matrix(p, B, effects)
     kern = load_kernel(effects)
     order = np.argsort(-steps, kind="stable")  # similar lengths share a chunk
-    out = np.empty((B, K + 1, 6))
+    if out is None:
+        out = np.empty((B, K + 1, 6))
+    elif out.shape != (B, K + 1, 6) or out.dtype != np.float64 or not out.flags.c_contiguous:
+        raise ValueError(
+            f"out must be a C-contiguous float64 array of shape {(B, K + 1, 6)}; got "
+            f"{out.dtype} {out.shape}"
+        )
     bad = np.empty(B, dtype=np.int64)
     t_start = np.broadcast_to(np.asarray(t0, dtype=np.float64), (B,))
     kern.simulate_lanes(

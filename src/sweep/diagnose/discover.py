@@ -134,14 +134,17 @@ def equation_data(
     lo, hi = bounds()
     steps = 1e-3 * (hi - lo)
     theta0 = params.vector()
-    extra0 = np.concatenate([effect_values(params, base_effects), lib.neutral()])
     # parameter rows: the base, each base parameter stepped, each column (a term at one point of
     # its shape's grid) at coefficient 1
-    p0 = np.concatenate([theta0, extra0])
+    # (the base rows go through the base model's kernel: the library's search effect carries
+    # all its terms, and at neutral values it adds exactly nothing)
+    extra_b = effect_values(params, base_effects)
+    p0 = np.concatenate([theta0, extra_b])
+    Pb = np.repeat(p0[None, :], 1 + N_THETA, axis=0)  # (1 + 57, n_params of the base)
+    Pb[1 + np.arange(N_THETA), np.arange(N_THETA)] += steps
     T = len(columns)
-    P = np.repeat(p0[None, :], 1 + N_THETA + T, axis=0)  # (R, n_params)
-    P[1 + np.arange(N_THETA), np.arange(N_THETA)] += steps
-    P[1 + N_THETA :, p0.size - len(lib.params) :] = unit_rows(lib, columns, 1.0)
+    Pl = np.repeat(np.concatenate([p0, lib.neutral()])[None, :], T, axis=0)  # (T, n_params)
+    Pl[:, p0.size :] = unit_rows(lib, columns, 1.0)
     for g, w in enumerate(windows):
         dt = w.dt
         m = max(7, round(settings.sg_window_s / dt) | 1)
@@ -156,12 +159,14 @@ def equation_data(
         tt = np.asarray(w.t, dtype=np.float64)
         sl = slice(m // 2, x.shape[0] - m // 2, settings.stride)  # away from the filter's edges
         xs, acc, us, wind, tt = xs[sl], acc[sl], us[sl], wind[sl], tt[sl]
-        d = derivatives_rows(xs, us, wind, P, effects, params.ship, tt)[..., ACC]  # (R, n, 3)
-        d = np.moveaxis(d, 1, 0)  # (n, R, 3)
-        base = d[:, 0]
+        db = derivatives_rows(xs, us, wind, Pb, base_effects, params.ship, tt)[..., ACC]
+        db = np.moveaxis(db, 1, 0)  # (n, 1 + 57, 3)
+        dl = derivatives_rows(xs, us, wind, Pl, effects, params.ship, tt)[..., ACC]
+        dl = np.moveaxis(dl, 1, 0)  # (n, T, 3)
+        base = db[:, 0]
         ys.append(acc - base)
-        Bs.append((d[:, 1 : 1 + N_THETA] - base[:, None]) / steps[None, :, None])
-        Cs.append(d[:, 1 + N_THETA :] - base[:, None])
+        Bs.append((db[:, 1:] - base[:, None]) / steps[None, :, None])
+        Cs.append(dl - base[:, None])
         gs.append(np.full(ys[-1].shape[0], g))
     if not ys:
         raise ValueError("no window is long enough for the equation-level residuals")

@@ -25,6 +25,7 @@ Jacobian; a trial that makes another one diverge pays its penalty.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -138,9 +139,28 @@ def _standardised_residuals(
             row[(n + 1) * m :] = 0.0
 
 
-def simulate_subsequences(obj: Objective, thetas: FloatArray) -> SimulationResult:
+#: per thread, a states buffer that :func:`residual_vectors` reuses from call to call (a fresh
+#: (lanes, K + 1, 6) array, up to 58 MB, was mapped and page-faulted in anew every time: about a
+#: fifth of a Jacobian's time)
+_scratch = threading.local()
+
+
+def _states_buffer(shape: tuple[int, int, int]) -> FloatArray:
+    """A C-contiguous (B, K + 1, 6) view of this thread's buffer, grown when too small."""
+    need = shape[0] * shape[1] * shape[2]
+    buf: FloatArray | None = getattr(_scratch, "states", None)
+    if buf is None or buf.size < need:
+        buf = np.empty(need)
+        _scratch.states = buf
+    return buf[:need].reshape(shape)
+
+
+def simulate_subsequences(
+    obj: Objective, thetas: FloatArray, out: FloatArray | None = None
+) -> SimulationResult:
     """Trajectories of c candidates (c, n) on every subsequence of ``obj`` (S of them), lanes
-    candidate-major (lane b: candidate b // S, subsequence b % S); states (c S, K + 1, 6)."""
+    candidate-major (lane b: candidate b // S, subsequence b % S); states (c S, K + 1, 6),
+    written into ``out`` when given (see :func:`mmg.integrate.simulate_batch`)."""
     seg = obj.data.segments
     S = seg.u.shape[0]
     c = thetas.shape[0]
@@ -154,14 +174,19 @@ def simulate_subsequences(obj: Objective, thetas: FloatArray) -> SimulationResul
         effects=obj.effects,
         ship=obj.ship,
         t0=np.tile(seg.t0, c),
+        out=out,
     )
 
 
-def residual_vectors(obj: Objective, thetas: FloatArray) -> tuple[FloatArray, np.ndarray]:
+def residual_vectors(
+    obj: Objective, thetas: FloatArray, out: FloatArray | None = None
+) -> tuple[FloatArray, np.ndarray]:
     """Residuals (C, S, M) and per-subsequence divergence flags (C, S) of C candidates.
 
     M = (K + 1) x channels of the objective; entries after a subsequence's end are 0; the
     residuals of a diverged subsequence are 0 (its cost is the penalty, see :func:`totals`).
+    ``out``: an optional C-contiguous float64 (C, S, M) array to write them into (a caller that
+    computes Jacobian after Jacobian reuses one).
     """
     thetas = np.atleast_2d(np.asarray(thetas, dtype=np.float64))
     data = obj.data
@@ -178,12 +203,17 @@ def residual_vectors(obj: Objective, thetas: FloatArray) -> tuple[FloatArray, np
     ref = np.ascontiguousarray(seg.ref[..., ch])
     steps = np.asarray(seg.n_steps, dtype=np.int64)
     C = thetas.shape[0]
-    out = np.empty((C, S, (K + 1) * len(ch)))
+    shape = (C, S, (K + 1) * len(ch))
+    if out is None:
+        out = np.empty(shape)
+    elif out.shape != shape or out.dtype != np.float64 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous float64 array of shape {shape}")
     bad = np.zeros((C, S), dtype=bool)
     per = max(1, MAX_LANES // S)
     for lo in range(0, C, per):
         c = min(per, C - lo)
-        sim = simulate_subsequences(obj, thetas[lo : lo + c])
+        states = _states_buffer((c * S, K + 1, 6))
+        sim = simulate_subsequences(obj, thetas[lo : lo + c], out=states)
         b = sim.bad_step >= 0  # (c S,)
         rows = out[lo : lo + c].reshape(c * S, -1)  # a view: filled in place
         _standardised_residuals(sim.states, steps, ch, ref, floor, sqrt_w, rows, b)
@@ -261,6 +291,7 @@ def polish(
     g: FloatArray = np.zeros(0)
     d: FloatArray = np.zeros(0)
     fresh = False  # whether Jac, A, g belong to the current point
+    jac_buffer: FloatArray | None = None
     while it < s.max_iterations and evaluations + n + 1 + len(LAMBDA_TRIALS) <= s.max_evaluations:
         it += 1
         if not fresh:
@@ -268,7 +299,10 @@ def polish(
             r0 = r[0][keep].ravel()
             h = np.where(z + s.fd_step <= 1.0, s.fd_step, -s.fd_step)
             probes = z[None, :] + np.diag(h)
-            rp, badp = residual_vectors(obj, to_theta(probes))
+            if jac_buffer is None:
+                jac_buffer = np.empty((n, *r.shape[1:]))
+            # the previous Jacobian is no longer needed: its buffer takes the new probes
+            rp, badp = residual_vectors(obj, to_theta(probes), out=jac_buffer)
             evaluations += n
             # (n, M), formed in place: a copy of the probes' residuals only when some
             # subsequences are left out (tens of MB per Jacobian otherwise)

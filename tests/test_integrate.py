@@ -200,3 +200,25 @@ def test_recorded_turning_test_is_followed_for_100_seconds(data_dir):
     # the ship turns to starboard like the recording: heading grows by more than 2 rad
     assert traj[-1, 4] - traj[0, 4] > 2.0
     assert abs(traj[-1, 4] - x[s0 + K, 4]) < 1.0
+
+
+def test_states_written_into_a_given_array_equal_a_fresh_one_and_a_wrong_one_is_refused():
+    """``simulate_batch(out=...)`` (reused batch after batch by the residuals) writes the same
+    states, bit for bit, into the caller's array; an array of another shape or layout is a
+    ValueError naming the expected shape, not memory written out of bounds."""
+    rng = np.random.default_rng(5)
+    B, K = 12, 40
+    x0 = np.zeros((B, 6))
+    x0[:, 1] = rng.uniform(1.0, 4.0, B)
+    u = np.stack([rng.uniform(-0.3, 0.3, (B, K)), rng.uniform(2.0, 8.0, (B, K))], axis=-1)
+    w = np.zeros((B, K, 2))
+    p = efd_parameters()
+    fresh = simulate_batch(x0, u, w, p)
+    buf = np.full((B, K + 1, 6), 123.0)
+    again = simulate_batch(x0, u, w, p, out=buf)
+    assert again.states is buf
+    assert np.array_equal(buf, fresh.states) and np.array_equal(again.bad_step, fresh.bad_step)
+    with pytest.raises(ValueError, match=r"\(12, 41, 6\)"):
+        simulate_batch(x0, u, w, p, out=np.empty((B, K, 6)))
+    with pytest.raises(ValueError, match="C-contiguous"):
+        simulate_batch(x0, u, w, p, out=np.empty((6, K + 1, B)).transpose(2, 1, 0))

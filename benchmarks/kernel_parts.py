@@ -28,15 +28,12 @@ import time
 from pathlib import Path
 from types import ModuleType
 
-import numpy as np
-
 import mmg.integrate
-from benchmarks.throughput import workload
+from benchmarks.peak_fraction import moments_workload
 from mmg import efd_parameters
-from mmg.integrate import Segments, segment_moments
+from mmg.integrate import segment_moments
 from mmg.kernel import render
 
-CANDIDATES = 20
 STEPS = 1000
 
 _RHS_DEF = '\n\n@numba.njit(inline="always", **JIT_OPTIONS)\ndef rhs('
@@ -144,15 +141,11 @@ def load_module(path: Path, name: str) -> ModuleType:
 
 
 class Workload:
-    """Segments and candidates of the moments benchmark (as in peak_fraction.py)."""
+    """Segments and candidates of the moments benchmark (:func:`peak_fraction.moments_workload`)."""
 
     def __init__(self, B: int) -> None:
-        S = max(1, B // CANDIDATES)
-        x0, u, w, theta = workload(max(S, CANDIDATES), STEPS, seed=1)
-        ref = np.zeros((S, STEPS + 1, 7))
-        self.segments = Segments(x0[:S], u[:S], w[:S], np.full(S, STEPS), ref, np.zeros((S, 7)))
-        self.candidates = theta[:CANDIDATES]
-        self.lane_steps = CANDIDATES * S * STEPS
+        self.segments, self.candidates = moments_workload(B, STEPS)
+        self.lane_steps = self.candidates.shape[0] * self.segments.x0.shape[0] * STEPS
 
     def rate(self, module: ModuleType) -> float:
         """Trajectory-steps/s of ``module``'s moments kernel (the objective's code path)."""

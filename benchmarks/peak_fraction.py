@@ -74,13 +74,21 @@ def simulate_rate(B: int, K: int, repeat: int) -> float:
     return statistics.median(rates)
 
 
-def moments_rate(B: int, K: int, repeat: int) -> float:
-    """Median trajectory-steps/s of segment_moments: CANDIDATES x (B / CANDIDATES) lanes."""
+def moments_workload(B: int, K: int) -> tuple[Segments, np.ndarray]:
+    """The moments benchmark's segments (B / CANDIDATES of K steps) and CANDIDATES parameter
+    vectors (also timed part by part in ``kernel_parts.py``)."""
     S = max(1, B // CANDIDATES)
     x0, u, w, theta = workload(max(S, CANDIDATES), K, seed=1)
     ref = np.zeros((S, K + 1, 7))
     seg = Segments(x0[:S], u[:S], w[:S], np.full(S, K), ref, np.zeros((S, 7)))
-    cand = theta[:CANDIDATES]
+    return seg, theta[:CANDIDATES]
+
+
+def moments_rate(B: int, K: int, repeat: int) -> float:
+    """Median trajectory-steps/s of segment_moments: CANDIDATES x (B / CANDIDATES) lanes."""
+    seg, cand = moments_workload(B, K)
+    S = seg.x0.shape[0]
+    x0, u, w, ref = seg.x0, seg.u, seg.w, seg.ref
     small = Segments(x0[:1], u[:1, :10], w[:1, :10], np.array([10]), ref[:1, :11], np.zeros((1, 7)))
     segment_moments(small, cand[:2])  # load / compile
     rates = []

@@ -134,10 +134,9 @@ def equation_data(
     lo, hi = bounds()
     steps = 1e-3 * (hi - lo)
     theta0 = params.vector()
-    # parameter rows: the base, each base parameter stepped, each column (a term at one point of
-    # its shape's grid) at coefficient 1
-    # (the base rows go through the base model's kernel: the library's search effect carries
-    # all its terms, and at neutral values it adds exactly nothing)
+    # parameter rows: the base and each base parameter stepped (through the base model's
+    # kernel: the library's search effect, which carries all its terms, adds exactly nothing at
+    # neutral values), and each column (a term at one point of its shape's grid) at coefficient 1
     extra_b = effect_values(params, base_effects)
     p0 = np.concatenate([theta0, extra_b])
     Pb = np.repeat(p0[None, :], 1 + N_THETA, axis=0)  # (1 + 57, n_params of the base)

@@ -5,7 +5,7 @@ Usage: ``PYTHONPATH=. python benchmarks/peak_fraction.py [--steps 1000] [--repea
 
 Prints, in one process: the yardstick, ``measure()`` of ``../shared/tools/fma_peak.py`` (the
 double-precision multiply-add rate on all of Numba's threads, flop/s); and for each batch size B
-the trajectory-steps per second of the two kernels users wait on, counted at
+the trajectory-steps per second of the kernels users wait on, counted at
 :data:`FLOPS_PER_STEP` useful flops per RK4 step of the model, as a fraction of it:
 
 - ``simulate``: :func:`mmg.simulate_batch`, full trajectories (B, K + 1, 6) written into a

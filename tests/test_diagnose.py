@@ -88,11 +88,13 @@ def test_planted_rudder_offset_is_found_end_to_end(runs, tmp_path, capsys):
     ends = re.search(r"CMA-ES then descent J = ([\d.]+), descent alone J = ([\d.]+)", captured.err)
     assert ends is not None
     J_base = report["training"]["J_base_fit"]
-    # the misfit is above the floor, so a second CMA-ES start ran first; the lowest end is the base
+    # the misfit is above the floor, but both routes ended at one point: no second start
     retry = report["base_retry"]
-    assert retry is not None and "base, second start" in captured.err
+    assert retry is not None and retry.get("skipped") == 1.0 and "J_second" not in retry
+    assert "base, second start not needed" in captured.err
+    assert float(ends[1]) == pytest.approx(float(ends[2]), rel=0.01)
     assert retry["J_first"] == pytest.approx(min(float(ends[1]), float(ends[2])), abs=0.006)
-    assert J_base == pytest.approx(min(retry["J_first"], retry["J_second"]), rel=1e-9)
+    assert J_base == pytest.approx(retry["J_first"], rel=1e-9)
 
     from mlflow import MlflowClient
 
@@ -190,6 +192,8 @@ def test_user_mistakes_are_one_line_errors(runs, tmp_path, capsys):
     assert "--final-prior-weight must be >= 0" in capsys.readouterr().err
     assert _diagnose(case, tmp_path / "o1", "--base-descent", "-5") == 2
     assert "--base-descent must be >= 0" in capsys.readouterr().err
+    assert _diagnose(case, tmp_path / "o1", "--base-retry-agreement", "-0.1") == 2
+    assert "--base-retry-agreement must be >= 0" in capsys.readouterr().err
     one = tmp_path / "one"
     one.mkdir()
     first = sorted((case / "train").iterdir())[0]
@@ -344,3 +348,32 @@ def test_a_planted_dead_time_is_the_catalog_lag_with_that_dead_time(runs):
     J_true = float(Objective(recs, "J2", effects=effects).evaluate(p)[0])
     J_plain = float(Objective(recs, "J2").evaluate(efd_parameters())[0])
     assert J_true < 1e-2 * J_plain, (J_true, J_plain)
+
+
+def test_the_second_base_start_is_skipped_only_when_both_routes_ended_together():
+    from sweep.diagnose.run import routes_agree
+
+    assert routes_agree((1173.21, 1173.21), 0.01)
+    assert routes_agree((100.0, 100.9), 0.01) and not routes_agree((100.0, 101.1), 0.01)
+    assert not routes_agree((1.52, 2.77), 0.01)  # the planted case the second start was made for
+    assert not routes_agree((1.0,), 0.01)  # one route: nothing to compare
+    assert not routes_agree((1.0, 1.0), 0.0)  # 0: always the second start
+    assert not routes_agree((1.0, float("nan")), 0.01)
+
+
+def test_a_second_base_start_runs_when_asked_and_the_lower_end_is_the_base(runs, tmp_path, capsys):
+    """``--base-retry-agreement 0``: a misfit above the floor always gets the second CMA-ES
+    start; the lower of the two ends is the base the rest of the diagnosis starts from."""
+    case = tmp_path / "case"
+    _case(runs, PlantedSpec("rudder_offset", {"delta_0": 0.05}), case)
+    out = tmp_path / "out"
+    extra = ("--no-discovery", "--no-tracking", "--candidates", "rudder_offset")
+    assert _diagnose(case, out, "--base-retry-agreement", "0", *extra) == 0
+    report = json.loads((out / "report.json").read_text())
+    err = capsys.readouterr().err
+    retry = report["base_retry"]
+    assert retry is not None and "skipped" not in retry
+    assert re.search(r"base, second start: J = [\d.]+ against [\d.]+", err)
+    J_base = report["training"]["J_base_fit"]
+    assert J_base == pytest.approx(min(retry["J_first"], retry["J_second"]), rel=1e-9)
+    assert report["verdict"] == "rudder_offset"

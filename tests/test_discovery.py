@@ -55,6 +55,50 @@ def test_generated_effect_adds_its_term_through_the_mass_matrix():
         get_effect("discovered:Y_warp")
 
 
+def test_a_terms_column_is_its_force_through_eq_1_without_the_rest_of_the_model():
+    """effect_accelerations_rows (the last effect's forces alone through Eq. (1)) equals the
+    difference of whole right-hand sides with and without them, with a current acting (the
+    term sees the velocity through the water) and a term that depends on time and position."""
+    from mmg.integrate import derivatives_rows, effect_accelerations_rows
+    from mmg.params import N_THETA
+
+    effects = (get_effect("current"), discovered_effect(["Y_vav", "N_bt", "X_x"]))
+    rng = np.random.default_rng(3)
+    n = 40
+    x = np.column_stack(
+        [
+            rng.uniform(-50, 50, n),
+            rng.uniform(-0.5, 1.0, n),
+            rng.uniform(-30, 30, n),
+            rng.uniform(-0.2, 0.2, n),
+            rng.uniform(-3, 3, n),
+            rng.uniform(-0.02, 0.02, n),
+        ]
+    )
+    u = np.column_stack([rng.uniform(-0.6, 0.6, n), rng.uniform(-10, 15, n)])
+    w = np.column_stack([rng.uniform(0, 3, n), rng.uniform(-3, 3, n)])
+    t = rng.uniform(0, 900, n)
+    base = np.concatenate([efd_parameters().vector(), [0.05, 0.8]])  # V_c, beta_c
+    lib = effects[1]
+    rows = np.repeat(np.concatenate([base, lib.neutral()])[None, :], 4, axis=0)
+    k = N_THETA + 2
+    rows[1, k] = 0.02  # C_Y_vav
+    rows[2, k + 1] = -0.003  # C_N_bt (tau at its neutral value)
+    rows[3, k:] = [0.01, 0.002, lib.neutral()[2], 1e-4]  # all three
+    got = effect_accelerations_rows(x, u, w, rows, effects, t=t)  # (4, n, 3)
+    d = derivatives_rows(x, u, w, rows, effects, t=t)[..., [1, 3, 5]]
+    want = d - d[0]
+    assert got.shape == (4, n, 3)
+    np.testing.assert_array_equal(got[0], 0.0)
+    scale = np.abs(want).max(axis=(0, 1))
+    assert np.all(scale > 0)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * float(scale.max()))
+    # (the rows of one term: surge untouched by Y_vav, yaw by it only through x_G)
+    assert np.all(got[1, :, 0] == 0.0) and np.any(got[1, :, 1] != 0.0)
+    with pytest.raises(ValueError, match="at least one effect"):
+        effect_accelerations_rows(x, u, w, rows[:, :N_THETA], ())
+
+
 def test_earth_fixed_force_terms_are_a_basin_force_resolved_through_the_heading():
     """E_x0 and E_y0 (one coefficient each, entering X and Y) reproduce a steady force of any
     direction fixed to the basin (the planted earth_force form) at every heading."""

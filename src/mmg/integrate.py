@@ -170,6 +170,42 @@ def derivatives_rows(
     the kernel reads each point's set from the R columns: no (n, R x points) copy of them (with
     hundreds of sets, as equation-level discovery has, that copy cost more than the physics).
     """
+    return _rows("rhs_rows", 6, x, u, w, rows, effects, ship, t)
+
+
+def effect_accelerations_rows(
+    x: Any,
+    u: Any,
+    w: Any,
+    rows: Any,
+    effects: tuple[Effect, ...],
+    ship: Ship | None = None,
+    t: Any = 0.0,
+) -> FloatArray:
+    """(R, ..., 3) the accelerations (u_dot, v_m_dot, r_dot) that the forces of the last of
+    ``effects`` add to the right-hand side, for each of R parameter sets ``rows`` (R, n) at every
+    point (arguments as :func:`derivatives_rows`).
+
+    Eq. (1) is linear in the forces: this is :func:`derivatives_rows` of the rows less that of
+    the rows with the last effect's forces left out (up to rounding, and free of the
+    cancellation of that difference), at the cost of the effect's forces alone.
+    """
+    if not effects:
+        raise ValueError("effect_accelerations_rows needs at least one effect")
+    return _rows("effect_rows", 3, x, u, w, rows, effects, ship, t)
+
+
+def _rows(
+    entry: str,
+    k_out: int,
+    x: Any,
+    u: Any,
+    w: Any,
+    rows: Any,
+    effects: tuple[Effect, ...],
+    ship: Ship | None,
+    t: Any,
+) -> FloatArray:
     P_rows = np.asarray(rows, dtype=np.float64)
     n = N_THETA + sum(len(e.params) for e in effects)
     if P_rows.ndim != 2 or P_rows.shape[1] != n:
@@ -186,8 +222,8 @@ def derivatives_rows(
     U = lanes(u_arr, 2)
     Wd = lanes(w_arr, 2)
     T = lanes(t_arr[..., None], 1)[0]
-    out = np.empty((6, R * M))
-    load_kernel(effects).rhs_rows(
+    out = np.empty((k_out, R * M))
+    getattr(load_kernel(effects), entry)(
         kernel_array(T),
         X,
         kernel_array(U[0]),
@@ -199,7 +235,7 @@ def derivatives_rows(
         _ship_of(P_rows, ship),
         out,
     )
-    return np.moveaxis(out.reshape(6, R, *shape), 0, -1)
+    return np.moveaxis(out.reshape(k_out, R, *shape), 0, -1)
 
 
 def chunk_width(B: int, chunk: int = DEFAULT_CHUNK) -> int:

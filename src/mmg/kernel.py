@@ -449,6 +449,39 @@ def rhs_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
             )
             for j in range(6):
                 out[j, i] = d[j]
+
+
+@numba.njit(inline="always", **JIT_OPTIONS)
+def last_effect_forces(t, x0, u, y0, v_m, psi, r, delta, n_p, U_T, gamma_T, P, i, sh):
+    """(X, Y, N) [N, N, N m] that the force hooks of the last effect alone add at lane i of P,
+    with the same arguments as in :func:`rhs` (the velocity through the water after every
+    effect's current)."""
+{last_force_body}
+
+
+@numba.njit(parallel=True, cache=True, **JIT_OPTIONS)
+def effect_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
+    """The accelerations (u_dot [m/s^2], v_m_dot [m/s^2], r_dot [rad/s^2]) that the last
+    effect's forces add at M points, arguments as :func:`rhs_rows`, out (3, M).
+
+    Eq. (1) is linear in the forces, so this is what the effect changes in the right-hand side
+    at these points, up to rounding, without the rest of the model: the equation-level
+    discovery evaluates hundreds of library terms one at a time this way."""
+    M = X.shape[1]
+    Mi = np.empty((N_INERTIA, P.shape[1]))
+    for j in range(P.shape[1]):
+        fill_inertia(Mi, P, j, sh)
+    for blk in numba.prange((M + POINT_BLOCK - 1) // POINT_BLOCK):
+        for i in range(blk * POINT_BLOCK, min(M, (blk + 1) * POINT_BLOCK)):
+            c = row[i]
+            F_X, F_Y, F_N = last_effect_forces(
+                T[i], X[0, i], X[1, i], X[2, i], X[3, i], X[4, i], X[5, i],
+                delta[i], n_p[i], U_T[i], gamma_T[i], P, c, sh,
+            )
+            M_c = Inertia({inertia_rows})
+            out[0, i], out[1, i], out[2, i] = accelerations(
+                F_X, F_Y, F_N, 0.0, 0.0, 0.0, M_c
+            )  # Eq. (1), the forces' part
 '''
 
 _MMG_RHS = """\
@@ -472,6 +505,21 @@ _MMG_RHS = """\
     v_dot -= r * u_c
     x_dot, y_dot = kinematics(u, v_m, sin_psi, cos_psi)
     return x_dot, u_dot, y_dot, v_dot, r, r_dot
+"""
+
+_LAST_FORCES = """\
+    th = Theta({theta_args})
+{effect_params}\
+    u_c = 0.0
+    v_c = 0.0
+{current_lines}\
+    u_w = u - u_c
+    v_w = v_m - v_c
+    X = 0.0
+    Y = 0.0
+    N = 0.0
+{force_lines}\
+    return X, Y, N
 """
 
 _CUSTOM_RHS = """\
@@ -515,6 +563,7 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
     effect_params: list[str] = []
     current_lines: list[str] = []
     force_lines: list[str] = []
+    last_force_lines: list[str] = []
     input_lines: list[str] = []
     observe_lines: list[str] = []
     delay_lines: list[str] = []
@@ -549,14 +598,16 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
             imports.append(f"from {fn.__module__} import {fn.__name__}")
             current_lines.append(f"    du_c, dv_c = {fn.__name__}(x0, y0, psi, e{q})\n")
             current_lines.append("    u_c += du_c\n    v_c += dv_c\n")
+        last_force_lines = []  # of this effect alone (the last one's are kept)
         for hook, position in ((eff.force, ""), (eff.force_at, "t, x0, y0, ")):
             if hook is not None:
                 imports.append(f"from {hook.__module__} import {hook.__name__}")
-                force_lines.append(
+                last_force_lines.append(
                     f"    dX, dY, dN = {hook.__name__}({position}"
                     f"u_w, v_w, r, psi, delta, n_p, U_T, gamma_T, e{q}, th, sh)  # {eff.name}\n"
                     "    X += dX\n    Y += dY\n    N += dN\n"
                 )
+        force_lines += last_force_lines
     theta_args = ", ".join(f"P[{j}, i]" for j in range(N_THETA))  # Theta of lane i
     if rhs_override is not None:
         name = getattr(rhs_override, "__name__", "")
@@ -570,6 +621,12 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
             current_lines="".join(current_lines),
             force_lines="".join(force_lines),
         )
+    last_force_body = _LAST_FORCES.format(
+        theta_args=theta_args,
+        effect_params="".join(effect_params),
+        current_lines="".join(current_lines),
+        force_lines="".join(last_force_lines),
+    )
     if input_lines:
         inputs_body = (
             "    for i in range(W):\n"
@@ -596,6 +653,8 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
         imports="\n".join(sorted(set(imports))),
         n_params=offset,
         rhs_body=body,
+        last_force_body=last_force_body,
+        inertia_rows=", ".join(f"Mi[{j}, c]" for j in range(len(Inertia._fields))),
         inputs_body=inputs_body,
         observe_body=observe_body,
         theta_args=theta_args,

@@ -94,6 +94,13 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         help="Levenberg-Marquardt iterations of the base's second route, the descent alone from "
         "--params (0: CMA-ES route only)",
     )
+    ap.add_argument(
+        "--base-retry-agreement",
+        type=float,
+        default=d.base_retry_agreement,
+        help="a misfit above the noise floor gets the base a second CMA-ES start unless its two "
+        "routes ended within this share of each other's J (default %(default)s; 0: always)",
+    )
     ap.add_argument("--candidate-budget", type=int, default=d.candidate_budget)
     ap.add_argument("--final-budget", type=int, default=d.final_budget)
     ap.add_argument("--seed", type=int, default=d.seed)
@@ -158,6 +165,8 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
         raise UserError(f"--alpha must be between 0 and 1; got {args.alpha}")
     if args.base_descent < 0:
         raise UserError(f"--base-descent must be >= 0 iterations; got {args.base_descent}")
+    if not args.base_retry_agreement >= 0.0:
+        raise UserError(f"--base-retry-agreement must be >= 0; got {args.base_retry_agreement}")
     if not args.prior_weight >= 0.0:
         raise UserError(f"--prior-weight must be >= 0; got {args.prior_weight}")
     if not args.final_prior_weight >= 0.0:
@@ -172,6 +181,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
         objective=args.objective,
         base_budget=args.budget,
         base_lm_iterations=args.base_descent,
+        base_retry_agreement=args.base_retry_agreement,
         candidate_budget=args.candidate_budget,
         final_budget=args.final_budget,
         seed=args.seed,

@@ -13,9 +13,11 @@ the catalog's effects by the same rules (:mod:`sweep.diagnose.run`).
 2. **Regressors.** Each library term (:mod:`mmg.library`) adds a force; its column is the
    acceleration that force with a unit coefficient causes (through the same mass matrix, added
    masses and x_G coupling as the model: the columns are computed by the model's own kernel, with
-   the term as an effect). A term with a shape (a time constant, a step's centre and width:
-   :class:`mmg.library.Shape`) gives one column per point of its grid. The base model's own
-   regressors are the derivatives of its accelerations with respect to the 57 parameters.
+   the term as an effect; only the term's force and Eq. (1), which is linear in the forces, not
+   the whole right-hand side: :func:`mmg.integrate.effect_accelerations_rows`). A term with a
+   shape (a time constant, a step's centre and width: :class:`mmg.library.Shape`) gives one
+   column per point of its grid. The base model's own regressors are the derivatives of its
+   accelerations with respect to the 57 parameters.
 3. **Cancellation.** Refitting the base can reproduce part of any term. Residual and term columns
    are projected onto the complement of the base regressors (Frisch-Waugh-Lovell: equivalent to
    a joint refit of base and term, linearised); the *absorbed fraction* of a term is the share of
@@ -52,7 +54,7 @@ from scipy.signal import savgol_filter
 
 from mmg import Effect, Parameters, bounds, derivatives, get_effect
 from mmg.discovered import discovered_effect, unit_rows, with_bounds
-from mmg.integrate import derivatives_rows
+from mmg.integrate import derivatives_rows, effect_accelerations_rows
 from mmg.library import SEARCHED, Column, chosen_shapes, library_columns, term
 from mmg.params import N_THETA
 from sweep.data.recordings import Recording
@@ -160,12 +162,13 @@ def equation_data(
         xs, acc, us, wind, tt = xs[sl], acc[sl], us[sl], wind[sl], tt[sl]
         db = derivatives_rows(xs, us, wind, Pb, base_effects, params.ship, tt)[..., ACC]
         db = np.moveaxis(db, 1, 0)  # (n, 1 + 57, 3)
-        dl = derivatives_rows(xs, us, wind, Pl, effects, params.ship, tt)[..., ACC]
-        dl = np.moveaxis(dl, 1, 0)  # (n, T, 3)
+        # a column's regressor: what its term's force adds to the accelerations (Eq. (1) is
+        # linear in the forces: the library's forces alone, not the whole right-hand side)
+        dl = effect_accelerations_rows(xs, us, wind, Pl, effects, params.ship, tt)
         base = db[:, 0]
         ys.append(acc - base)
         Bs.append((db[:, 1:] - base[:, None]) / steps[None, :, None])
-        Cs.append(dl - base[:, None])
+        Cs.append(np.moveaxis(dl, 1, 0))  # (n, T, 3)
         gs.append(np.full(ys[-1].shape[0], g))
     if not ys:
         raise ValueError("no window is long enough for the equation-level residuals")
@@ -230,25 +233,49 @@ class _HeldOut:
     From per-fold Gram matrices, formed once: a subset's fit on the other folds solves the
     k x k normal equations (k <= a few terms), and its squared error on the held-out fold is
     ``y_f'y_f - 2 beta'C_f'y_f + beta'C_f'C_f beta``, so the thousands of subsets that forward
-    selection tries cost microseconds each instead of a least-squares solve over all rows.
+    selection tries cost microseconds each instead of a least-squares solve over all rows (and
+    the subsets of one step are solved as one batch, :meth:`r2_many`).
     """
 
     def __init__(self, y: FloatArray, C: FloatArray, folds: list[NDArray[np.bool_]]) -> None:
-        self.G = [C[f].T @ C[f] for f in folds]
-        self.b = [C[f].T @ y[f] for f in folds]
+        parts = [C[f] for f in folds]  # one copy per fold: Cf.T @ Cf is then a syrk
+        self.G = [Cf.T @ Cf for Cf in parts]
+        self.b = [Cf.T @ y[f] for Cf, f in zip(parts, folds, strict=True)]
         self.yy = [float(y[f] @ y[f]) for f in folds]
-        self.G_all = np.sum(self.G, axis=0)
-        self.b_all = np.sum(self.b, axis=0)
+        G_all = np.sum(self.G, axis=0)
+        b_all = np.sum(self.b, axis=0)
+        # the normal equations of the fit without each fold
+        self.G_out = [G_all - G for G in self.G]
+        self.b_out = [b_all - b for b in self.b]
         self.total = max(float(y @ y), 1e-300)
 
-    def r2(self, cols: Sequence[int]) -> float:
-        ix = np.asarray(cols, dtype=np.intp)
-        sse = 0.0
-        for G, b, yy in zip(self.G, self.b, self.yy, strict=True):
-            A = (self.G_all - G)[np.ix_(ix, ix)]
-            beta = np.linalg.lstsq(A, (self.b_all - b)[ix], rcond=None)[0]
-            sse += yy - 2.0 * float(beta @ b[ix]) + float(beta @ G[np.ix_(ix, ix)] @ beta)
-        return 1.0 - sse / self.total
+    def r2_many(self, chosen: Sequence[int], candidates: Sequence[int]) -> FloatArray:
+        """(n,) held-out R^2 of ``chosen`` plus each of the n ``candidates`` in turn: the n
+        small systems of a forward step solved as one batch (numpy's least squares one at a
+        time cost more in Python than in arithmetic)."""
+        cand = np.asarray(candidates, dtype=np.intp)
+        idx = np.empty((cand.size, len(chosen) + 1), dtype=np.intp)
+        idx[:, :-1] = np.asarray(chosen, dtype=np.intp)
+        idx[:, -1] = cand
+        rows, cols = idx[:, :, None], idx[:, None, :]
+        sse = np.zeros(cand.size)
+        for G, b, yy, G_out, b_out in zip(
+            self.G, self.b, self.yy, self.G_out, self.b_out, strict=True
+        ):
+            beta = _lstsq_many(G_out[rows, cols], b_out[idx])
+            fitted = np.einsum("nj,njk,nk->n", beta, G[rows, cols], beta)
+            sse += yy - 2.0 * np.einsum("nj,nj->n", beta, b[idx]) + fitted
+        return np.asarray(1.0 - sse / self.total)
+
+
+def _lstsq_many(A: FloatArray, b: FloatArray) -> FloatArray:
+    """(n, m) minimum-norm least-squares solutions of the n systems A (n, m, m) x = b (n, m),
+    as :func:`numpy.linalg.lstsq` with ``rcond=None`` solves each (singular values at most
+    eps m times the largest count as zero)."""
+    U, s, Vt = np.linalg.svd(A)
+    cutoff = np.finfo(np.float64).eps * A.shape[-1] * s[:, :1]
+    inv = np.divide(1.0, s, out=np.zeros_like(s), where=s > cutoff)
+    return np.asarray(np.einsum("nkj,nk->nj", Vt, inv * np.einsum("njk,nj->nk", U, b)))
 
 
 def _projected(data: EquationData) -> tuple[FloatArray, FloatArray]:
@@ -317,16 +344,16 @@ def select(
     folds = [np.isin(data.groups, windows[f::F]) for f in range(F)]
     labels = data.labels
     held = _HeldOut(y, C, folds)
-    single: list[dict[str, float | str]] = []
-    for k in usable:
-        single.append(
-            {
-                "term": labels[k],
-                "id": data.term_ids[k],
-                "cv_r2": held.r2([k]),
-                "absorbed": float(absorbed[k]),
-            }
-        )
+    alone = held.r2_many([], usable) if usable else np.zeros(0)
+    single: list[dict[str, float | str]] = [
+        {
+            "term": labels[k],
+            "id": data.term_ids[k],
+            "cv_r2": float(r2),
+            "absorbed": float(absorbed[k]),
+        }
+        for k, r2 in zip(usable, alone, strict=True)
+    ]
     single.sort(key=lambda r: r["cv_r2"], reverse=True)
     chosen, best, steps = _forward(held, usable, settings, data.term_ids)
     names = [data.term_ids[k] for k in chosen]
@@ -382,10 +409,13 @@ def _forward(
     best = 0.0
     for _ in range(settings.max_terms):
         taken = {term_ids[k] for k in chosen}
-        trials = [(held.r2([*chosen, k]), k) for k in usable if term_ids[k] not in taken]
-        if not trials:
+        open_ = [k for k in usable if term_ids[k] not in taken]
+        if not open_:
             break
-        r2, k = max(trials)
+        r2s = held.r2_many(chosen, open_)
+        # the best held-out R^2; of equal ones the last column, as max() over (r2, k) had it
+        j = len(open_) - 1 - int(np.argmax(r2s[::-1]))
+        r2, k = float(r2s[j]), open_[j]
         if r2 <= 0.0 or (chosen and r2 - best < settings.min_gain * best):
             break
         chosen.append(k)

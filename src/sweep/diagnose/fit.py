@@ -104,6 +104,8 @@ class Fit:
     evaluations: int
     seconds: float
     history: list[dict[str, float]]
+    #: J at the end of each competing route of a fit made of several (the base's two starts)
+    ends: tuple[float, ...] = ()
 
 
 def fit(

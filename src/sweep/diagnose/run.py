@@ -16,7 +16,9 @@ Procedure (:func:`diagnose`), all on the training recordings unless said otherwi
    effect, as in practice. When the misfit test (step 5's floor) finds the base above the noise
    floor, a second CMA-ES start (another seed) runs first and the lower end becomes the base: an
    identification stopped in another basin is not missing physics (a no-effect case of the
-   planted benchmark went from 1.52 to 1.01 against the true model's 0.90).
+   planted benchmark went from 1.52 to 1.01 against the true model's 0.90; its two routes had
+   ended at 1.52 and 2.77). When the two routes ended within ``base_retry_agreement`` of each
+   other, both reached one point and the second start is not run.
    Every Levenberg-Marquardt refinement of the diagnosis minimises J plus a weak prior
    ``prior_weight |z - z_start|^2`` on the 57 base parameters (normalised box, ``z_start`` the
    ``--params`` values): along directions the data leave nearly flat (a_H traded against an
@@ -211,8 +213,12 @@ class DiagnoseSettings:
     generalisation_draws: int = GENERALISATION_DRAWS
     generalisation_alpha: float = GENERALISATION_ALPHA
     generalisation_margin: float = GENERALISATION_MARGIN
-    #: a misfit above the floor first gets the base a second CMA-ES start (another seed)
+    #: a misfit above the floor first gets the base a second CMA-ES start (another seed) ...
     base_retry: bool = True
+    #: ... unless the base's two routes ended within this share of each other's J: the
+    #: landscape led CMA-ES and the descent alone to one point (the planted case the second
+    #: start was made for had ended at 1.52 and 2.77)
+    base_retry_agreement: float = 0.01
 
     def candidate_effects(self) -> tuple[Effect, ...]:
         names = self.candidates or tuple(sorted(catalog()))
@@ -337,6 +343,7 @@ class StageStore:
             evaluations=int(data["evaluations"]),
             seconds=float(data["seconds"]),
             history=list(data.get("history", [])),
+            ends=tuple(float(v) for v in data.get("ends", ())),
         )
 
     def save(self, name: str, result: Fit) -> None:
@@ -348,6 +355,7 @@ class StageStore:
             "evaluations": result.evaluations,
             "seconds": result.seconds,
             "history": result.history,
+            "ends": list(result.ends),
         }
         tmp = self.path(name).with_suffix(".tmp")
         tmp.write_text(json.dumps(payload) + "\n")
@@ -417,6 +425,14 @@ class Diagnosis:
     def chosen(self) -> CandidateScore | None:
         name = self.verdict_effect or self.verdict
         return next((c for c in self.candidates if c.effect == name), None)
+
+
+def routes_agree(ends: Sequence[float], tolerance: float) -> bool:
+    """Whether the competing routes of a fit (at least two) ended within ``tolerance`` times
+    the lowest J of each other (never with ``tolerance`` 0)."""
+    if tolerance <= 0.0 or len(ends) < 2 or not all(math.isfinite(f) for f in ends):
+        return False
+    return max(ends) - min(ends) <= tolerance * abs(min(ends))
 
 
 def rank(scores: Sequence[CandidateScore], tie_margin: float = TIE_MARGIN) -> list[CandidateScore]:
@@ -573,6 +589,7 @@ def diagnose(
             best,
             evaluations=sum(e.evaluations for e in ends),
             seconds=sum(e.seconds for e in ends),
+            ends=tuple(e.f for e in ends),
         )
 
     base = _staged(store, "base", (), log, base_fit)
@@ -620,7 +637,15 @@ def diagnose(
 
     noise, lin, null, misfit = floor_and_null(base.params)
     base_retry: dict[str, float] | None = None
-    if misfit.significant and s.base_retry:
+    agree = routes_agree(base.ends, s.base_retry_agreement)
+    if misfit.significant and s.base_retry and agree:
+        log(
+            "base, second start not needed: the two routes ended at J = "
+            + " and ".join(f"{f:.6g}" for f in base.ends)
+            + f" (within {100 * s.base_retry_agreement:g} %)"
+        )
+        base_retry = {"J_first": base.f, "skipped": 1.0}
+    elif misfit.significant and s.base_retry:
         # a misfit above the floor may be an identification that stopped in another basin of
         # the 57-parameter landscape, not missing physics: a second CMA-ES start (another seed)
         # must not do better before the misfit counts; a better end replaces the base

@@ -10,7 +10,8 @@ candidates, recovered effect parameters; then per family the top-1 rate, the fal
 on the no-effect cases, parameter errors, and the test-set J2 before / after / of the true model.
 
     python benchmarks/diagnose_planted.py [--cases all|quick|N,M,...] [--repeats R]
-        [--base-budget 6000] [--candidate-budget 0] [--final-budget 0] [--scale 1] [--out DIR]
+        [--base-budget 6000] [--candidate-budget 0] [--final-budget 0] [--base-retry-agreement 0.01]
+        [--scale 1] [--out DIR]
         [--weak] [--markdown]
 
 ``--weak`` sets each case's magnitude (by bisection on the scale, same ship, windows and noise)
@@ -287,6 +288,8 @@ def run_case(
         "J2_test_after": d.test_after["J2"]["Total"],
         "J2_test_true": J_true,
         "J2_base_fit": d.base.f,
+        # the base's two routes' ends and the second start's (when it ran)
+        "base_retry": d.extra.get("base_retry"),
         "misfit_ratio": d.misfit.ratio if d.misfit else None,
         "misfit_significant": d.misfit.significant if d.misfit else None,
         # the test recordings' J of the re-identified base over the null's median
@@ -429,6 +432,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--base-budget", type=int, default=DiagnoseSettings.base_budget)
     ap.add_argument("--candidate-budget", type=int, default=DiagnoseSettings.candidate_budget)
     ap.add_argument("--final-budget", type=int, default=DiagnoseSettings.final_budget)
+    ap.add_argument(
+        "--base-retry-agreement",
+        type=float,
+        default=DiagnoseSettings.base_retry_agreement,
+        help="0: the second base start runs whenever the misfit is significant",
+    )
     ap.add_argument("--out", default="benchmarks/out/diagnose")
     ap.add_argument("--data-root", default=None)
     ap.add_argument(
@@ -464,6 +473,7 @@ def main(argv: list[str] | None = None) -> int:
         base_budget=args.base_budget,
         candidate_budget=args.candidate_budget,
         final_budget=args.final_budget,
+        base_retry_agreement=args.base_retry_agreement,
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -637,6 +637,8 @@ def diagnose(
 
     noise, lin, null, misfit = floor_and_null(base.params)
     base_retry: dict[str, float] | None = None
+    # the base's routes: CMA-ES then descent, the descent alone
+    routes = {f"J_route{i + 1}": f for i, f in enumerate(base.ends)}
     agree = routes_agree(base.ends, s.base_retry_agreement)
     if misfit.significant and s.base_retry and agree:
         log(
@@ -644,7 +646,7 @@ def diagnose(
             + " and ".join(f"{f:.6g}" for f in base.ends)
             + f" (within {100 * s.base_retry_agreement:g} %)"
         )
-        base_retry = {"J_first": base.f, "skipped": 1.0}
+        base_retry = {"J_first": base.f, "skipped": 1.0, **routes}
     elif misfit.significant and s.base_retry:
         # a misfit above the floor may be an identification that stopped in another basin of
         # the 57-parameter landscape, not missing physics: a second CMA-ES start (another seed)
@@ -662,7 +664,7 @@ def diagnose(
                 "base, second start",
             ),
         )
-        base_retry = {"J_first": base.f, "J_second": retry.f}
+        base_retry = {"J_first": base.f, "J_second": retry.f, **routes}
         log(f"base, second start: J = {retry.f:.4g} against {base.f:.4g}")
         if retry.f < base.f:
             spent = base.evaluations + retry.evaluations

@@ -134,25 +134,3 @@ def test_null_of_the_best_candidate_on_noise_only_windows(case):
     step = 1e-3 * np.ones(N_THETA)
     R = (A @ step)[..., None]  # (S, M, 1): the residual of the parameters moved by 1e-3
     assert lin.refit_factor(R) < 0.05
-
-
-def test_the_folds_tall_qr_is_householders_to_rounding_and_falls_back_near_rank_deficiency():
-    from sweep.diagnose.threshold import _qr_tall
-
-    rng = np.random.default_rng(2)
-    A = rng.normal(size=(5000, 12)) * np.logspace(0, -5, 12)  # condition number about 1e5
-    Q, R = _qr_tall(A)
-    Qh, Rh = np.linalg.qr(A)
-    np.testing.assert_allclose(Q @ R, A, rtol=0, atol=1e-13)
-    np.testing.assert_allclose(Q.T @ Q, np.eye(12), rtol=0, atol=1e-13)
-    x = rng.normal(size=5000)  # the same projector as Householder's
-    np.testing.assert_allclose(Q @ (Q.T @ x), Qh @ (Qh.T @ x), rtol=0, atol=1e-12)
-    np.testing.assert_allclose(np.abs(np.diag(R)), np.abs(np.diag(Rh)), rtol=1e-10)
-    assert np.all(np.diag(R) > 0) and np.any(np.diag(Rh) < 0)  # (the Cholesky route ran)
-    # a column that repeats another: Cholesky of A'A fails or loses orthogonality, the
-    # Householder factorisation is returned (still Q R = A)
-    B = np.column_stack([A, A[:, 3]])
-    Qb, Rb = _qr_tall(B)
-    np.testing.assert_allclose(Qb @ Rb, B, rtol=0, atol=1e-12)
-    Rbh = np.linalg.qr(B)[1]
-    np.testing.assert_array_equal(Rb, Rbh)

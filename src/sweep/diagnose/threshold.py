@@ -234,32 +234,13 @@ def _library_part(
     return s[:, None] * V.T, (V.T @ (L.T @ Rf)) / s[:, None], n0
 
 
-def _qr_tall(A: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """(Q, R) of a tall matrix A (m, n), m >> n, by Cholesky QR twice: R from the Cholesky
-    factor of A'A and Q = A R^-1, then once more on Q, which makes Q orthonormal to rounding
-    for any A of condition number up to about 1e7 (a Householder QR of the (10^5, 57) stacked
-    Jacobians of a fold took seconds per diagnosis; this is matrix products). Householder
-    (:func:`numpy.linalg.qr`) when A is closer to rank deficiency than that."""
-    try:
-        R1 = np.linalg.cholesky(A.T @ A).T
-        Q = A @ np.linalg.inv(R1)
-        R2 = np.linalg.cholesky(Q.T @ Q).T
-        Q = Q @ np.linalg.inv(R2)
-        if np.all(np.isfinite(Q)) and np.abs(Q.T @ Q - np.eye(A.shape[1])).max() < 1e-12:
-            return Q, R2 @ R1
-    except np.linalg.LinAlgError:
-        pass
-    Q, R = np.linalg.qr(A)
-    return Q, R
-
-
 class _Fold:
     """The rows of one fold fit, with the base Jacobian and the prior projected out."""
 
     def __init__(self, ix: list[int], A: FloatArray, mu: float) -> None:
         self.ix = ix
         Aa = np.vstack([self.rows(A), np.sqrt(mu) * np.eye(N_THETA)])
-        self.Qr, self.Rr = _qr_tall(Aa)
+        self.Qr, self.Rr = np.linalg.qr(Aa)
         # with the prior's rows the stacked Jacobian has full column rank: Q of the QR spans it
         self.Q = self.Qr if mu > 0 else _orth(Aa)
 

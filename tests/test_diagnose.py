@@ -21,7 +21,7 @@ from sweep.diagnose.planted import (
     pick_windows,
     write_case,
 )
-from sweep.diagnose.run import cut_windows, delta_bic, split_windows
+from sweep.diagnose.run import cut_windows, delta_bic, routes_agree, split_windows
 
 KINDS = ("random", "turning", "zigzag")
 
@@ -88,13 +88,20 @@ def test_planted_rudder_offset_is_found_end_to_end(runs, tmp_path, capsys):
     ends = re.search(r"CMA-ES then descent J = ([\d.]+), descent alone J = ([\d.]+)", captured.err)
     assert ends is not None
     J_base = report["training"]["J_base_fit"]
-    # the misfit is above the floor, but both routes ended at one point: no second start
+    # the misfit is above the floor: a second start unless both routes ended at one point
+    # (here they do: a rounding change elsewhere may take them apart, then the start runs)
     retry = report["base_retry"]
-    assert retry is not None and retry.get("skipped") == 1.0 and "J_second" not in retry
-    assert "base, second start not needed" in captured.err
-    assert float(ends[1]) == pytest.approx(float(ends[2]), rel=0.01)
+    assert retry is not None
     assert retry["J_first"] == pytest.approx(min(float(ends[1]), float(ends[2])), abs=0.006)
-    assert J_base == pytest.approx(retry["J_first"], rel=1e-9)
+    routes = (retry["J_route1"], retry["J_route2"])
+    assert min(routes) == pytest.approx(retry["J_first"], rel=1e-12)
+    if routes_agree(routes, 0.01):
+        assert retry.get("skipped") == 1.0 and "J_second" not in retry
+        assert "base, second start not needed" in captured.err
+        assert J_base == pytest.approx(retry["J_first"], rel=1e-9)
+    else:
+        assert "skipped" not in retry and "base, second start: J" in captured.err
+        assert J_base == pytest.approx(min(retry["J_first"], retry["J_second"]), rel=1e-9)
 
     from mlflow import MlflowClient
 
@@ -351,7 +358,6 @@ def test_a_planted_dead_time_is_the_catalog_lag_with_that_dead_time(runs):
 
 
 def test_the_second_base_start_is_skipped_only_when_both_routes_ended_together():
-    from sweep.diagnose.run import routes_agree
 
     assert routes_agree((1173.21, 1173.21), 0.01)
     assert routes_agree((100.0, 100.9), 0.01) and not routes_agree((100.0, 101.1), 0.01)

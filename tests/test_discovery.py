@@ -57,12 +57,14 @@ def test_generated_effect_adds_its_term_through_the_mass_matrix():
 
 def test_a_terms_column_is_its_force_through_eq_1_without_the_rest_of_the_model():
     """effect_accelerations_rows (the last effect's forces alone through Eq. (1)) equals the
-    difference of whole right-hand sides with and without them, with a current acting (the
-    term sees the velocity through the water) and a term that depends on time and position."""
+    difference of whole right-hand sides with and without them: with a current acting (the
+    term sees the velocity through the water), another effect's force beside it (not counted)
+    and a term that depends on time and position, each row with its own masses."""
     from mmg.integrate import derivatives_rows, effect_accelerations_rows
-    from mmg.params import N_THETA
+    from mmg.params import N_THETA, PARAMETER_NAMES
 
-    effects = (get_effect("current"), discovered_effect(["Y_vav", "N_bt", "X_x"]))
+    lib = discovered_effect(["Y_vav", "N_bt", "X_x"])
+    effects = (get_effect("current"), get_effect("propeller_walk"), lib)
     rng = np.random.default_rng(3)
     n = 40
     x = np.column_stack(
@@ -78,25 +80,35 @@ def test_a_terms_column_is_its_force_through_eq_1_without_the_rest_of_the_model(
     u = np.column_stack([rng.uniform(-0.6, 0.6, n), rng.uniform(-10, 15, n)])
     w = np.column_stack([rng.uniform(0, 3, n), rng.uniform(-3, 3, n)])
     t = rng.uniform(0, 900, n)
-    base = np.concatenate([efd_parameters().vector(), [0.05, 0.8]])  # V_c, beta_c
-    lib = effects[1]
-    rows = np.repeat(np.concatenate([base, lib.neutral()])[None, :], 4, axis=0)
-    k = N_THETA + 2
+    # V_c, beta_c of the current; C_Yw, C_Nw of the propeller walk (forces of its own)
+    base = np.concatenate([efd_parameters().vector(), [0.05, 0.8], [0.001, -0.0015]])
+    k = base.size
+    rows = np.repeat(np.concatenate([base, lib.neutral()])[None, :], 6, axis=0)
     rows[1, k] = 0.02  # C_Y_vav
     rows[2, k + 1] = -0.003  # C_N_bt (tau at its neutral value)
     rows[3, k:] = [0.01, 0.002, lib.neutral()[2], 1e-4]  # all three
-    got = effect_accelerations_rows(x, u, w, rows, effects, t=t)  # (4, n, 3)
+    m_y = PARAMETER_NAMES.index("m_y")
+    rows[4:, m_y] *= 1.25  # other masses: rows 4 (no term) and 5 (C_Y_vav) against 0 and 1
+    rows[5, k] = 0.02
+    got = effect_accelerations_rows(x, u, w, rows, effects, t=t)  # (6, n, 3)
     d = derivatives_rows(x, u, w, rows, effects, t=t)[..., [1, 3, 5]]
-    want = d - d[0]
-    assert got.shape == (4, n, 3)
-    np.testing.assert_array_equal(got[0], 0.0)
+    want = d.copy()
+    want[:4] -= d[0]
+    want[4:] -= d[4]
+    assert got.shape == (6, n, 3)
+    np.testing.assert_array_equal(got[0], 0.0)  # the walk's forces are not the term's
+    np.testing.assert_array_equal(got[4], 0.0)
     scale = np.abs(want).max(axis=(0, 1))
     assert np.all(scale > 0)
-    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * float(scale.max()))
+    for c in range(3):
+        np.testing.assert_allclose(got[..., c], want[..., c], rtol=0, atol=1e-9 * scale[c])
     # (the rows of one term: surge untouched by Y_vav, yaw by it only through x_G)
     assert np.all(got[1, :, 0] == 0.0) and np.any(got[1, :, 1] != 0.0)
+    assert np.abs(got[5, :, 1] - got[1, :, 1]).max() > 1e-3 * scale[1]  # the masses count
     with pytest.raises(ValueError, match="at least one effect"):
         effect_accelerations_rows(x, u, w, rows[:, :N_THETA], ())
+    with pytest.raises(ValueError, match="adds no force"):
+        effect_accelerations_rows(x, u, w, rows[:, : N_THETA + 2], (effects[0],))
 
 
 def test_earth_fixed_force_terms_are_a_basin_force_resolved_through_the_heading():
@@ -422,3 +434,44 @@ def test_former_fixed_time_constant_terms_still_load_and_equal_the_shaped_term()
         d_old = derivatives(x, u, w, with_effects(p, (old,), [0.01]), (old,), t=np.array(t))
         d_new = derivatives(x, u, w, with_effects(p, (new,), [0.01, 300.0]), (new,), t=np.array(t))
         np.testing.assert_allclose(d_old, d_new, rtol=1e-12, atol=1e-15)
+
+
+def test_forward_selections_batched_subsets_are_numpys_least_squares_one_at_a_time():
+    """_HeldOut.r2_many solves the subsets of a step as one batch: the same held-out R^2 as
+    numpy's lstsq per subset (a repeated column included), and of equal scores the last column
+    enters, as max() over (r2, column) had it."""
+    from sweep.diagnose.discover import _HeldOut
+
+    rng = np.random.default_rng(4)
+    m = 600
+    C = rng.normal(size=(m, 6))
+    C[:, 5] = C[:, 2]  # a repeated column: rank-deficient subsets
+    y = C[:, 1] - 0.5 * C[:, 3] + rng.normal(size=m)
+    folds = [np.arange(m) % 3 == f for f in range(3)]
+    held = _HeldOut(y, C, folds)
+
+    def loop(cols: list[int]) -> float:
+        sse = 0.0
+        for f in folds:
+            beta = np.linalg.lstsq(C[~f][:, cols], y[~f], rcond=None)[0]
+            e = y[f] - C[f][:, cols] @ beta
+            sse += float(e @ e)
+        return 1.0 - sse / float(y @ y)
+
+    for chosen in ([], [1], [1, 2]):
+        cands = [k for k in range(6) if k not in chosen]
+        got = held.r2_many(chosen, cands)
+        want = [loop([*chosen, k]) for k in cands]
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-10)
+    r2 = held.r2_many([1], [2, 5])
+    assert r2[0] == r2[1]  # the repeated column scores alike
+    from sweep.diagnose.discover import DiscoverySettings, _forward
+
+    ids = ["a", "b", "c", "d", "e", "f"]
+    chosen, _, _ = _forward(held, list(range(6)), DiscoverySettings(max_terms=2, min_gain=0.0), ids)
+    assert chosen == [1, 3]
+    dup = np.column_stack([C[:, 1], C[:, 1]])
+    first, _, _ = _forward(
+        _HeldOut(y, dup, folds), [0, 1], DiscoverySettings(max_terms=1), ["p", "q"]
+    )
+    assert first == [1]  # a tie: the last column

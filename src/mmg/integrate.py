@@ -192,6 +192,8 @@ def effect_accelerations_rows(
     """
     if not effects:
         raise ValueError("effect_accelerations_rows needs at least one effect")
+    if effects[-1].force is None and effects[-1].force_at is None:
+        raise ValueError(f"effect {effects[-1].name!r} adds no force (no force hook)")
     return _rows("effect_rows", 3, x, u, w, rows, effects, ship, t)
 
 

@@ -682,8 +682,8 @@ def _fingerprint(source: str, effects: tuple[Effect, ...], rhs_override: object 
 def load_kernel(effects: tuple[Effect, ...] = (), rhs_override: object | None = None) -> ModuleType:
     """Generate (if needed), import and return the kernel module for ``effects``.
 
-    The module exposes ``simulate_lanes``, ``moments_lanes``, ``rhs_rows``, ``rhs`` and
-    ``N_PARAMS``. Later calls with the same effects return the same module at once (the
+    The module exposes ``simulate_lanes``, ``moments_lanes``, ``rhs_rows``, ``effect_rows``,
+    ``rhs`` and ``N_PARAMS``. Later calls with the same effects return the same module at once (the
     sources of a running process's functions cannot change under it).
     """
     request = (tuple(effects), rhs_override)

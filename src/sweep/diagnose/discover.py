@@ -413,6 +413,7 @@ def _forward(
         if not open_:
             break
         r2s = held.r2_many(chosen, open_)
+        r2s = np.where(np.isfinite(r2s), r2s, -np.inf)  # (a column that is not finite: never)
         # the best held-out R^2; of equal ones the last column, as max() over (r2, k) had it
         j = len(open_) - 1 - int(np.argmax(r2s[::-1]))
         r2, k = float(r2s[j]), open_[j]

@@ -484,7 +484,9 @@ def effect_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
             )  # Eq. (1), the forces' part
 '''
 
-_MMG_RHS = """\
+#: the parameters of lane i and the velocity through the water (u_w, v_w) after every
+#: effect's current: the head of the right-hand side and of the last effect's forces
+_WATER_VELOCITY = """\
     th = Theta({theta_args})
 {effect_params}\
     u_c = 0.0
@@ -492,6 +494,11 @@ _MMG_RHS = """\
 {current_lines}\
     u_w = u - u_c
     v_w = v_m - v_c
+"""
+
+_MMG_RHS = (
+    _WATER_VELOCITY
+    + """\
     sin_psi, cos_psi = sincos(psi)
     F = hydrodynamic_forces(u_w, v_w, r, sin_d, cos_d, n_p, th, sh)
     X_A, Y_A, N_A = aerodynamic_forces(u, v_m, sin_psi, cos_psi, U_T, sin_g, cos_g, th, sh)
@@ -506,21 +513,18 @@ _MMG_RHS = """\
     x_dot, y_dot = kinematics(u, v_m, sin_psi, cos_psi)
     return x_dot, u_dot, y_dot, v_dot, r, r_dot
 """
+)
 
-_LAST_FORCES = """\
-    th = Theta({theta_args})
-{effect_params}\
-    u_c = 0.0
-    v_c = 0.0
-{current_lines}\
-    u_w = u - u_c
-    v_w = v_m - v_c
+_LAST_FORCES = (
+    _WATER_VELOCITY
+    + """\
     X = 0.0
     Y = 0.0
     N = 0.0
 {force_lines}\
     return X, Y, N
 """
+)
 
 _CUSTOM_RHS = """\
     return {func}(x0, u, y0, v_m, psi, r, delta, n_p, U_T, gamma_T, P, i, sh)

@@ -429,6 +429,16 @@ def moments_lanes(
                 bad[lane] = fb[i] if fb[i] < seg_steps[seg[i]] else -1
 
 
+@numba.njit(inline="always", **JIT_OPTIONS)
+def inertia_columns(P, sh):
+    """(N_INERTIA, R) the :class:`mmg.model.Inertia` of every parameter column of P (N_PARAMS,
+    R), once per call of the pointwise entries rather than at every point."""
+    Mi = np.empty((N_INERTIA, P.shape[1]))
+    for j in range(P.shape[1]):
+        fill_inertia(Mi, P, j, sh)
+    return Mi
+
+
 @numba.njit(parallel=True, cache=True, **JIT_OPTIONS)
 def rhs_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
     """xdot for M independent points: T (M,) times [s], X (6, M), inputs (M,); point i with the
@@ -436,9 +446,7 @@ def rhs_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
     per-point copy of it) -> out (6, M). Blocks of POINT_BLOCK points run in parallel threads
     (strict IEEE arithmetic: a point's result does not depend on its block)."""
     M = X.shape[1]
-    Mi = np.empty((N_INERTIA, P.shape[1]))
-    for j in range(P.shape[1]):
-        fill_inertia(Mi, P, j, sh)
+    Mi = inertia_columns(P, sh)
     for blk in numba.prange((M + POINT_BLOCK - 1) // POINT_BLOCK):
         for i in range(blk * POINT_BLOCK, min(M, (blk + 1) * POINT_BLOCK)):
             sin_d, cos_d = sincos(delta[i])
@@ -468,9 +476,7 @@ def effect_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
     at these points, up to rounding, without the rest of the model: the equation-level
     discovery evaluates hundreds of library terms one at a time this way."""
     M = X.shape[1]
-    Mi = np.empty((N_INERTIA, P.shape[1]))
-    for j in range(P.shape[1]):
-        fill_inertia(Mi, P, j, sh)
+    Mi = inertia_columns(P, sh)
     for blk in numba.prange((M + POINT_BLOCK - 1) // POINT_BLOCK):
         for i in range(blk * POINT_BLOCK, min(M, (blk + 1) * POINT_BLOCK)):
             c = row[i]

@@ -20,7 +20,7 @@ import numba
 import numpy as np
 
 from mmg.effects import Effect
-from mmg.kernel import LIMIT_A, load_kernel
+from mmg.kernel import LANE_BLOCK, LIMIT_A, load_kernel
 from mmg.params import ESSO_OSAKA, N_THETA, FloatArray, Parameters, Ship
 
 ParamsLike = Parameters | Sequence[Parameters] | FloatArray
@@ -241,11 +241,14 @@ def _rows(
 
 
 def chunk_width(B: int, chunk: int = DEFAULT_CHUNK) -> int:
-    """Lanes per chunk: at most ``chunk``, with a number of chunks that the threads share evenly."""
+    """Lanes per chunk: at most about ``chunk``, in whole vector blocks (:data:`LANE_BLOCK`), with a
+    number of chunks that the threads share evenly (the last chunk may be shorter; the kernels
+    pad it to whole blocks)."""
     threads = numba.get_num_threads()
     n_chunks = max(1, -(-B // chunk))
     n_chunks = -(-n_chunks // threads) * threads if threads <= B else n_chunks
-    return max(1, -(-B // n_chunks))
+    width = -(-B // n_chunks)
+    return max(1, -(-width // LANE_BLOCK) * LANE_BLOCK)
 
 
 def simulate_batch(

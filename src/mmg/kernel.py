@@ -42,6 +42,10 @@ for _option in (
 ):
     llvm.set_option("", _option)
 
+#: lanes per vector block of the kernels' chunk loops: a multiple of the vector widths (4 and 8
+#: doubles); chunks are padded to whole blocks, so no lane goes through a scalar remainder loop
+LANE_BLOCK = 8
+
 #: Algorithm 1: xdot_lim = (a, a, a, a, a / (0.5 L), a / (0.5 L)) with a = 1e10
 LIMIT_A = 1.0e10
 
@@ -63,8 +67,8 @@ from mmg.trig import sincos
 N_PARAMS = {n_params}
 #: rows of the per-lane inertia arrays (the fields of :class:`mmg.model.Inertia`)
 N_INERTIA = {n_inertia}
-#: lanes per vector block of the objective's chunk loops (a multiple of the vector widths)
-LANE_BLOCK = 8
+#: lanes per vector block of the chunk loops (a multiple of the vector widths)
+LANE_BLOCK = {lane_block}
 #: points per parallel block of :func:`rhs_rows`
 POINT_BLOCK = 256
 
@@ -249,6 +253,8 @@ def simulate_lanes(
     bad,
 ):
     """Integrate B trajectories in chunks of W lanes; thread t takes chunks t, t + n_threads, ...
+    A chunk is padded to whole vector blocks (:func:`padded`); the padding lanes repeat its last
+    lane and are not written (a scalar remainder lane costs about four vector lanes).
 
     x0 (B, 6); t_start (B,) [s] the start times on the recordings' clocks; u_seq, w_seq
     (B, K, 2); P (N_PARAMS, B); n_steps (B,) int64; lane_ids (B,) the order in which
@@ -262,26 +268,28 @@ def simulate_lanes(
     K = u_seq.shape[1]
     NP = P.shape[0]
     n_chunks = (B + W - 1) // W
+    Wp = padded(W)
     for t in numba.prange(n_threads):
-        X = np.empty((6, W))  # work buffers, once per thread
-        Pc = np.empty((NP, W))
-        Mi = np.empty((N_INERTIA, W))
-        cur = np.empty((4, W))  # delta, n_p, U_T, gamma_T of the current step
-        prev = np.empty((2, W))
-        ob = np.empty((3, W))
-        Ks = np.empty((4, 6, W))
-        Tr = np.empty((4, W))
-        inv_t_f = np.empty(W)
-        t_s = np.empty(W)
-        fb = np.empty(W, dtype=np.int64)
-        ids = np.empty(W, dtype=np.int64)
-        last = np.empty(W, dtype=np.int64)
+        X = np.empty((6, Wp))  # work buffers, once per thread
+        Pc = np.empty((NP, Wp))
+        Mi = np.empty((N_INERTIA, Wp))
+        cur = np.empty((4, Wp))  # delta, n_p, U_T, gamma_T of the current step
+        prev = np.empty((2, Wp))
+        ob = np.empty((3, Wp))
+        Ks = np.empty((4, 6, Wp))
+        Tr = np.empty((4, Wp))
+        inv_t_f = np.empty(Wp)
+        t_s = np.empty(Wp)
+        fb = np.empty(Wp, dtype=np.int64)
+        ids = np.empty(Wp, dtype=np.int64)
+        last = np.empty(Wp, dtype=np.int64)
         for c in range(t, n_chunks, n_threads):
             lo = c * W
             w = min(lo + W, B) - lo
+            wp = padded(w)  # lanes w..wp-1 repeat lane w-1 (vector code only); not written
             kmax = 0
-            for i in range(w):
-                b = lane_ids[lo + i]
+            for i in range(wp):
+                b = lane_ids[lo + min(i, w - 1)]
                 ids[i] = b
                 kmax = max(kmax, n_steps[b])
                 last[i] = max(n_steps[b] - 1, 0)
@@ -291,15 +299,16 @@ def simulate_lanes(
                 for j in range(NP):
                     Pc[j, i] = P[j, b]
                 fill_inertia(Mi, Pc, i, sh)
-                for j in range(6):
-                    out[b, 0, j] = x0[b, j]
                 start_state(X, x0, b, Pc, ob, i)
+            for i in range(w):
+                for j in range(6):
+                    out[ids[i], 0, j] = x0[ids[i], j]
             for k in range(kmax):
-                gather_inputs(cur, u_seq, w_seq, ids, last, k, w, Pc, dt)
-                transform_inputs(cur, prev, Pc, k, w, dt)
+                gather_inputs(cur, u_seq, w_seq, ids, last, k, wp, Pc, dt)
+                transform_inputs(cur, prev, Pc, k, wp, dt)
                 rk4_step(
                     X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
-                    Pc, Mi, sh, k, dt, inv_t_f, t_s, lim_lin, lim_ang, fb, w,
+                    Pc, Mi, sh, k, dt, inv_t_f, t_s, lim_lin, lim_ang, fb, wp,
                 )
                 for i in range(w):
                     if k < n_steps[ids[i]]:
@@ -669,6 +678,7 @@ def render(effects: tuple[Effect, ...] = (), rhs_override: object | None = None)
         observe_body=observe_body,
         theta_args=theta_args,
         n_inertia=len(Inertia._fields),
+        lane_block=LANE_BLOCK,
     )
 
 

@@ -34,7 +34,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from mmg.integrate import SimulationResult, simulate_batch
+from mmg.integrate import Segments, SimulationResult, simulate_batch
+from mmg.trig import sincos
 from sweep.data.objective import CHANNELS, PENALTY_FACTOR, Objective
 from sweep.identification.cmaes import Box
 
@@ -95,27 +96,38 @@ def _standardised_residuals(
     out (B, (K + 1) m) receives sqrt(w_k dt) (z_hat_in - z_hat_sim) at [k m + j] (paper Eqs. (32),
     (33)), 0 past the end and for a lane that is ``bad`` (diverged) or has a non-finite residual,
     which is then flagged in ``bad`` (B,).
+    The heading's sine and cosine are those of the objective's kernel (:func:`mmg.trig.sincos`,
+    straight-line arithmetic: the C library's pair cost two opaque calls per sample, about half
+    of a Jacobian's time beside the simulation).
     """
     B = states.shape[0]
     S = n_steps.shape[0]
     m = channels.shape[0]
+    heading = False
+    for j in range(m):
+        heading = heading or channels[j] == 4 or channels[j] == 5
     for b in numba.prange(B):
         s = b % S
         n = n_steps[s]
         row = out[b]
-        finite = not bad[b]
+        if bad[b]:
+            row[:] = 0.0
+            continue
+        trig = np.empty((2, n + 1))
+        if heading:
+            for k in range(n + 1):
+                trig[0, k], trig[1, k] = sincos(states[b, k, 4])
+        finite = True
         for j in range(m):
             q = channels[j]
-            if not finite:
-                break
             total = 0.0  # sums of z - z_0: the variance without cancellation (x0 is tens of m)
             square = 0.0
             z_0 = 0.0
             for k in range(n + 1):
                 if q == 4:
-                    z = math.sin(states[b, k, 4])
+                    z = trig[0, k]
                 elif q == 5:
-                    z = math.cos(states[b, k, 4])
+                    z = trig[1, k]
                 elif q == 6:
                     z = states[b, k, 5]
                 else:
@@ -128,10 +140,14 @@ def _standardised_residuals(
             d = total / (n + 1)
             mu = z_0 + d
             sigma = max(math.sqrt(max(square / (n + 1) - d * d, 0.0)), floor[j])
+            check = 0.0  # stays 0 while every v is finite (inf * 0 and NaN * 0 are NaN)
             for k in range(n + 1):
                 v = sqrt_w[s, k] * (ref[s, k, j] - (row[k * m + j] - mu) / sigma)  # Eqs. (32), (33)
                 row[k * m + j] = v
-                finite = finite and math.isfinite(v)
+                check += v * 0.0
+            if check != 0.0:
+                finite = False
+                break
         if not finite:
             bad[b] = True
             row[:] = 0.0
@@ -155,6 +171,33 @@ def _states_buffer(shape: tuple[int, int, int]) -> FloatArray:
     return buf[:need].reshape(shape)
 
 
+def _tiled_segments(seg: Segments, c: int) -> tuple[FloatArray, ...]:
+    """(x0, u, w, n_steps, t0) of the subsequences ``seg`` repeated for c candidates.
+
+    Kept per thread for the last subsequence set, one copy per c: a refinement simulates the
+    same subsequences for n + 1 probes, then for a few trial points, iteration after iteration
+    (tiling the controls anew, tens of MB each time, took about 2 % of a diagnosis). The kernel
+    only reads them.
+    """
+    cache: tuple[Segments, dict[int, tuple[FloatArray, ...]]] | None = getattr(
+        _scratch, "tiled", None
+    )
+    if cache is None or cache[0] is not seg:
+        cache = (seg, {})
+        _scratch.tiled = cache
+    got = cache[1].get(c)
+    if got is None:
+        got = (
+            np.tile(seg.x0, (c, 1)),
+            np.tile(seg.u, (c, 1, 1)),
+            np.tile(seg.w, (c, 1, 1)),
+            np.tile(seg.n_steps, c),
+            np.tile(seg.t0, c),
+        )
+        cache[1][c] = got
+    return got
+
+
 def simulate_subsequences(
     obj: Objective, thetas: FloatArray, out: FloatArray | None = None
 ) -> SimulationResult:
@@ -163,17 +206,17 @@ def simulate_subsequences(
     written into ``out`` when given (see :func:`mmg.integrate.simulate_batch`)."""
     seg = obj.data.segments
     S = seg.u.shape[0]
-    c = thetas.shape[0]
+    x0, u, w, n_steps, t0 = _tiled_segments(seg, thetas.shape[0])
     return simulate_batch(
-        np.tile(seg.x0, (c, 1)),
-        np.tile(seg.u, (c, 1, 1)),
-        np.tile(seg.w, (c, 1, 1)),
+        x0,
+        u,
+        w,
         np.repeat(thetas, S, axis=0),
         obj.data.dt,
-        np.tile(seg.n_steps, c),
+        n_steps,
         effects=obj.effects,
         ship=obj.ship,
-        t0=np.tile(seg.t0, c),
+        t0=t0,
         out=out,
     )
 

@@ -11,8 +11,8 @@ import pytest
 from scipy.linalg import expm
 
 from mmg import bounds, derivatives, efd_parameters, simulate, simulate_batch
-from mmg.integrate import parameter_matrix, rk4_reference
-from mmg.kernel import LIMIT_A, load_kernel
+from mmg.integrate import chunk_width, parameter_matrix, rk4_reference
+from mmg.kernel import LANE_BLOCK, LIMIT_A, load_kernel
 from tests.rk4_linear import A, linear_rhs
 
 
@@ -87,6 +87,20 @@ def test_results_do_not_depend_on_chunking_or_batch_companions():
     c = simulate_batch(x0[5:6], u[5:6], w[5:6], theta[5:6]).states
     assert np.array_equal(a, b)
     assert np.array_equal(a[5], c[0])
+
+
+def test_chunks_come_in_whole_vector_blocks_and_cover_the_batch():
+    """No lane of a full chunk goes through the vectorised loop's scalar remainder: widths are
+    multiples of LANE_BLOCK, and the chunks still cover B lanes in about ``chunk``-wide pieces."""
+    for B in (1, 5, 13, 37, 70, 540, 812, 19440):
+        for chunk in (8, 100, 120):
+            width = chunk_width(B, chunk)
+            assert width % LANE_BLOCK == 0
+            n_chunks = -(-B // width)
+            assert (n_chunks - 1) * width < B <= n_chunks * width
+            assert width <= -(-chunk // LANE_BLOCK) * LANE_BLOCK or n_chunks == 1
+    if numba.get_num_threads() == 2:  # 8 chunks (7 of 104, one of 84): 102 left 6 lanes scalar
+        assert chunk_width(812, 120) == 104
 
 
 def test_objective_moments_do_not_depend_on_chunking_and_match_the_trajectories():

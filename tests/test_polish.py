@@ -15,6 +15,7 @@ from sweep.data.recordings import Recording, read_recordings
 from sweep.identification.cmaes import Box
 from sweep.identification.polish import (
     PolishSettings,
+    _standardised_residuals,
     damped_step,
     polish,
     residual_vectors,
@@ -60,6 +61,31 @@ def test_a_diverging_candidate_costs_the_penalty(windows):
     r, bad = residual_vectors(obj, theta[None])
     assert bad.all()
     np.testing.assert_allclose(totals(obj, r, bad), obj.evaluate(theta[None]))
+
+
+def test_the_residual_pass_flags_and_zeroes_a_lane_that_went_non_finite():
+    """A NaN state mid-run and a heading beyond the sine's range (2^50 rad) each flag their lane
+    and leave its row 0; the other lanes' residuals are the standardised observables."""
+    rng = np.random.default_rng(3)
+    S, K, m = 2, 30, 7
+    states = rng.standard_normal((4, K + 1, 6))
+    states[1, 12, 1] = np.nan
+    states[2, 7, 4] = 2.0**51
+    steps = np.array([K, K - 5], dtype=np.int64)
+    channels = np.arange(m, dtype=np.int64)
+    ref = rng.standard_normal((S, K + 1, m))
+    sqrt_w = np.ones((S, K + 1))
+    out = np.full((4, (K + 1) * m), 7.0)
+    bad = np.zeros(4, dtype=bool)
+    _standardised_residuals(states, steps, channels, ref, np.full(m, 1e-3), sqrt_w, out, bad)
+    assert bad.tolist() == [False, True, True, False]
+    assert not out[1].any() and not out[2].any()
+    # lane 3 simulates subsequence 1 (K - 5 steps): its sin psi channel, standardised
+    n = K - 5
+    z = np.sin(states[3, : n + 1, 4])
+    want = ref[1, : n + 1, 4] - (z - z.mean()) / z.std()
+    np.testing.assert_allclose(out[3].reshape(K + 1, m)[: n + 1, 4], want, rtol=1e-12, atol=1e-12)
+    assert not out[3].reshape(K + 1, m)[n + 1 :].any()
 
 
 def test_polish_recovers_perturbed_parameters(windows):

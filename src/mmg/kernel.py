@@ -247,6 +247,20 @@ def start_state(X, x0, s, Pc, ob, i):
     X[5, i] = x0[s, 5]
 
 
+@numba.njit(inline="always", **JIT_OPTIONS)
+def work_buffers(NP, Wp):
+    """A thread's work buffers for chunks of up to Wp lanes: state X (6, Wp), parameters Pc
+    (NP, Wp), inertias Mi, inputs cur (delta, n_p, U_T, gamma_T of the current step) and prev,
+    observation offsets ob, stage slopes Ks (4, 6, Wp), input sines Tr, 1 / t_f [1/s], start
+    times t_s [s], first bad step fb, the lanes' rows (trajectories or segments) and last steps."""
+    return (
+        np.empty((6, Wp)), np.empty((NP, Wp)), np.empty((N_INERTIA, Wp)), np.empty((4, Wp)),
+        np.empty((2, Wp)), np.empty((3, Wp)), np.empty((4, 6, Wp)), np.empty((4, Wp)),
+        np.empty(Wp), np.empty(Wp), np.empty(Wp, dtype=np.int64), np.empty(Wp, dtype=np.int64),
+        np.empty(Wp, dtype=np.int64),
+    )  # fmt: skip
+
+
 @numba.njit(parallel=True, cache=True, **JIT_OPTIONS)
 def simulate_lanes(
     x0, t_start, u_seq, w_seq, P, n_steps, lane_ids, sh, dt, lim_lin, lim_ang, W, n_threads, out,
@@ -270,19 +284,7 @@ def simulate_lanes(
     n_chunks = (B + W - 1) // W
     Wp = padded(W)
     for t in numba.prange(n_threads):
-        X = np.empty((6, Wp))  # work buffers, once per thread
-        Pc = np.empty((NP, Wp))
-        Mi = np.empty((N_INERTIA, Wp))
-        cur = np.empty((4, Wp))  # delta, n_p, U_T, gamma_T of the current step
-        prev = np.empty((2, Wp))
-        ob = np.empty((3, Wp))
-        Ks = np.empty((4, 6, Wp))
-        Tr = np.empty((4, Wp))
-        inv_t_f = np.empty(Wp)
-        t_s = np.empty(Wp)
-        fb = np.empty(Wp, dtype=np.int64)
-        ids = np.empty(Wp, dtype=np.int64)
-        last = np.empty(Wp, dtype=np.int64)
+        X, Pc, Mi, cur, prev, ob, Ks, Tr, inv_t_f, t_s, fb, ids, last = work_buffers(NP, Wp)
         for c in range(t, n_chunks, n_threads):
             lo = c * W
             w = min(lo + W, B) - lo
@@ -350,19 +352,7 @@ def moments_lanes(
     n_chunks = (L + W - 1) // W
     Wp = padded(W)
     for t in numba.prange(n_threads):
-        X = np.empty((6, Wp))
-        Pc = np.empty((NP, Wp))
-        Mi = np.empty((N_INERTIA, Wp))
-        cur = np.empty((4, Wp))
-        prev = np.empty((2, Wp))
-        ob = np.empty((3, Wp))
-        Ks = np.empty((4, 6, Wp))
-        Tr = np.empty((4, Wp))
-        inv_t_f = np.empty(Wp)
-        t_s = np.empty(Wp)
-        fb = np.empty(Wp, dtype=np.int64)
-        seg = np.empty(Wp, dtype=np.int64)
-        last = np.empty(Wp, dtype=np.int64)
+        X, Pc, Mi, cur, prev, ob, Ks, Tr, inv_t_f, t_s, fb, seg, last = work_buffers(NP, Wp)
         acc = np.empty((7, 5, Wp))
         Z = np.empty((7, Wp))  # the observables of sample k, less the segment's shift
         Rf = np.empty((7, Wp))  # the reference series at sample k

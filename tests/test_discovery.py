@@ -137,6 +137,43 @@ def test_earth_fixed_force_terms_are_a_basin_force_resolved_through_the_heading(
         np.testing.assert_allclose(d_terms, d_true, rtol=1e-9, atol=1e-14)
 
 
+def test_generated_terms_take_each_angles_sine_once_and_the_wind_only_where_used():
+    """The generated hook calls no C library sine (it would keep the kernel's lane loop from
+    vectorising), takes the heading's and the rudder angle's sine and cosine once, builds the
+    apparent wind only for a wind term, and its wind forces are those written with math's."""
+    import math
+
+    from mmg import ESSO_OSAKA
+    from mmg.discovered import _source
+    from mmg.library import term
+
+    src = _source("x", [term(i) for i in ("X_wuu", "N_spsi", "E_x0", "Y_scdnn")], "K")
+    assert "math.sin" not in src and "math.cos" not in src
+    assert src.count("_sincos(psi)") == 1 and src.count("_sincos(delta)") == 1
+    assert "apparent_wind(" in src
+    lean = _source("x", [term("Y_vav")], "K")
+    assert "_sincos(" not in lean and "apparent_wind(" not in lean
+
+    eff = get_effect(effect_name(["X_wuu", "Y_wvv", "N_spsi"]))
+    sh = ESSO_OSAKA
+    C = (0.3, -0.2, 0.01)
+    e = eff.param_type(*C)
+    q = 0.5 * sh.rho * sh.L_pp * sh.d
+    wT = sh.rho_A * sh.A_T / (sh.rho * sh.L_pp * sh.d)
+    wL = sh.rho_A * sh.A_L / (sh.rho * sh.L_pp * sh.d)
+    for psi, gamma_T, U_T in ((0.0, 1.0, 8.0), (2.5, -0.4, 12.0), (-7.0, 3.1, 3.0)):
+        u, v_m = 0.4, -0.05
+        rel = gamma_T - psi
+        uA = U_T * math.cos(rel) + u
+        vA = U_T * math.sin(rel) + v_m
+        X, Y, N = eff.force_at(
+            0.0, 1.0, 2.0, u, v_m, 0.001, psi, 0.1, 5.0, U_T, gamma_T, e, None, sh
+        )
+        assert X == pytest.approx(q * C[0] * wT * uA * abs(uA), rel=1e-12)
+        assert Y == pytest.approx(q * C[1] * wL * vA * abs(vA), rel=1e-12)
+        assert N == pytest.approx(q * sh.L_pp * C[2] * math.sin(psi), rel=1e-13)
+
+
 def test_the_rudder_normal_force_term_is_the_planted_wash_moment_at_every_angle():
     """N_scdnn, sin(delta) cos(delta) (n_p D_p)^2, is the planted propeller-wash yaw moment
     (C_d sin(2 delta) (n_p D_p)^2, written by the planted form's own code) with C = 2 C_d at

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from mmg.trig import atan2, sincos
+from mmg.trig import atan2, cos, sin, sincos
 
 
 def test_sincos_within_an_ulp_over_a_wide_range():
@@ -38,3 +38,8 @@ def test_atan2_within_two_ulps_and_quadrants():
         assert atan2(float(y), float(x)) == pytest.approx(ref, rel=4.5e-16, abs=1e-300)
     for y, x in [(0.0, 0.0), (1.0, 0.0), (-1.0, 0.0), (0.0, -1.0), (-0.0, -1.0), (1.0, -1.0)]:
         assert atan2(y, x) == math.atan2(y, x)
+
+
+def test_sin_and_cos_are_the_halves_of_sincos():
+    for x in (0.3, -2.0, 7.5, 1e4):
+        assert (sin(x), cos(x)) == sincos(x)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import os
+import re
 import sys
 import threading
 from collections.abc import Mapping, Sequence
@@ -35,6 +36,7 @@ import math
 from typing import NamedTuple
 
 from mmg._jit import subfunction
+from mmg.trig import cos as _cos, sin as _sin, sincos as _sincos
 from mmg.wind import apparent_wind
 
 
@@ -55,10 +57,7 @@ def {func}(t, x0, y0, u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh):
     nD = n_p * sh.D_p
     ast = 1.0 if u < 0.0 else 0.0
     rev = 1.0 if n_p < 0.0 else 0.0
-    uA, vA = apparent_wind(
-        u, v_m, math.sin(psi), math.cos(psi), U_T, math.sin(gamma_T), math.cos(gamma_T)
-    )
-    wT = sh.rho_A * sh.A_T / (sh.rho * Lp * sh.d)
+{prelude}    wT = sh.rho_A * sh.A_T / (sh.rho * Lp * sh.d)
     wL = sh.rho_A * sh.A_L / (sh.rho * Lp * sh.d)
     X = 0.0
     Y = 0.0
@@ -69,6 +68,28 @@ def {func}(t, x0, y0, u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh):
 
 _lock = threading.Lock()
 
+#: what the generated code calls in place of the functions of :mod:`math` that terms are written
+#: with: the sine and cosine of the heading and of the rudder angle, taken once per call, and the
+#: vectorisable ones of :mod:`mmg.trig` for any other angle. A C library call in the kernel's lane
+#: loop keeps LLVM from vectorising it: a wind or heading term cost 1.2-2.3 times the model alone
+#: (issue 15). exp and tanh stay the C library's: inlined, each made the kernels' compilation
+#: 6-10 s longer for an effect of a few terms (and the library's 122 terms 113 -> 219 s).
+_VECTORISABLE = {
+    "math.sin(psi)": "sin_psi",
+    "math.cos(psi)": "cos_psi",
+    "math.sin(delta)": "sin_delta",
+    "math.cos(delta)": "cos_delta",
+    "math.sin(": "_sin(",
+    "math.cos(": "_cos(",
+}
+
+
+def _vectorisable(code: str) -> str:
+    """A term's expression with :data:`_VECTORISABLE`'s replacements."""
+    for before, after in _VECTORISABLE.items():
+        code = code.replace(before, after)
+    return code
+
 
 def effect_name(term_ids: Sequence[str]) -> str:
     """The registry name of the effect made of these terms (in the given order)."""
@@ -77,6 +98,7 @@ def effect_name(term_ids: Sequence[str]) -> str:
 
 def _source(name: str, terms: Sequence[Term], key: str) -> str:
     lines = []
+    codes = []
     for t in terms:
         # terms without a velocity (heading, position, constant) carry U_ref^2 = 1 m^2/s^2;
         # a term whose coefficient is 0 is skipped, not multiplied by 0: the library's search
@@ -84,13 +106,27 @@ def _source(name: str, terms: Sequence[Term], key: str) -> str:
         # all 122 terms otherwise), and a term that is not finite somewhere adds nothing there
         lines.append(f"    if e.{t.coefficient} != 0.0:")
         for eq, expr, formula in t.components:
-            code = t.written(expr, "e.")
+            code = _vectorisable(t.written(expr, "e."))
+            codes.append(code)
             lines.append(f"        {eq} += e.{t.coefficient} * ({code})  # {t.written(formula)}")
     fields = []
     for t in terms:
         fields.append(f"    {t.coefficient}: float  # {t.written(t.formula)}")
         fields += [f"    {t.shape_param(s.name)}: float  # {s.role} [{s.unit}]" for s in t.shape]
+    # angles' sines and the apparent wind only where a term needs them: each inlined sincos
+    # lengthens the kernels' compilation, even where LLVM then drops it as unused
+    used = set(re.findall(r"\b\w+\b", " ".join(codes)))
+    wind = bool(used & {"uA", "vA"})
+    prelude = []
+    if wind or used & {"sin_psi", "cos_psi"}:
+        prelude.append("sin_psi, cos_psi = _sincos(psi)")
+    if used & {"sin_delta", "cos_delta"}:
+        prelude.append("sin_delta, cos_delta = _sincos(delta)")
+    if wind:
+        prelude.append("sin_g, cos_g = _sincos(gamma_T)")
+        prelude.append("uA, vA = apparent_wind(u, v_m, sin_psi, cos_psi, U_T, sin_g, cos_g)")
     return _TEMPLATE.format(
+        prelude="".join(f"    {line}\n" for line in prelude),
         name=name,
         ptype=f"DiscoveredParams_{key}",
         func=f"discovered_force_{key}",

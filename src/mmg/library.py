@@ -30,7 +30,8 @@ Each term is one scalar Python expression, compiled into the hook of a generated
     the recording's clock: the file's time column), T_ref (:data:`T_REF`), U2 = u^2 + v_m^2,
     Ue = sqrt(U2 + U_0^2), rL = r L_pp, nD = n_p D_p [m/s], uA, vA (apparent wind [m/s], see
     :func:`mmg.wind.apparent_wind`), wT = rho_A A_T / (rho L_pp d), wL = rho_A A_L / (rho L_pp d),
-    Lp = L_pp, ast = 1 if u < 0 (astern) else 0, rev = 1 if n_p < 0 else 0, U_ref, abs and math.
+    Lp = L_pp, ast = 1 if u < 0 (astern) else 0, rev = 1 if n_p < 0 else 0, U_ref, abs and math
+    (its sin and cos compile to the vectorisable ones of :mod:`mmg.trig`).
 
 A term may enter more than one equation with its one coefficient (``parts``): ``E_x0`` and
 ``E_y0`` are a steady force along the basin's x0 or y0 axis, resolved on the ship's axes through

@@ -11,8 +11,12 @@ vectorises them across trajectories:
   trajectory reaches (and which the kernel then flags).
 - ``atan2``: reduction to [0, 1] by min/max, then Cephes' rational atan (reduction at tan(pi/8)
   style threshold 0.66); within 2 ulp of ``math.atan2``.
+- ``sin``, ``cos``: one half of ``sincos`` each (LLVM merges the two when both are taken of the
+  same angle).
 
-Tests compare both against :mod:`math` over wide ranges.
+The generated effects (:mod:`mmg.discovered`) write their terms' sines and cosines with these in
+place of :mod:`math`'s, so that a term with the heading or the rudder angle vectorises like the
+model itself. Tests compare all of them against :mod:`math` over wide ranges.
 """
 
 from __future__ import annotations
@@ -119,3 +123,15 @@ def atan2(y: float, x: float) -> float:
     if x < 0.0:
         a = (2.0 * _PIO2 - a) + 2.0 * _MOREBITS
     return math.copysign(a, y)
+
+
+@subfunction
+def sin(x: float) -> float:
+    """sin x [x in rad] (see :func:`sincos`)."""
+    return sincos(x)[0]
+
+
+@subfunction
+def cos(x: float) -> float:
+    """cos x [x in rad] (see :func:`sincos`)."""
+    return sincos(x)[1]

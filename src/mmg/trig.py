@@ -11,8 +11,8 @@ vectorises them across trajectories:
   trajectory reaches (and which the kernel then flags).
 - ``atan2``: reduction to [0, 1] by min/max, then Cephes' rational atan (reduction at tan(pi/8)
   style threshold 0.66); within 2 ulp of ``math.atan2``.
-- ``sin``, ``cos``: one half of ``sincos`` each (LLVM merges the two when both are taken of the
-  same angle).
+- ``sin``, ``cos``: one half of ``sincos`` each (for an angle whose sine or cosine alone is
+  needed; where both are, call ``sincos`` once).
 
 The generated effects (:mod:`mmg.discovered`) write their terms' sines and cosines with these in
 place of :mod:`math`'s, so that a term with the heading or the rudder angle vectorises like the

@@ -155,6 +155,7 @@ def test_generated_terms_take_each_angles_sine_once_and_the_wind_only_where_used
     assert "_sincos(" not in lean and "apparent_wind(" not in lean
 
     eff = get_effect(effect_name(["X_wuu", "Y_wvv", "N_spsi"]))
+    assert eff.force_at is not None
     sh = ESSO_OSAKA
     C = (0.3, -0.2, 0.01)
     e = eff.param_type(*C)
@@ -166,12 +167,12 @@ def test_generated_terms_take_each_angles_sine_once_and_the_wind_only_where_used
         rel = gamma_T - psi
         uA = U_T * math.cos(rel) + u
         vA = U_T * math.sin(rel) + v_m
-        X, Y, N = eff.force_at(
+        f_X, f_Y, f_N = eff.force_at(
             0.0, 1.0, 2.0, u, v_m, 0.001, psi, 0.1, 5.0, U_T, gamma_T, e, None, sh
         )
-        assert X == pytest.approx(q * C[0] * wT * uA * abs(uA), rel=1e-12)
-        assert Y == pytest.approx(q * C[1] * wL * vA * abs(vA), rel=1e-12)
-        assert N == pytest.approx(q * sh.L_pp * C[2] * math.sin(psi), rel=1e-13)
+        assert f_X == pytest.approx(q * C[0] * wT * uA * abs(uA), rel=1e-12)
+        assert f_Y == pytest.approx(q * C[1] * wL * vA * abs(vA), rel=1e-12)
+        assert f_N == pytest.approx(q * sh.L_pp * C[2] * math.sin(psi), rel=1e-13)
 
 
 def test_the_rudder_normal_force_term_is_the_planted_wash_moment_at_every_angle():

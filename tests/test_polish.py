@@ -160,3 +160,28 @@ def test_prior_picks_the_plausible_point_along_a_flat_direction(windows):
     err_prior = abs(prior.theta[i_eps] - truth.vector()[i_eps])
     assert plain.f < 1e-3 * f0 and prior.f < 1e-3 * f0
     assert err_prior < 0.1 * err_plain, (err_prior, err_plain)
+
+
+def test_refinement_runs_its_linear_algebra_on_one_blas_thread(windows):
+    """With two BLAS threads, OpenBLAS's second thread spins on after each J J' and takes a core
+    from the simulator's threads; the refinement limits BLAS to one thread and restores it."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def blas_threads() -> set[int]:
+        return {int(i["num_threads"]) for i in threadpool_info() if i["user_api"] == "blas"}
+
+    seen: list[set[int]] = []
+    obj = Objective(windows, "J2")
+    lo, hi = bounds()
+    with threadpool_limits(limits=2, user_api="blas"):
+        outside = blas_threads()
+        polish(
+            obj,
+            Box(lo, hi),
+            efd_parameters().vector(),
+            PolishSettings(max_iterations=1),
+            progress=lambda row: seen.append(blas_threads()),
+        )
+        after = blas_threads()
+    assert seen and all(s == {1} for s in seen)
+    assert after == outside

@@ -250,6 +250,48 @@ def test_noise_model_recovers_coloured_noise_and_the_floor_of_a_true_model(runs)
     assert off.significant and off.ratio > 3.0
 
 
+def test_noise_draws_for_many_windows_are_the_sequential_draws_and_scipys_filter():
+    """NoiseModel.draw_many gives the numbers of draw() called window after window, and the
+    AR(1) recursion is scipy's first-order filter bit for bit (the nulls' numbers are unchanged)."""
+    from scipy.signal import lfilter
+
+    from sweep.diagnose.floor import STATES, ar1
+
+    e = np.random.default_rng(2).normal(size=(700, 3))
+    for phi in (0.0, 0.35, 0.97):
+        c = np.sqrt(1.0 - phi * phi)
+        ref = np.empty_like(e)
+        ref[0] = e[0]
+        ref[1:] = lfilter([c], [1.0, -phi], e[1:], axis=0, zi=phi * e[:1])[0]
+        np.testing.assert_array_equal(ar1(e, phi), ref)
+        np.testing.assert_array_equal(ar1(e[:, 1], phi), ref[:, 1])
+    noise = NoiseModel(
+        {c: 0.1 * (j + 1) for j, c in enumerate(STATES)},
+        {c: (0.0, 0.5, 0.9)[j % 3] for j, c in enumerate(STATES)},
+    )
+    lengths = [1001, 37, 501, 2]
+    rng = np.random.default_rng(4)
+    reference = []  # one generator call per channel and window, filtered by scipy
+    for n in lengths:
+        x = np.empty((n, 6))
+        for j, c in enumerate(STATES):
+            w = rng.normal(0.0, 1.0, n)
+            phi = noise.phi[c]
+            if phi > 0.0 and n > 1:
+                zi = phi * w[:1]
+                w[1:] = lfilter([np.sqrt(1.0 - phi * phi)], [1.0, -phi], w[1:], zi=zi)[0]
+            x[:, j] = noise.sigma[c] * w
+        reference.append(x)
+    many = noise.draw_many(np.random.default_rng(4), lengths)
+    rng = np.random.default_rng(4)
+    each = [noise.draw(rng, n) for n in lengths]
+    for a, b, c in zip(reference, many, each, strict=True):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(a, c)
+    assert [m.shape for m in many] == [(n, 6) for n in lengths]
+    assert np.std(many[0][:, 5]) == pytest.approx(0.6, rel=0.15)  # sigma of channel r
+
+
 def _case(runs: dict, spec: PlantedSpec, directory: Path) -> None:
     rng = np.random.default_rng(3)
     wins = pick_windows(runs, {"random": 3, "turning": 1, "zigzag": 1}, rng)

@@ -488,10 +488,11 @@ def null_sets(
     sims = simulate_windows(params, windows)
     out = []
     for _ in range(draws):
+        series = noise.draw_many(rng, [x.shape[0] for x in sims])
         out.append(
             [
-                Recording(w.name, None, w.t, x + noise.draw(rng, x.shape[0]), w.u, w.w)
-                for w, x in zip(windows, sims, strict=True)
+                Recording(w.name, None, w.t, x + e, w.u, w.w)
+                for w, x, e in zip(windows, sims, series, strict=True)
             ]
         )
     return out

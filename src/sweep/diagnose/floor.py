@@ -30,9 +30,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import lfilter
 
 from mmg import Parameters, get_effect, simulate_batch
 from mmg.integrate import OBSERVABLES as OBSERVABLES_J
@@ -49,15 +49,27 @@ MARGIN = 0.10
 Z_CRIT = 3.0
 
 
+@numba.njit(cache=True, nogil=True)
+def _ar1_columns(e: FloatArray, phi: float, c: float) -> FloatArray:
+    """x_0 = e_0, x_k = c e_k + phi x_{k-1} down each column of e (n, m): the arithmetic of a
+    first-order recursive filter (scipy's lfilter), bit for bit, at one pass per column."""
+    x = np.empty_like(e)
+    n, m = e.shape
+    for j in range(m):
+        x[0, j] = e[0, j]
+        for k in range(1, n):
+            x[k, j] = c * e[k, j] + phi * x[k - 1, j]
+    return x
+
+
 def ar1(e: FloatArray, phi: float) -> FloatArray:
     """Unit-variance white noise e (n, ...) turned into stationary AR(1) noise of unit variance
     along axis 0: x_0 = e_0, x_k = phi x_{k-1} + sqrt(1 - phi^2) e_k (a first-order low-pass)."""
     if phi == 0.0:
         return e
-    x = np.empty_like(e)
-    x[0] = e[0]
-    x[1:] = lfilter([np.sqrt(1.0 - phi * phi)], [1.0, -phi], e[1:], axis=0, zi=phi * e[:1])[0]
-    return x
+    e = np.asarray(e, dtype=np.float64)
+    flat = np.ascontiguousarray(e.reshape(e.shape[0], -1))
+    return _ar1_columns(flat, float(phi), float(np.sqrt(1.0 - phi * phi))).reshape(e.shape)
 
 
 @dataclass(frozen=True)
@@ -71,9 +83,23 @@ class NoiseModel:
 
     def draw(self, rng: np.random.Generator, n: int) -> FloatArray:
         """(n, 6) noise samples of the six state channels (stationary AR(1) each)."""
-        out = np.empty((n, len(STATES)))
-        for j, c in enumerate(STATES):
-            out[:, j] = self.sigma[c] * ar1(rng.normal(0.0, 1.0, n), self.phi[c])
+        return self.draw_many(rng, [n])[0]
+
+    def draw_many(self, rng: np.random.Generator, lengths: Sequence[int]) -> list[FloatArray]:
+        """(n, 6) noise samples for each n of ``lengths``: the same numbers as ``draw`` called
+        for each in turn (channel after channel, series after series, from one normal draw of
+        the generator, which gives its numbers in the same order), at one generator call for
+        all (a null of 200 copies of 28 windows made 34,000 calls)."""
+        m = len(STATES)
+        e = rng.normal(0.0, 1.0, m * int(sum(lengths)))
+        out = []
+        at = 0
+        for n in lengths:
+            x = np.empty((n, m))
+            for j, c in enumerate(STATES):
+                x[:, j] = self.sigma[c] * ar1(e[at : at + n], self.phi[c])
+                at += n
+            out.append(x)
         return out
 
     def as_dict(self) -> dict[str, Any]:
@@ -240,9 +266,9 @@ def noise_floor(
     out = []
     for _ in range(draws):
         noisy = []
-        for w, clean in zip(windows, sims, strict=True):
-            x = clean + noise.draw(rng, clean.shape[0])
-            noisy.append(Recording(name=w.name, path=None, t=w.t, x=x, u=w.u, w=w.w))
+        series = noise.draw_many(rng, [clean.shape[0] for clean in sims])
+        for w, clean, e in zip(windows, sims, series, strict=True):
+            noisy.append(Recording(name=w.name, path=None, t=w.t, x=clean + e, u=w.u, w=w.w))
         cost, _ = Objective(noisy, effects=effects, ship=params.ship).costs(params)
         out.append(cost[0])
     d = np.stack(out)

@@ -534,7 +534,8 @@ def diagnose(
 
     Linear algebra runs on one BLAS thread: between the simulator's parallel kernels, OpenBLAS's
     second thread spins on and takes a core from them (Train-R with the paper's test set on 2
-    cores: 186 -> 173 s), and the fits' numbers no longer depend on the machine's core count."""
+    cores: 190-192 -> 164-165 s), and the fits' numbers no longer depend on the machine's core
+    count."""
     with threadpool_limits(limits=1, user_api="blas"):
         return _diagnose(start, train, test, out, settings or DiagnoseSettings(), test_labels, log)
 

@@ -304,9 +304,9 @@ def polish(
     default ``theta0``).
     """
     # One BLAS thread: with two, OpenBLAS's threads spin on after each J J' and take a core from
-    # the simulator's threads (a Jacobian's simulation 4.3 -> 3.3 s and its residual pass 1.2
-    # -> 0.6 s per 8 iterations on Train-R's fit windows, 2 cores); its products also no
-    # longer depend on the machine's core count
+    # the simulator's threads (8 iterations on Train-R's 14 fit windows, 2 cores: simulations
+    # 4.3 -> 3.3 s, residual passes 1.2 -> 0.6 s); the products also no longer depend on the
+    # machine's core count
     with threadpool_limits(limits=1, user_api="blas"):
         return _polish(obj, box, theta0, settings or PolishSettings(), progress, prior_center)
 

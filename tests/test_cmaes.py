@@ -98,6 +98,68 @@ def test_resumed_run_ends_exactly_like_an_uninterrupted_one(tmp_path):
     assert [r.stop for r in resumed.restarts] == [r.stop for r in full.restarts]
 
 
+class _CrashError(RuntimeError):
+    """The process dies (raised out of optimise by the evaluation)."""
+
+
+def test_checkpoints_are_spaced_in_time_and_a_crash_resumes_from_an_older_one(
+    tmp_path, monkeypatch
+):
+    """With checkpoint_seconds the checkpoint is written after the first generation and at
+    every restart's end only (here: never in between); every generation with 0. A run that
+    crashes many generations after its last checkpoint resumes from it and ends exactly where
+    an uninterrupted run ends."""
+    from sweep.identification import cmaes
+
+    s = Settings(seed=11, max_evaluations=8000, sigma0=0.3, tolfun=1e-4)
+    full = optimise(rastrigin, BOX, np.zeros(N), s)
+    generations = len(full.history)
+    restarts = len(full.restarts)
+    assert restarts >= 2
+
+    writes: list[int] = []
+    real_save = cmaes.save_checkpoint
+
+    def counting_save(state, path):
+        writes.append(state.evaluations)
+        real_save(state, path)
+
+    monkeypatch.setattr(cmaes, "save_checkpoint", counting_save)
+    optimise(rastrigin, BOX, np.zeros(N), s, checkpoint=tmp_path / "every.pkl",
+             checkpoint_seconds=0.0)  # fmt: skip
+    # every generation but the last of a restart that stopped itself (not on the budget,
+    # which stops before asking), plus one per restart's end
+    stopped_itself = sum("budget" not in r.stop for r in full.restarts)
+    assert stopped_itself >= 1
+    assert len(writes) == generations - stopped_itself + restarts
+    writes.clear()
+    optimise(rastrigin, BOX, np.zeros(N), s, checkpoint=tmp_path / "spaced.pkl",
+             checkpoint_seconds=1e9)  # fmt: skip
+    assert len(writes) == 1 + restarts  # the first generation, each restart's end
+    assert writes[0] == 20
+
+    ck = tmp_path / "crash.pkl"
+    calls = 0
+
+    def crashing(X):
+        nonlocal calls
+        calls += 1
+        if calls > 30:
+            raise _CrashError
+        return rastrigin(X)
+
+    writes.clear()
+    with pytest.raises(_CrashError):
+        optimise(crashing, BOX, np.zeros(N), s, checkpoint=ck, checkpoint_seconds=1e9)
+    assert writes == [20]  # 29 generations done since the last checkpoint, lost
+    assert load_checkpoint(ck).evaluations == 20
+    resumed = optimise(rastrigin, BOX, np.zeros(N), s, checkpoint=ck, checkpoint_seconds=1e9)
+    assert resumed.f == full.f and np.array_equal(resumed.theta, full.theta)
+    assert resumed.evaluations == full.evaluations
+    with pytest.raises(ValueError, match="checkpoint_seconds"):
+        optimise(rastrigin, BOX, np.zeros(N), s, checkpoint_seconds=-1.0)
+
+
 def test_a_checkpoint_of_the_old_module_layout_still_resumes(tmp_path):
     """Checkpoints written when this module was sweep.cmaes (before the subpackages) load."""
     import pickle

@@ -50,6 +50,7 @@ def test_the_shipped_configurations_pass():
         ("ray.address=nowhere", "ray.address", "host:port"),
         ("sweep.name=a/b", "sweep.name", "without '/'"),
         ("sweep.max_retries=-1", "sweep.max_retries", "non-negative integer"),
+        ("sweep.checkpoint_seconds=-1", "sweep.checkpoint_seconds", "seconds >= 0"),
         ("objective.name=J4", "objective.name", "J1, J2, J3"),
         ("train.files=[]", "train.files", "non-empty list"),
         ("effects=[warp_drive]", "effects", "current, heading_bias, propeller_walk"),

@@ -240,6 +240,39 @@ def test_checkpoints_go_to_the_storage_uri_and_a_job_resumes_from_there(tmp_path
     assert relative.checkpoint is not None and Path(relative.checkpoint).is_absolute()
 
 
+def test_a_job_spaces_its_checkpoints_as_sweep_checkpoint_seconds_says(
+    tmp_path, data_dir, monkeypatch
+):
+    """sweep.checkpoint_seconds reaches the job: 0 writes after every generation (5 of
+    population 20, then the end), a long interval after the first generation and at the end
+    only; the default is CHECKPOINT_SECONDS. The results are the same."""
+    from sweep.identification import cmaes
+    from sweep.service.job import run_job
+
+    writes: list[int] = []
+    real_save = cmaes.save_checkpoint
+
+    def counting_save(state, path):
+        writes.append(state.evaluations)
+        real_save(state, path)
+
+    monkeypatch.setattr(cmaes, "save_checkpoint", counting_save)
+    cfg = _cfg("J2", 0, 100)
+    cfg["data"]["root"] = str(data_dir)
+    cfg["sweep"] = {"name": "spaced"}
+    assert spec_from_config(cfg, tmp_path / "d").checkpoint_seconds == cmaes.CHECKPOINT_SECONDS
+    best = []
+    for seconds, expected in ((0.0, [20, 40, 60, 80, 100, 100]), (1e9, [20, 100])):
+        cfg["sweep"]["checkpoint_seconds"] = seconds
+        spec = spec_from_config(cfg, tmp_path / f"every-{seconds}")
+        assert spec.checkpoint_seconds == seconds
+        writes.clear()
+        outcome, _ = run_job(spec, InProcess, plots=False)
+        assert writes == expected
+        best.append(outcome.f)
+    assert best[0] == best[1]
+
+
 def test_a_data_warning_is_said_once_by_the_driver(tmp_path, data_dir):
     """zigzag_31-Jul-2020_13_50_28 ends in 327 empty rows: three jobs on Train-TZR read it, the
     driver says it once; the jobs themselves stay quiet."""

@@ -33,6 +33,12 @@ Reproducibility: one integer seed fixes everything. Restart r draws its generato
 never numpy's global state. A checkpoint written after every generation holds the strategy
 (pickled, with its generator), the restart index, the evaluations used, the best so far and the
 history, so that a resumed run ends exactly where an uninterrupted one would.
+
+The checkpoint is written after the first generation, then at most every ``checkpoint_seconds``
+(default :data:`CHECKPOINT_SECONDS`) and at the end of every restart: pickling the strategy and a
+history that grows with the run cost 1.3-4.7 ms a generation at population 20 (4.9 % of a
+30,000-evaluation Train-TR job), and a resumed run ends where an uninterrupted one would whichever
+generation it resumes from; a lost job repeats at most that many seconds of work.
 """
 
 from __future__ import annotations
@@ -58,6 +64,8 @@ BoundHandling = Literal["penalty", "transform", "none"]
 #: paper: initial population 20, doubled at each restart, at most 720
 POPSIZE_START = 20
 POPSIZE_MAX = 720
+#: seconds between checkpoints within a restart (0: after every generation)
+CHECKPOINT_SECONDS = 5.0
 
 
 def population_schedule(restart: int, start: int = POPSIZE_START, cap: int = POPSIZE_MAX) -> int:
@@ -254,13 +262,18 @@ def optimise(
     checkpoint: str | Path | None = None,
     progress: Progress | None = None,
     stop_after_generations: int | None = None,
+    checkpoint_seconds: float = CHECKPOINT_SECONDS,
 ) -> Result:
     """Run (or resume from ``checkpoint``) a restart CMA-ES job.
 
     ``evaluate(thetas (C, n)) -> (C,)`` objective values (finite; penalties for failures).
     ``x0`` (n,) the initial mean in parameter space. ``stop_after_generations`` interrupts the run
     after that many generations of this call (for tests of resume), leaving a checkpoint.
+    ``checkpoint_seconds``: the longest time between two checkpoints within a restart (0: after
+    every generation); the first generation of a call and the end of a restart always write one.
     """
+    if not checkpoint_seconds >= 0.0:
+        raise ValueError(f"checkpoint_seconds must be >= 0, not {checkpoint_seconds}")
     state: State | None = None
     if checkpoint is not None and storage.exists(checkpoint):
         state = load_checkpoint(checkpoint)
@@ -277,7 +290,15 @@ def optimise(
     # against 1 ms on one thread, 4.6 x the per-generation overhead (README, performance)
     with threadpool_limits(limits=1, user_api="blas"):
         return _optimise(
-            evaluate, box, y0, settings, state, checkpoint, progress, stop_after_generations
+            evaluate,
+            box,
+            y0,
+            settings,
+            state,
+            checkpoint,
+            progress,
+            stop_after_generations,
+            checkpoint_seconds,
         )
 
 
@@ -290,9 +311,11 @@ def _optimise(
     checkpoint: str | Path | None,
     progress: Progress | None,
     stop_after_generations: int | None,
+    checkpoint_seconds: float,
 ) -> Result:
     t_start = time.perf_counter() - state.seconds
     generations_here = 0
+    last_write = -math.inf  # the first generation of this call writes one
     s = settings
     while not state.finished:
         if state.es_pickle is None:
@@ -349,10 +372,14 @@ def _optimise(
             interrupt = stop_after_generations is not None and (
                 generations_here >= stop_after_generations
             )
-            if checkpoint is not None or interrupt:
+            now = time.perf_counter()
+            write = checkpoint is not None and now - last_write >= checkpoint_seconds
+            if write or interrupt:
                 state.es_pickle = es.pickle_dumps()  # about 1 MB at population 720
-            if checkpoint is not None:
+            if write or (interrupt and checkpoint is not None):
+                assert checkpoint is not None
                 save_checkpoint(state, checkpoint)
+                last_write = now
             if progress is not None:
                 progress(state, row)
             if interrupt:

@@ -23,7 +23,13 @@ from sweep.data.datasets import split_from_mapping
 from sweep.data.objective import OBJECTIVES, Objective, split_recording
 from sweep.data.recordings import Recording, RecordingWarning
 from sweep.diagnose.fit import from_full_vector, full_vector, joint_box
-from sweep.identification.cmaes import Settings, State, optimise, restart_table
+from sweep.identification.cmaes import (
+    CHECKPOINT_SECONDS,
+    Settings,
+    State,
+    optimise,
+    restart_table,
+)
 from sweep.identification.polish import LAMBDA_TRIALS, PolishSettings, polish
 from sweep.service.outcome import SUBSETS, JobOutcome, complete_subsets, config_hash, make_job_key
 
@@ -55,6 +61,8 @@ class JobSpec:
     extra: Mapping[str, Any] = field(default_factory=dict)
     #: where the checkpoint lives: a path or storage URI (``sweep.storage``); None: job_dir
     checkpoint: str | None = None
+    #: the longest time between two checkpoints (``sweep.checkpoint_seconds``)
+    checkpoint_seconds: float = CHECKPOINT_SECONDS
 
     @property
     def checkpoint_location(self) -> str | Path:
@@ -213,6 +221,7 @@ def run_job(
             settings,
             checkpoint=spec.checkpoint_location,
             progress=progress,
+            checkpoint_seconds=spec.checkpoint_seconds,
         )
     finally:
         evaluator.close()

@@ -30,6 +30,7 @@ from typing import Any, Protocol, TextIO
 from mmg import efd_parameters
 from sweep.data.datasets import split_from_mapping
 from sweep.data.recordings import RecordingWarning
+from sweep.identification.cmaes import CHECKPOINT_SECONDS
 from sweep.identification.workers import InProcess
 from sweep.service import storage
 from sweep.service.job import JobSpec, job_key, run_job, test_metrics
@@ -158,6 +159,7 @@ def spec_from_config(cfg: Mapping[str, Any], job_dir: Path) -> JobSpec:
         job_dir=Path(job_dir),
         data_root=str(root) if root else None,
         checkpoint=checkpoint,
+        checkpoint_seconds=float(sweep_cfg.get("checkpoint_seconds", CHECKPOINT_SECONDS)),
     )
 
 

@@ -166,6 +166,12 @@ RULES: tuple[Rule, ...] = (
         required=False,
     ),
     Rule(
+        "sweep.checkpoint_seconds",
+        lambda v: _is_number(v) and v >= 0,
+        "a number of seconds >= 0 between a job's checkpoints (0: after every generation)",
+        required=False,
+    ),
+    Rule(
         "effects",
         _effects,
         f"a list of distinct effect names: the catalog's ({', '.join(catalog())}) or "

@@ -30,15 +30,14 @@ result; the final distribution mean is checked too and reported as ``mean_outsid
 
 Reproducibility: one integer seed fixes everything. Restart r draws its generator from
 ``numpy.random.SeedSequence(seed).spawn``; pycma samples with that generator (``randn`` option),
-never numpy's global state. A checkpoint written after every generation holds the strategy
-(pickled, with its generator), the restart index, the evaluations used, the best so far and the
-history, so that a resumed run ends exactly where an uninterrupted one would.
-
-The checkpoint is written after the first generation, then at most every ``checkpoint_seconds``
-(default :data:`CHECKPOINT_SECONDS`) and at the end of every restart: pickling the strategy and a
-history that grows with the run cost 1.3-4.7 ms a generation at population 20 (4.9 % of a
-30,000-evaluation Train-TR job), and a resumed run ends where an uninterrupted one would whichever
-generation it resumes from; a lost job repeats at most that many seconds of work.
+never numpy's global state. A checkpoint holds the strategy (pickled, with its generator), the
+restart index, the evaluations used, the best so far and the history, so that a resumed run ends
+exactly where an uninterrupted one would, whichever generation it resumes from. It is written
+after the first generation, then at most every ``checkpoint_seconds`` (default
+:data:`CHECKPOINT_SECONDS`; a lost job repeats at most that much work) and at the end of every
+restart: written after every generation, the pickles of the strategy and of a history that grows
+with the run cost 1.3-4.7 ms a generation at population 20, 4.9 % of a 30,000-evaluation
+Train-TR job.
 """
 
 from __future__ import annotations
@@ -373,13 +372,12 @@ def _optimise(
                 generations_here >= stop_after_generations
             )
             now = time.perf_counter()
-            write = checkpoint is not None and now - last_write >= checkpoint_seconds
-            if write or interrupt:
+            if checkpoint is not None and (interrupt or now - last_write >= checkpoint_seconds):
                 state.es_pickle = es.pickle_dumps()  # about 1 MB at population 720
-            if write or (interrupt and checkpoint is not None):
-                assert checkpoint is not None
                 save_checkpoint(state, checkpoint)
                 last_write = now
+            elif interrupt:
+                state.es_pickle = es.pickle_dumps()
             if progress is not None:
                 progress(state, row)
             if interrupt:

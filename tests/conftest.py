@@ -58,3 +58,19 @@ def smoke(tmp_path_factory: pytest.TempPathFactory, data_dir: Path):
     first = run_smoke(cwd, data_dir)
     assert first.returncode == 0, first.stderr[-3000:]
     return cwd, first
+
+
+@pytest.fixture
+def checkpoint_writes(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """The evaluations of every checkpoint the test writes, in order (the writes still happen)."""
+    from sweep.identification import cmaes
+
+    writes: list[int] = []
+    real_save = cmaes.save_checkpoint
+
+    def counting_save(state: cmaes.State, path: str | Path) -> None:
+        writes.append(state.evaluations)
+        real_save(state, path)
+
+    monkeypatch.setattr(cmaes, "save_checkpoint", counting_save)
+    return writes

@@ -103,13 +103,12 @@ class _CrashError(RuntimeError):
 
 
 def test_checkpoints_are_spaced_in_time_and_a_crash_resumes_from_an_older_one(
-    tmp_path, monkeypatch
+    tmp_path, checkpoint_writes
 ):
     """With checkpoint_seconds the checkpoint is written after the first generation and at
     every restart's end only (here: never in between); every generation with 0. A run that
     crashes many generations after its last checkpoint resumes from it and ends exactly where
     an uninterrupted run ends."""
-    from sweep.identification import cmaes
 
     s = Settings(seed=11, max_evaluations=8000, sigma0=0.3, tolfun=1e-4)
     full = optimise(rastrigin, BOX, np.zeros(N), s)
@@ -117,26 +116,18 @@ def test_checkpoints_are_spaced_in_time_and_a_crash_resumes_from_an_older_one(
     restarts = len(full.restarts)
     assert restarts >= 2
 
-    writes: list[int] = []
-    real_save = cmaes.save_checkpoint
-
-    def counting_save(state, path):
-        writes.append(state.evaluations)
-        real_save(state, path)
-
-    monkeypatch.setattr(cmaes, "save_checkpoint", counting_save)
     optimise(rastrigin, BOX, np.zeros(N), s, checkpoint=tmp_path / "every.pkl",
              checkpoint_seconds=0.0)  # fmt: skip
     # every generation but the last of a restart that stopped itself (not on the budget,
     # which stops before asking), plus one per restart's end
     stopped_itself = sum("budget" not in r.stop for r in full.restarts)
     assert stopped_itself >= 1
-    assert len(writes) == generations - stopped_itself + restarts
-    writes.clear()
+    assert len(checkpoint_writes) == generations - stopped_itself + restarts
+    checkpoint_writes.clear()
     optimise(rastrigin, BOX, np.zeros(N), s, checkpoint=tmp_path / "spaced.pkl",
              checkpoint_seconds=1e9)  # fmt: skip
-    assert len(writes) == 1 + restarts  # the first generation, each restart's end
-    assert writes[0] == 20
+    assert len(checkpoint_writes) == 1 + restarts  # the first generation, each restart's end
+    assert checkpoint_writes[0] == 20
 
     ck = tmp_path / "crash.pkl"
     calls = 0
@@ -148,10 +139,10 @@ def test_checkpoints_are_spaced_in_time_and_a_crash_resumes_from_an_older_one(
             raise _CrashError
         return rastrigin(X)
 
-    writes.clear()
+    checkpoint_writes.clear()
     with pytest.raises(_CrashError):
         optimise(crashing, BOX, np.zeros(N), s, checkpoint=ck, checkpoint_seconds=1e9)
-    assert writes == [20]  # 29 generations done since the last checkpoint, lost
+    assert checkpoint_writes == [20]  # 29 generations done since the last checkpoint, lost
     assert load_checkpoint(ck).evaluations == 20
     resumed = optimise(rastrigin, BOX, np.zeros(N), s, checkpoint=ck, checkpoint_seconds=1e9)
     assert resumed.f == full.f and np.array_equal(resumed.theta, full.theta)

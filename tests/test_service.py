@@ -241,7 +241,7 @@ def test_checkpoints_go_to_the_storage_uri_and_a_job_resumes_from_there(tmp_path
 
 
 def test_a_job_spaces_its_checkpoints_as_sweep_checkpoint_seconds_says(
-    tmp_path, data_dir, monkeypatch
+    tmp_path, data_dir, checkpoint_writes
 ):
     """sweep.checkpoint_seconds reaches the job: 0 writes after every generation (5 of
     population 20, then the end), a long interval after the first generation and at the end
@@ -249,14 +249,6 @@ def test_a_job_spaces_its_checkpoints_as_sweep_checkpoint_seconds_says(
     from sweep.identification import cmaes
     from sweep.service.job import run_job
 
-    writes: list[int] = []
-    real_save = cmaes.save_checkpoint
-
-    def counting_save(state, path):
-        writes.append(state.evaluations)
-        real_save(state, path)
-
-    monkeypatch.setattr(cmaes, "save_checkpoint", counting_save)
     cfg = _cfg("J2", 0, 100)
     cfg["data"]["root"] = str(data_dir)
     cfg["sweep"] = {"name": "spaced"}
@@ -266,9 +258,9 @@ def test_a_job_spaces_its_checkpoints_as_sweep_checkpoint_seconds_says(
         cfg["sweep"]["checkpoint_seconds"] = seconds
         spec = spec_from_config(cfg, tmp_path / f"every-{seconds}")
         assert spec.checkpoint_seconds == seconds
-        writes.clear()
+        checkpoint_writes.clear()
         outcome, _ = run_job(spec, InProcess, plots=False)
-        assert writes == expected
+        assert checkpoint_writes == expected
         best.append(outcome.f)
     assert best[0] == best[1]
 

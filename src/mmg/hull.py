@@ -14,7 +14,8 @@ from mmg.trig import atan2
 
 # Divisions by constants are written as products with their reciprocals, and a quantity divided
 # twice shares one reciprocal: a vector division costs about 8 cycles per 4 lanes and a long
-# latency in the batched kernel, a multiply 0.5 (issue 15). Results move by an ulp, nothing else.
+# latency in the batched kernel, a multiply 0.5. Results move by an ulp, nothing else.
+#: 1/3, 1/6, 1/12 and 1/pi as factors (see above)
 ONE_3RD = 1.0 / 3.0
 ONE_6TH = 1.0 / 6.0
 ONE_12TH = 1.0 / 12.0
@@ -30,8 +31,9 @@ def cross_flow_integrals(v_m: float, b: float, L: float) -> tuple[float, float]:
 
     Where s keeps its sign on the hull (|v_m| >= |b| L / 2), |s| s = sign(v_m) s^2 and both
     integrals are polynomials, exact and free of cancellation; otherwise s changes sign,
-    |b| L > 2 |v_m|, and the antiderivatives divided by b (reference "Numerical details") are well
-    conditioned.
+    |b| L > 2 |v_m|, and the antiderivatives divided by b are well conditioned:
+    I_0 = (s2^2 |s2| - s1^2 |s1|) / (3 b), I_1 = [s^3 |s| / 4 - v_m s^2 |s| / 3]_{s1}^{s2} / b^2
+    with s1, s2 = v_m -/+ b L / 2.
     """
     half = 0.5 * L
     if abs(v_m) >= abs(b) * half:
@@ -44,10 +46,10 @@ def cross_flow_integrals(v_m: float, b: float, L: float) -> tuple[float, float]:
         s2 = v_m + b * half  # s at the bow, x = L/2
         q1 = s1 * s1 * abs(s1)  # |s| s^2 at the ends
         q2 = s2 * s2 * abs(s2)
-        I_0 = (q2 - q1) * ONE_3RD * inv_b  # Eq. (4), reference closed form (s^2 |s| / (3 b))
+        I_0 = (q2 - q1) * ONE_3RD * inv_b  # Eq. (4), closed form (s^2 |s| / (3 b))
         F2 = q2 * (0.25 * s2 - ONE_3RD * v_m)  # antiderivative of I_1 (times b^2)
         F1 = q1 * (0.25 * s1 - ONE_3RD * v_m)
-        I_1 = (F2 - F1) * inv_b * inv_b  # Eq. (4), reference closed form
+        I_1 = (F2 - F1) * inv_b * inv_b  # Eq. (4), closed form
     return I_0, I_1
 
 

@@ -23,6 +23,7 @@ from mmg.effects import Effect
 from mmg.kernel import LANE_BLOCK, LIMIT_A, load_kernel
 from mmg.params import ESSO_OSAKA, N_THETA, FloatArray, Parameters, Ship
 
+#: what the entry points accept as parameters (see the module docstring)
 ParamsLike = Parameters | Sequence[Parameters] | FloatArray
 
 #: lanes per work item of the kernel; 8 x an odd number (rows of 2^k doubles alias in L1 cache)
@@ -43,6 +44,7 @@ class SimulationResult:
 
     @property
     def diverged(self) -> np.ndarray:
+        """(B,) bool: True for a lane that hit the xdot limiter or became non-finite."""
         return np.asarray(self.bad_step >= 0)
 
 
@@ -216,7 +218,8 @@ def _rows(
     M = int(np.prod(shape))
     R = P_rows.shape[0]
 
-    def lanes(a: FloatArray, k: int) -> FloatArray:  # (M, k) points -> (k, R * M) lanes
+    def lanes(a: FloatArray, k: int) -> FloatArray:
+        """Points (..., k) broadcast to ``shape`` -> kernel lanes (k, R * M), row-major in R."""
         pts = np.broadcast_to(a, (*shape, k)).reshape(M, k).T
         return kernel_array(np.broadcast_to(pts[:, None, :], (k, R, M)).reshape(k, R * M))
 

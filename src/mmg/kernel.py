@@ -33,8 +33,8 @@ from mmg.model import Inertia
 from mmg.params import N_THETA
 
 # LLVM's loop vectoriser gives up on the lane loop ("too many memory checks needed": it cannot
-# prove that a dozen arrays do not overlap) under its default thresholds; raise them
-# (performance.md, pitfall 4). Process-wide, affects only how loops are compiled.
+# prove that a dozen arrays do not overlap) under its default thresholds; raise them.
+# Process-wide, affects only how loops are compiled.
 for _option in (
     "-runtime-memory-check-threshold=1024",
     "-memory-check-merge-threshold=1024",

@@ -6,37 +6,11 @@ like the MMG model's own terms (paper Eqs. (4)-(28)):
     X = 0.5 rho L_pp d C g,   Y = 0.5 rho L_pp d C g,   N = 0.5 rho L_pp^2 d C g
 
 with g [m^2/s^2] a function of the state (through the water), the controls, the true wind, the
-heading and the position. Hull terms are products of u, v_m and r L_pp (the MMG polynomials
-times U^2, with their |.| forms; third-order ones divided by U_e = sqrt(U^2 + U_0^2), which keeps
-them finite at rest); propeller terms use n_p D_p; rudder terms delta (its powers, and sin(delta)
-cos(delta), the lateral share of a force normal to the rudder); wind terms the apparent wind
-scaled to the above-water areas; heading and position terms describe a force fixed to the basin
-(linear in x0, y0, or a step across a line, tanh((y0 - c) / W), that saturates on either side:
-a bank, the edge of a shallow patch); time terms a force that builds up or dies away over a run
-(polynomials of t / T_ref and transients exp(-t / tau) and 1 - exp(-t / tau)).
-``X_...``, ``Y_...`` and ``N_...`` are the equations the term enters.
-
-Some terms have a *shape* (:class:`Shape`): a time constant tau, or the centre c and width W of
-a step. They are named parameters of the generated effect beside the coefficient (``tau_N_bt``,
-``c_Y_Usy``, ``W_Y_Usy``). The proposal regresses on every point of a grid of shapes
-(:func:`library_columns`: tau = 100, 300, 1,000 s; centres at quantiles of the positions the
-data cover, widths at shares of their range); the trajectory fits then move the shape with the
-coefficient, within a box around the chosen point (:func:`shape_box`).
-
-Each term is one scalar Python expression, compiled into the hook of a generated effect
-(:mod:`mmg.discovered`), over these names:
-
-    u, v_m [m/s], r [rad/s], psi [rad], delta [rad], n_p [rev/s], x0, y0 [m], t [s] (the time on
-    the recording's clock: the file's time column), T_ref (:data:`T_REF`), U2 = u^2 + v_m^2,
-    Ue = sqrt(U2 + U_0^2), rL = r L_pp, nD = n_p D_p [m/s], uA, vA (apparent wind [m/s], see
-    :func:`mmg.wind.apparent_wind`), wT = rho_A A_T / (rho L_pp d), wL = rho_A A_L / (rho L_pp d),
-    Lp = L_pp, ast = 1 if u < 0 (astern) else 0, rev = 1 if n_p < 0 else 0, U_ref, abs and math
-    (its sin and cos compile to the vectorisable ones of :mod:`mmg.trig`).
-
-A term may enter more than one equation with its one coefficient (``parts``): ``E_x0`` and
-``E_y0`` are a steady force along the basin's x0 or y0 axis, resolved on the ship's axes through
-the heading (what a current's push, a slope or a steady wind in the basin does), which the
-single-equation heading terms could only approximate with separate coefficients.
+heading, the position and the time (:class:`Term` lists the names an expression may use).
+``X_...``, ``Y_...`` and ``N_...`` are the equations a term enters. Terms with a *shape*
+(:class:`Shape`: a time constant, or the centre and width of a step) are searched on a grid of
+shapes (:func:`library_columns`) and then fitted within a box around the chosen point
+(:func:`shape_box`).
 """
 
 from __future__ import annotations
@@ -71,6 +45,7 @@ class Shape:
     upper: float = 1e4
 
 
+#: the time constant of a transient term [s]
 TAU = Shape("tau", "s", "time constant", default=300.0, lower=1.0, upper=1e5)
 #: time constants of the grid [s], half a decade apart
 TAU_GRID = (100.0, 300.0, 1000.0)
@@ -91,9 +66,26 @@ def _across(variable: str) -> tuple[Shape, Shape]:
 class Term:
     """One library term: ``id`` (equation_name), its expression g, formula and kind.
 
+    ``expr`` is one scalar Python expression, compiled into the hook of a generated effect
+    (:mod:`mmg.discovered`), over these names: u, v_m [m/s], r [rad/s], psi [rad], delta [rad],
+    n_p [rev/s], x0, y0 [m], t [s] (the recording's clock: the file's time column), T_ref
+    (:data:`T_REF`), U2 = u^2 + v_m^2, Ue = sqrt(U2 + U_0^2), rL = r L_pp, nD = n_p D_p [m/s],
+    uA, vA (apparent wind [m/s], see :func:`mmg.wind.apparent_wind`),
+    wT = rho_A A_T / (rho L_pp d), wL = rho_A A_L / (rho L_pp d), Lp = L_pp,
+    ast = 1 if u < 0 (astern) else 0, rev = 1 if n_p < 0 else 0, U_ref, abs and math (its sin and
+    cos compile to the vectorisable ones of :mod:`mmg.trig`).
+
+    Kinds: hull terms are products of u, v_m and r L_pp (third-order ones divided by U_e, which
+    keeps them finite at rest); propeller terms use n_p D_p; rudder terms delta; wind terms the
+    apparent wind scaled to the above-water areas; heading and position terms a force fixed to
+    the basin (linear in x0, y0, or a step tanh((y0 - c) / W)); time terms a force that builds up
+    or dies away over a run (polynomials of t / T_ref, exp(-t / tau), 1 - exp(-t / tau)).
+
     ``parts``, when given, are the (equation, expression, formula) of a term that enters several
-    equations with one coefficient (then ``expr`` and ``formula`` describe it as a whole).
-    ``shape``: its shape parameters, written ``{name}`` in the expression and formula."""
+    equations with one coefficient (then ``expr`` and ``formula`` describe it as a whole; e.g.
+    ``E_x0``, a steady force along the basin's x0 axis resolved on the ship's axes).
+    ``shape``: its shape parameters, written ``{name}`` in the expression and formula; they are
+    parameters of the generated effect beside the coefficient (``tau_N_bt``, ``c_Y_Usy``)."""
 
     id: str
     expr: str

@@ -111,7 +111,7 @@ class Inertia(NamedTuple):
 
     It depends on the parameters alone, so the batched kernel computes it once per lane and
     chunk (:func:`inertia`) rather than in every right-hand side: two vector divisions fewer per
-    stage (issue 15)."""
+    stage."""
 
     m_m_x: float  # m + m_x, mass plus added mass in surge [kg]
     m_m_y: float  # m + m_y, mass plus added mass in sway [kg]

@@ -2,8 +2,8 @@
 
 One table drives everything: the typed view :class:`Theta` (the 57 explored parameters, in a fixed
 order), the flat vector CMA-ES searches, the JSON file, and the search domain. Values are the EFD
-(captive-model test and empirical formula) values of the Esso Osaka 3 m model from
-``reference/esso-osaka-mmg.md``. Primed symbols are non-dimensional:
+(captive-model test and empirical formula) values of the Esso Osaka 3 m model (paper Table 1).
+Primed symbols are non-dimensional:
 force' = F / (0.5 rho L d U^2), moment' = N / (0.5 rho L^2 d U^2), mass' = m / (0.5 rho L^2 d),
 inertia' = I / (0.5 rho L^4 d), length' = x / L.
 
@@ -129,6 +129,7 @@ class ParamSpec(NamedTuple):
 _S, _M, _NEG, _POS = Bound.SYMMETRIC, Bound.MASS, Bound.NEGATIVE, Bound.POSITIVE
 _EMP, _CT = "empirical formulae", "captive test (Hachii 2004)"
 
+#: one row per explored parameter, in Theta order (paper Table 1)
 PARAMETER_TABLE: tuple[ParamSpec, ...] = (
     ParamSpec("m_x", "m'_x", "hull", 0.0467, _M, _EMP),
     ParamSpec("m_y", "m'_y", "hull", 0.2579, _M, _EMP),
@@ -194,7 +195,9 @@ PARAMETER_TABLE: tuple[ParamSpec, ...] = (
 if tuple(s.name for s in PARAMETER_TABLE) != Theta._fields:  # pragma: no cover - import guard
     raise RuntimeError("PARAMETER_TABLE and Theta list different parameters or orders")
 
-N_THETA = len(Theta._fields)  # 57
+#: number of explored parameters (57), the length of the flat CMA-ES vector
+N_THETA = len(Theta._fields)
+#: the explored parameters' names in Theta order (the flat vector's order)
 PARAMETER_NAMES: tuple[str, ...] = Theta._fields
 
 
@@ -221,6 +224,7 @@ class Ship(NamedTuple):
     k_2: float
 
 
+#: the Esso Osaka 3 m model of the recordings (model scale, SI units)
 ESSO_OSAKA = Ship(
     L_pp=3.0,
     B=0.48925,

@@ -1,14 +1,9 @@
 """Compile the kernels a long run will need ahead of time, several at once, in worker processes.
 
-Numba compiles one function at a time per process (a global lock), about half a minute for each
-entry point of a kernel on the development machine, and a run that tries many effects (the
-missing-physics diagnosis: the base model and every catalog effect) needs a dozen or more. On a
-machine whose kernel cache is cold that was minutes of silence, one compilation after another.
-:func:`precompile` finds the entry points whose machine code is not in the cache and compiles
-them in ``processes`` worker processes side by side (spawned, not forked: Numba's thread pool
-does not survive a fork); each writes Numba's on-disk cache, from which the calling process then
-loads them in a fraction of a second. Nothing is computed here that the run would not compile
-anyway, and a warm cache costs only the check (no process is started).
+Numba compiles one function at a time per process (about half a minute per kernel entry point).
+:func:`precompile` compiles the entry points missing from Numba's on-disk cache in ``processes``
+spawned workers (Numba's thread pool does not survive a fork); the calling process then loads
+them from the cache. A warm cache costs only the check (no process is started).
 """
 
 from __future__ import annotations

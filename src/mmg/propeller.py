@@ -2,8 +2,8 @@
 
 First and second quadrant (n_p >= 0): standard MMG thrust with the wake model of ITTC (2002);
 second quadrant (u < 0, n_p >= 0): side force and yaw moment of Ueno (2001); third and fourth
-quadrant (n_p < 0): Hasegawa (1994) reversal polynomials. Branch choices at exact zeros follow the
-paper's authors' implementation (reference "Branch choices").
+quadrant (n_p < 0): Hasegawa (1994) reversal polynomials. Branch choices at exact zeros (u = 0,
+n_p = 0) follow the paper's authors' implementation.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from mmg.params import Ship, Theta
 J_S_AT_ZERO_N = 1.0e4
 #: J_s where u = 0, and the floor of 1 - w_P: the float64 machine epsilon (authors' code)
 EPS = 2.220446049250313e-16
-#: speed below which v' and r' are replaced by a small constant (reference "Guards at zero speed")
+#: speed below which v' and r' are replaced by a small constant (1e-7) [m/s]
 U_MIN = 1.0e-5
 #: breakpoints of Hasegawa's side-force and yaw-moment polynomials in J_s (paper Eq. (11)-(12))
 J_SYN = -0.35
@@ -34,7 +34,7 @@ def wake_factor(u: float, v_m: float, r: float, th: Theta, sh: Ship) -> float:
     if u <= 0.0:
         return 1.0
     U = math.sqrt(u * u + v_m * v_m)
-    if U < U_MIN:  # reference "Guards at zero speed"
+    if U < U_MIN:  # guard at zero speed: v' = r' = 1e-7
         v_nd = 1.0e-7
         r_nd = 1.0e-7
     else:
@@ -73,8 +73,8 @@ def propeller_forces(
     """Propeller forces X_P [N], Y_P [N], yaw moment N_P [N m], and K_T [-] as seen by the rudder.
 
     u [m/s], n_p [rev/s], J_s from :func:`advance_ratio`, one_minus_w from :func:`wake_factor`.
-    For n_p < 0 the returned K_T is X_P / (rho n_p^2 D_p^4) of the reversal polynomial (reference
-    "Where the paper's text and its authors' code differ").
+    For n_p < 0 the returned K_T is X_P / (rho n_p^2 D_p^4) of the reversal polynomial, as in the
+    paper's authors' code.
     """
     rho, D, L, d = sh.rho, sh.D_p, sh.L_pp, sh.d
     nD2 = (n_p * D) * (n_p * D)

@@ -2,8 +2,8 @@
 
 Standard MMG rudder model (Yasukawa & Yoshimura 2015) with the inflow angle by atan2, Yoshimura's
 low-speed longitudinal inflow for n_p >= 0, Kitagawa's propeller-reversal inflow, and u_R = u when
-going astern. Y_R uses (1 + a_H), the standard MMG form (the paper's text prints 1 - a_H: a typo,
-see reference "Where the paper's text and its authors' code differ").
+going astern. Y_R uses (1 + a_H), the standard MMG form of Yasukawa & Yoshimura (2015) and of the
+paper's authors' code (the paper's text prints 1 - a_H, a typo).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import math
 from mmg._jit import subfunction
 from mmg.params import Ship, Theta
 
-#: 8 / pi of Eqs. (22) and (25), a constant factor rather than a division per call (issue 15)
+#: 8 / pi of Eqs. (22) and (25), a constant factor rather than a division per call
 EIGHT_OVER_PI = 8.0 / math.pi
 
 
@@ -47,7 +47,7 @@ def rudder_inflow(
     # Each form takes two square roots; the compiled kernel evaluates every branch for a vector
     # of lanes, so the forms share them: the first is sqrt(u_P^2 + 8/pi K_T (n_p D_p)^2) in
     # Eq. (22) and |n_p D_p| sqrt(8/pi |K_T|) in Eq. (25); the second is u_R itself. Four square
-    # roots become two (a vector root costs about 12 cycles per 4 lanes in the divider; issue 15).
+    # roots become two (a vector root costs about 12 cycles per 4 lanes in the divider).
     thrust = EIGHT_OVER_PI * abs(K_T) * nD * nD
     root_1 = math.sqrt(thrust + (u_P * u_P if yoshimura else 0.0))
     # Eq. (22) times epsilon: epsilon u_P + k_x (root_1 - u_P) is epsilon times the bracket
@@ -60,7 +60,7 @@ def rudder_inflow(
         eta * math.copysign(u_RPR1 * u_RPR1, u_RPR1)
         + (1.0 - eta) * math.copysign(u_RPR2 * u_RPR2, u_RPR2)
         + th.C_PR * u * u
-    )  # Eq. (24), last term C_PR u^2 (reference: the paper prints C_PR u)
+    )  # Eq. (24), last term C_PR u^2, dimensionally consistent (the paper prints C_PR u)
     # u_R = sqrt(a) with the sign of sgn; every branch sets (sgn, a) before the one root
     if yoshimura:  # Eq. (22): u_R = epsilon sqrt(eta jet^2 + (1 - eta) u_P^2), epsilon inside
         sgn, a = th.epsilon, eta * eps_jet * eps_jet + (1.0 - eta) * eps_u_P * eps_u_P

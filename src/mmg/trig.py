@@ -71,7 +71,7 @@ def sincos(x: float) -> tuple[float, float]:
     if not abs(x) < 1.125899906842624e15:
         return math.nan, math.nan
     # np.floor, not math.floor: Numba's math.floor returns an integer, a float-int-float round
-    # trip on the kernel's critical path (the same numbers, about 3 % faster; issue 15)
+    # trip on the kernel's critical path (the same numbers, about 3 % faster)
     k = np.floor(x * _TWO_OVER_PI + 0.5)
     r = ((x - k * _PIO2_1) - k * _PIO2_2) - k * _PIO2_3  # Cody-Waite, |r| <= pi/4
     z = r * r
@@ -97,7 +97,7 @@ def _atan_ratio(small: float, big: float) -> float:
 
     The reduced argument (t - 1) / (t + 1) with t = small / big is formed as
     (small - big) / (small + big): one division for the argument instead of two (a vector
-    division costs about 8 cycles per 4 lanes and lengthens the dependency chain; issue 15)."""
+    division costs about 8 cycles per 4 lanes and lengthens the dependency chain)."""
     reduce = small > 0.66 * big  # t > 0.66
     p = small - big if reduce else small
     q = small + big if reduce else big

@@ -66,5 +66,5 @@ def wind_forces(u_A: float, v_A: float, th: Theta, sh: Ship) -> tuple[float, flo
     q = 0.5 * sh.rho_A * U_A2
     X_A = q * sh.A_T * C_X  # Eq. (27)
     Y_A = q * sh.A_L * C_Y  # Eq. (27)
-    N_A = q * sh.A_L * sh.L_pp * C_N  # Eq. (27), with L_pp (reference correction)
+    N_A = q * sh.A_L * sh.L_pp * C_N  # Eq. (27), L_pp as in the authors' code (text: L_OA)
     return X_A, Y_A, N_A

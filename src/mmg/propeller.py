@@ -20,8 +20,8 @@ EPS = 2.220446049250313e-16
 #: speed below which v' and r' are replaced by a small constant (1e-7) [m/s]
 U_MIN = 1.0e-5
 #: breakpoints of Hasegawa's side-force and yaw-moment polynomials in J_s (paper Eq. (11)-(12))
-J_SYN = -0.35
-J_SYN0 = -0.06
+J_SYN = -0.35  # below: A3 + A4 J_s, B3 + B4 J_s
+J_SYN0 = -0.06  # above: A5, B5; between: A1 + A2 J_s, B1 + B2 J_s
 
 
 @subfunction

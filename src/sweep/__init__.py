@@ -1,23 +1,11 @@
 """sweep: system identification of the MMG model on the FRT-DS-ESSO free-running recordings.
 
-The package in four concerns, and the commands at its top level:
-
-- :mod:`sweep.data` (recordings and objectives): validated recordings and their CSV/Parquet
-  files (:mod:`sweep.data.recordings`), the paper's train/test splits and the data directory
-  (:mod:`sweep.data.datasets`), the objective functions J1, J2, J3 (:mod:`sweep.data.objective`);
-- :mod:`sweep.identification`: restart CMA-ES (:mod:`sweep.identification.cmaes`),
-  Levenberg-Marquardt refinement (:mod:`sweep.identification.polish`), population evaluation in
-  process or on worker processes (:mod:`sweep.identification.workers`);
-- :mod:`sweep.service` (the sweep service, with Ray and MLflow at its edges): config rules
-  (:mod:`sweep.service.schema`), jobs and their outcomes (:mod:`sweep.service.job`,
-  :mod:`sweep.service.outcome`), the orchestration (:mod:`sweep.service.orchestration`), Ray
-  (:mod:`sweep.service.raycluster`), checkpoint storage (:mod:`sweep.service.storage`), MLflow
-  (:mod:`sweep.service.tracking`);
-- :mod:`sweep.diagnose` (missing physics): location, noise floor, discovery, calibrated
-  acceptance, the planted benchmark's forms.
-
-Commands: ``python -m sweep`` (the Hydra sweep), ``sweep.evaluate``, ``sweep.identify``,
-``sweep.diagnose``, ``sweep.report`` (tables, notes and plots of a sweep), ``sweep.publish``,
-``sweep.ui`` (the MLflow UI on a sweep), ``sweep.download`` (the recordings at a pinned commit);
-:mod:`sweep.errors` turns user mistakes into one-line errors for all of them.
+Four concerns, one subpackage each, layered one way (each uses only those before it):
+:mod:`sweep.data` (recordings, splits, the objectives J1, J2, J3), :mod:`sweep.identification`
+(restart CMA-ES, Levenberg-Marquardt refinement, population evaluation), :mod:`sweep.service`
+(config rules, jobs, outcomes, orchestration; Ray and MLflow at its edges) and
+:mod:`sweep.diagnose` (missing physics). The modules at the top level are the commands
+(``python -m sweep``, ``sweep.evaluate``, ``sweep.identify``, ``sweep.diagnose``,
+``sweep.report``, ``sweep.publish``, ``sweep.ui``, ``sweep.download``); :mod:`sweep.errors`
+turns user mistakes into one-line errors for all of them.
 """

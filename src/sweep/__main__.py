@@ -19,6 +19,7 @@ from typing import Any
 import hydra
 from omegaconf import DictConfig
 
+#: the repository's Hydra ``conf/`` directory (found relative to this file; editable install)
 CONF = str(Path(__file__).resolve().parents[2] / "conf")
 
 
@@ -55,6 +56,10 @@ def single_job(cfg: DictConfig) -> Any:
 
 @hydra.main(version_base=None, config_path=CONF, config_name="config")
 def main(cfg: DictConfig) -> Any:
+    """Hydra's entry: one job here, or a multirun through the launcher plugin (Ray).
+
+    Raises SystemExit(1) when the job failed; returns the sweep summary.
+    """
     from sweep.errors import exit_on_user_error
 
     with exit_on_user_error():
@@ -69,6 +74,11 @@ def _interrupt(signum: int, frame: Any) -> None:
 
 
 def run() -> int:
+    """``python -m sweep``: run :func:`main` with clean interruption; the exit status.
+
+    0 when every job succeeded, 1 when any failed (listed on stderr), 130 when interrupted
+    (Ctrl-C or SIGTERM: running jobs cancelled, checkpoints kept for a resume).
+    """
     from hydra_plugins.mmg_sweep_launcher import mmg_ray_launcher
 
     # Ctrl-C and SIGTERM (docker stop, a CI timeout) stop the sweep cleanly: running jobs are

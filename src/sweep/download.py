@@ -5,29 +5,13 @@ Usage::
     python -m sweep.download [--root DIR] [--url URL] [--force]
 
 The recordings (CC BY-NC-SA 4.0, Wakita et al. 2022, Miyauchi et al. 2022) come from the public
-GitHub repository NAOE-5thLab/FRT-DS-ESSO at commit :data:`COMMIT`, as the tar.gz archive GitHub
-serves for that commit (:data:`DEFAULT_URL`). Only the 13 files of the split (:data:`CHECKSUMS`)
-plus ``LICENSE`` and ``README.md`` (when present) are extracted, into the data root
-(:func:`sweep.data.datasets.data_root`: ``--root``, else ``$MMG_DATA_DIR``, else the user cache
-directory), keeping the ``data/<kind>/<file>.csv`` layout. The archive's top-level directory
-(``FRT-DS-ESSO-<sha>/``) is stripped; other files in the archive are ignored.
-
-Guarantees:
-
-- every one of the 13 files is checked against its SHA-256 in :data:`CHECKSUMS`;
-- idempotent: files already present with the right checksum are left untouched, and when all 13
-  are, nothing is downloaded (no network access at all); ``--force`` downloads anyway;
-- atomic: the archive is downloaded and extracted into a temporary directory inside the root,
-  all files are verified there, and only then renamed into place; on any failure the root is
-  left as it was;
-- progress (bytes received) on stderr; on a network error, a corrupt archive or a checksum
-  mismatch the command prints one clear message (no traceback) and exits with status 1.
-
-Only :mod:`urllib` is used (no third-party HTTP client).
-
-The pinned commit is given by its short SHA ``e694dfd`` (the one the data README names); the
-full 40-hex SHA could not be resolved offline. GitHub's archive endpoint accepts the short SHA,
-and the checksums pin the content regardless.
+GitHub repository NAOE-5thLab/FRT-DS-ESSO at commit :data:`COMMIT` (a short SHA, the one the
+data README names; the checksums pin the content regardless), as GitHub's tar.gz archive. Only
+the 13 files of the split (:data:`CHECKSUMS`) plus ``LICENSE`` and ``README.md`` are extracted
+into the data root, keeping the ``data/<kind>/<file>.csv`` layout. Every file is checked against
+its SHA-256; files already verified are left alone (no network access when all are); the
+archive is extracted and verified in a temporary directory inside the root before anything is
+renamed into place, so a failure leaves the root as it was.
 """
 
 from __future__ import annotations
@@ -51,9 +35,11 @@ from typing import IO, TextIO
 from sweep.data.datasets import data_root
 
 REPOSITORY = "NAOE-5thLab/FRT-DS-ESSO"
+"""GitHub repository of the recordings (owner/name)."""
 COMMIT = "e694dfd"
 """Pinned commit of :data:`REPOSITORY` (short SHA)."""
 DEFAULT_URL = f"https://codeload.github.com/{REPOSITORY}/tar.gz/{COMMIT}"
+"""The tar.gz archive GitHub serves for :data:`COMMIT` (``--url`` overrides it)."""
 
 CHECKSUMS: dict[str, str] = {
     "data/random/random_06-Aug-2020_16_24_25_1.csv": (
@@ -247,6 +233,7 @@ def download(
     needed = [rel for rel in CHECKSUMS if force or status[rel] != "ok"]
 
     def say(msg: str) -> None:
+        """One progress line to ``out`` (nothing when ``out`` is None)."""
         if out is not None:
             out.write(msg + "\n")
             out.flush()

@@ -66,6 +66,7 @@ def _printer(stream: Any = sys.stderr, every: float = 2.0) -> Any:
     last = [0.0]
 
     def show(state: State, row: dict[str, float]) -> None:
+        """Print one generation's progress line, at most once every ``every`` seconds."""
         now = time.perf_counter()
         if now - last[0] < every:
             return
@@ -104,6 +105,10 @@ def write_outputs(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m sweep.identify``: parse the arguments, run one job, write its files.
+
+    Returns the exit status: 0 on success, 2 for unusable inputs (a one-line error on stderr).
+    """
     ap = argparse.ArgumentParser(
         prog="python -m sweep.identify", description=__doc__.splitlines()[0]
     )

@@ -5,16 +5,11 @@ Usage::
     python -m sweep.publish --sweep NAME [--tracking-uri URI] [--out docs]
                             [--params-out results/best_params.json] [--discussion FILE]
 
-Reads the sweep's MLflow runs (through :mod:`sweep.service.tracking`) and writes
-
-- the three tables in the paper's layout, each cell "ours mean (std) / paper mean";
-- the ratio of each pair's Total to the EFD Total, ours and the paper's;
-- the best pair (lowest mean J2 Total), its best seed's parameters (shipped as JSON with the
-  objective, training set, seed, budget, commit and its test metrics, so that
-  ``python -m sweep.evaluate --params <it> --set test`` reproduces them), its trajectory plots on
-  Test-B-S and Test-B-P and its convergence plot;
-- wall times per job and for the grid;
-- the discussion, from ``--discussion`` (Markdown written by a person, included verbatim).
+Reads the sweep's MLflow runs and writes the three tables in the paper's layout (each cell
+"ours mean (std) / paper mean"), each pair's Total relative to the EFD Total, the best pair's
+(lowest mean J2 Total) best parameters as JSON (with the metadata that lets
+``python -m sweep.evaluate --params <it> --set test`` reproduce them) and its plots, the wall
+times, and the ``--discussion`` Markdown verbatim.
 """
 
 from __future__ import annotations
@@ -33,7 +28,9 @@ from typing import Any
 from mmg.params import Parameters
 from sweep.service.outcome import COLUMNS, SUBSETS
 
+#: test subsets in the column order of the paper's Tables 6-8
 PAPER_ORDER = ("B-S", "B-P", "B", "R", "T", "Z", "total")
+#: the nine (objective, training set) pairs, "J1-R" ... "J3-TZR"
 CASES = tuple(f"{J}-{T}" for J in ("J1", "J2", "J3") for T in ("R", "TR", "TZR"))
 
 # Miyauchi et al. (2022), Tables 6-8: means over three seeds (columns in PAPER_ORDER), and the
@@ -152,6 +149,10 @@ def ratios_markdown(stats: Mapping[str, Any], efd: Mapping[str, Mapping[str, flo
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m sweep.publish``: write ``results.md``, the best parameters and the figures.
+
+    Returns the exit status: 0 on success, 2 when the sweep is unknown or has no finished job.
+    """
     from sweep.service.tracking import MlflowTracker, default_tracking_uri
 
     ap = argparse.ArgumentParser(

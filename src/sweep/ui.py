@@ -1,10 +1,8 @@
 """``python -m sweep.ui``: the MLflow UI on a sweep's store, opened on the sweep's runs table.
 
-MLflow 3's UI starts on its generative-AI view ("Traces", "Evaluation runs") unless the page is
-opened as a model-training workflow; the address printed here (and opened in a browser when
-one is available) goes straight to the experiment's runs table, in the saved view a sweep
-stores with its experiment (columns: objective, training set, seed and the test J2, J1, J3),
-where the sweep's parent run lists its jobs and its description holds the J1-J3 tables::
+MLflow 3's UI starts on its generative-AI view unless the page is opened as a model-training
+workflow; the address printed (and opened in a browser when one is available) goes straight to
+the experiment's runs table, in the saved view a sweep stores with its experiment::
 
     python -m sweep.ui [--tracking-uri sqlite:///mlflow.db] [--experiment mmg-sweep]
                        [--host 127.0.0.1] [--port 5000] [--no-browser]
@@ -33,6 +31,7 @@ def runs_url(base: str, experiment_id: str | None, view: str | None = None) -> s
 
 
 def experiment_id(uri: str, experiment: str) -> str | None:
+    """The MLflow id of ``experiment`` in the store ``uri`` (None if it does not exist)."""
     from sweep.service.tracking import MlflowTracker
 
     return MlflowTracker(uri, experiment).experiment_id(create=False)
@@ -46,6 +45,10 @@ def view_of(uri: str, experiment: str) -> str | None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Start ``mlflow ui`` on the store and print the runs table's address; the exit status.
+
+    2 when there is no store or it cannot be read, 130 after Ctrl-C, else the server's status.
+    """
     from sweep.service.tracking import default_tracking_uri, sqlite_path
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

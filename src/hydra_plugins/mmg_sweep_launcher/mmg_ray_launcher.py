@@ -27,6 +27,8 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class MmgRayLauncherConf:
+    """Hydra's structured config of the launcher (``hydra/launcher=mmg_ray``); no options."""
+
     _target_: str = "hydra_plugins.mmg_sweep_launcher.mmg_ray_launcher.MmgRayLauncher"
 
 
@@ -50,6 +52,8 @@ def job_config(cfg: DictConfig) -> dict[str, Any]:
 
 
 class MmgRayLauncher(Launcher):
+    """Hydra launcher that runs all jobs of a multirun as one sweep on Ray, tracked in MLflow."""
+
     def __init__(self) -> None:
         self.config: DictConfig | None = None
         self.hydra_context: HydraContext | None = None
@@ -58,6 +62,8 @@ class MmgRayLauncher(Launcher):
     def setup(
         self, *, hydra_context: HydraContext, task_function: TaskFunction, config: DictConfig
     ) -> None:
+        """Keep what Hydra hands over: the primary config, its context and the task function
+        (unused: jobs run :func:`sweep.service.job.run_job` on Ray, not the task function)."""
         self.config = config
         self.hydra_context = hydra_context
         self.task_function = task_function
@@ -65,6 +71,12 @@ class MmgRayLauncher(Launcher):
     def launch(
         self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int
     ) -> Sequence[JobReturn]:
+        """Compose and validate every job's config, run the sweep, print the J2 table.
+
+        Returns one COMPLETED :class:`JobReturn` per job whose return value is ``"ok"`` or the
+        job's error (the sweep's summary, with its failures, is :data:`LAST_SUMMARY`). A user
+        mistake exits with a one-line error.
+        """
         from sweep.errors import exit_on_user_error
 
         with exit_on_user_error():

@@ -1,52 +1,16 @@
 """The paper's train/test split of FRT-DS-ESSO, the data directory, and the berthing sides.
 
-Split configuration
--------------------
-The split of Miyauchi et al. (2022), Table 4, is configuration, not code: Hydra config-group
-files at the repository root,
+The split of Miyauchi et al. (2022), Table 4, is configuration: ``conf/train/{R,TR,TZR}.yaml``
+(``name`` and ``files``) and ``conf/test/paper.yaml`` (``name`` and ``subsets``), paths relative
+to the data root. :func:`load_split` reads them with plain YAML from :data:`CONF_DIR` (an
+editable install; otherwise pass the YAML file's path). :func:`data_root` is an explicit
+argument, else ``$MMG_DATA_DIR``, else the user cache directory; the recordings are never part of
+the repository (``python -m sweep.download`` fetches them).
 
-- ``conf/train/R.yaml``, ``conf/train/TR.yaml``, ``conf/train/TZR.yaml``: ``name`` and ``files``
-  (a list of paths relative to the data root);
-- ``conf/test/paper.yaml``: ``name`` and ``subsets`` (Test-R, Test-T, Test-Z, Test-B-S,
-  Test-B-P, each mapping to one path relative to the data root).
-
-The Hydra application selects them as config groups (``train=R test=paper``);
-:func:`load_split` reads the same files with plain YAML (no Hydra) and finds them through
-:data:`CONF_DIR`, the ``conf/`` directory located relative to this module
-(``src/sweep/../../conf``). That works because the project is installed in editable mode
-(``pip install -e .``); with any other installation pass the YAML file's path to
-:func:`load_split` instead of a split name.
-
-Data directory
---------------
-:func:`data_root` chooses, in this order: an explicit argument (e.g. a ``--root`` option), the
-environment variable ``MMG_DATA_DIR``, or ``platformdirs.user_cache_dir("mmg-sweep") /
-"frt-ds-esso"``. The recordings (CC BY-NC-SA 4.0) are never part of the repository;
-``python -m sweep.download`` fetches them into that directory. A missing directory or file
-raises :class:`DataNotFoundError`, whose message says how to download the data.
-
-Which berthing run is starboard-side (B-S) and which port-side (B-P)
----------------------------------------------------------------------
-The source does not say; it is decided from the recorded tracks by :func:`berthing_evidence`,
-with the ship's axes (x forward, y to STARBOARD) and the earth-fixed frame of the model
-(x0_dot = u cos psi - v_m sin psi, y0_dot = u sin psi + v_m cos psi), in which the starboard
-direction at heading psi is (-sin psi, cos psi). Two independent pieces of evidence:
-
-1. the mean lateral velocity v_m over the last 20 s of the run (the final sideways approach to
-   the berth): positive = the ship moves to starboard;
-2. the lateral offset of the final midship position from the approach line, the line through
-   the initial midship position along the initial heading (both averaged over the first 5 s):
-   positive = the ship ends to starboard of where it was heading.
-
-A run is starboard-side berthing when both are positive and port-side when both are negative
-(otherwise ambiguous). On the recordings:
-
-- ``berthing_12-Nov-2020_11_49_21``: mean v_m = +0.0152 m/s, offset = +5.95 m -> B-S;
-- ``berthing_12-Nov-2020_13_21_03``: mean v_m = -0.0226 m/s, offset = -5.49 m -> B-P.
-
-The final heading is within 7 deg of the initial one in both runs (+6.6 deg and +5.5 deg), so
-the ship berths parallel to its approach, with the berth on the side it moves to.
-``tests/test_datasets.py`` checks that ``conf/test/paper.yaml`` agrees with this evidence.
+Which berthing run is starboard-side (B-S) and which port-side (B-P) the source does not say;
+:func:`berthing_evidence` decides it from the tracks: both the mean v_m over the last 20 s and
+the final lateral offset from the approach line are positive for B-S (12-Nov-2020_11_49_21:
++0.0152 m/s, +5.95 m) and negative for B-P (12-Nov-2020_13_21_03: -0.0226 m/s, -5.49 m).
 """
 
 from __future__ import annotations
@@ -69,7 +33,9 @@ SPLIT_GROUPS: tuple[str, ...] = ("train", "test")
 ENV_VAR = "MMG_DATA_DIR"
 """Environment variable naming the data root."""
 APP_NAME = "mmg-sweep"
+"""Application name of the user cache directory (platformdirs)."""
 DATASET_DIRNAME = "frt-ds-esso"
+"""Data root below the user cache directory when neither an argument nor the variable names one."""
 
 BERTHING_TAIL_S = 20.0
 """Final window over which the lateral velocity is averaged [s]."""
@@ -278,7 +244,7 @@ def load_split(name_or_yaml_path: str | os.PathLike[str]) -> Split:
 
 @dataclass(frozen=True)
 class BerthingEvidence:
-    """Evidence of the berthing side of a run (see the module docstring for the rule).
+    """Evidence of the berthing side of a run (the rule: :func:`berthing_evidence`).
 
     Attributes:
         name: the recording's name.
@@ -310,6 +276,11 @@ def berthing_evidence(
     rec: Recording, tail_s: float = BERTHING_TAIL_S, head_s: float = BERTHING_HEAD_S
 ) -> BerthingEvidence:
     """Lateral velocity at the end and lateral offset from the approach line of a run.
+
+    Ship axes: x forward, y to starboard; at heading psi the earth-fixed starboard direction is
+    (-sin psi, cos psi). The approach line runs through the mean midship position of the first
+    ``head_s`` seconds along their mean heading. A run is starboard-side berthing when both
+    ``mean_v_m_end`` and ``lateral_offset`` are positive, port-side when both are negative.
 
     Args:
         rec: a recording (typically a berthing run).

@@ -51,6 +51,7 @@ CHANNELS: dict[str, tuple[int, ...]] = {
     "J2": (0, 1, 2, 3, 4, 5, 6),  # x0, u, y0, v_m, sin psi, cos psi, r
     "J3": (0, 2, 4, 5),  # x0, y0, sin psi, cos psi
 }
+#: the objectives' names, ("J1", "J2", "J3")
 OBJECTIVES = tuple(CHANNELS)
 
 #: standardisation floors per observable (units of the observable)
@@ -218,6 +219,7 @@ class Objective:
 
     @property
     def n_segments(self) -> int:
+        """Number of subsequences (initial-value problems) over all recordings."""
         return len(self.data.index)
 
     @property

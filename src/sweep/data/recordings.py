@@ -21,53 +21,21 @@ header                            symbol                unit / role
 ``wind_dir_relative_mid [rad]``   gamma_A               rad, optional (apparent wind)
 ================================  ====================  ======================================
 
-The apparent-wind columns are optional because the model computes the apparent wind from the
-true wind and the ship's motion; when present they must be numeric. Other extra columns are
-ignored, unless their name is a near-miss of an expected one (then it is reported as a
-misspelling). CSV and Parquet files use the same column names.
+The apparent-wind columns are optional (the model computes the apparent wind); when present they
+must be numeric. Other extra columns are ignored unless their name is a near-miss of an expected
+one (reported as a misspelling). CSV and Parquet files use the same column names.
 
-Validation (:class:`RecordingError`, a :class:`ValueError`; the message names the file, the column
-and the row where applicable). Rows are numbered from 1 for the first data row, i.e. row k is
-line k + 1 of a CSV file.
+Checks (each a one-line :class:`RecordingError` naming the file, the column and the row; row k is
+line k + 1 of a CSV file): missing or misspelled columns; non-numeric, empty or non-finite values
+inside a run; time steps of ``DT`` = 0.1 s within ``DT_TOL``; implausible units (``|delta| >
+pi/2``, ``|r| > 3 rad/s``, ``|psi_hat| > pi``, ``|gamma| > 2 pi``, ``|n_p| > 100 rev/s``, negative
+wind speed), r against the heading rate (:func:`_check_yaw_rate`) and the velocities against the
+track (:func:`_check_track`); fewer than ``MIN_SAMPLES`` samples. Trailing rows whose fields are
+all empty are dropped with a :class:`RecordingWarning`.
 
-- missing or misspelled columns (the closest expected name is suggested, via :mod:`difflib`);
-- non-numeric values; empty fields or ``NaN`` in the middle of a run, empty rows in the middle of
-  a run, non-finite values;
-- time steps: ``t`` must increase by ``DT`` = 0.1 s at every row, within ``DT_TOL`` = 1e-3 s
-  (the recorded files deviate by < 1e-12 s; a dropped sample gives a 0.2 s step and is rejected);
-- implausible units: ``|delta| > pi/2`` (degrees?), ``|r| > 3 rad/s`` (deg/s?),
-  ``|psi_hat| > pi`` (degrees? the file stores the wrapped heading), ``|gamma| > 2 pi``
-  (degrees?), ``|n_p| > 100 rev/s`` (rpm?), negative wind speed; and r against the heading:
-  rms(r) / rms(d psi/dt) over 1 s windows must lie in ``YAW_RATE_RATIO_RANGE`` = [0.1, 5]
-  when the heading changes enough to tell (see ``_check_yaw_rate``). It is 0.10-1.11 on every
-  10-100 s segment of the recordings, >= 6 for r in deg/s (which ``|r| > 3`` alone misses for
-  this slow model, whose |r| stays below 0.07 rad/s = 4 deg/s) and <= 0.025 for a heading in
-  degrees (which ``|psi| > pi`` misses while the heading stays within +-3 deg);
-- velocities against the track (``_check_track``): the ship's displacement over every 5 s
-  (``TRACK_SPAN``) from the recorded x0, y0 against the same displacement integrated from the
-  recorded u, v_m and psi (x0_dot = u cos psi - v_m sin psi, y0_dot = u sin psi + v_m cos psi).
-  On the 13 recordings their rms difference is 3-5 % of the rms displacement and the
-  least-squares ratio 0.997-1.006; velocities in cm/s give a ratio of 0.01, swapped x0 and y0
-  columns 95-176 %, a v_m of the wrong sign 20-123 %, a heading of the wrong sense 51-152 %.
-  Above ``TRACK_TOLERANCE`` = 15 % the file is rejected when a mistaken reading (units,
-  swapped columns, a sign) would make the columns agree within 15 % and three times better;
-  the message gives the misfit, the ratio, the correlation and that reading. A difference no
-  such reading explains (a current, a heading offset: physics or measurement error that the
-  diagnosis may name) is not rejected;
-- too short a run: fewer than ``MIN_SAMPLES`` = 101 samples (10 s).
-
-Rows at the end of a file whose fields are all empty (a known defect of
-``zigzag_31-Jul-2020_13_50_28.csv``, which ends in 327 such rows) are dropped with a
-:class:`RecordingWarning` that says how many rows were dropped.
-
-In memory (:class:`Recording`) the heading is UNWRAPPED (:func:`numpy.unwrap`), so it can be
-differenced and interpolated; :func:`write_parquet` wraps it back to [-pi, pi].
-
-Duration: ``Recording.duration = (N - 1) * DT`` = ``t[-1] - t[0]``, the time spanned by the N
-samples (the number of 0.1 s steps a simulation of the run takes). With this definition the
-paper's Train-R split (random runs 1, 4, 5, 6) totals 2694.6 s and the Test split 1623.6 s, the
-figures of the data README (the paper rounds them to 2695 s and 1624 s); N * DT would give
-2695.0 s and 1624.1 s.
+In memory (:class:`Recording`) the heading is unwrapped (:func:`numpy.unwrap`);
+:func:`write_parquet` wraps it back to [-pi, pi]. ``Recording.duration`` is (N - 1) * DT, which
+gives the data README's split totals (Train-R 2694.6 s, Test 1623.6 s).
 """
 
 from __future__ import annotations
@@ -111,6 +79,7 @@ TRACK_MIN_RMS = 0.05
 """rms 5-s displacement below which the velocities-against-track check is skipped [m]."""
 
 TIME_COLUMN = "t [s]"
+"""Column of the time t [s] (need not start at 0)."""
 STATE_COLUMNS: tuple[str, ...] = (
     "x_position_mid [m]",
     "u_velo [m/s]",
@@ -130,6 +99,7 @@ APPARENT_WIND_COLUMNS: tuple[str, ...] = (
 )
 """Optional columns of the apparent wind (U_A, gamma_A)."""
 REQUIRED_COLUMNS: tuple[str, ...] = (TIME_COLUMN, *STATE_COLUMNS, *CONTROL_COLUMNS, *WIND_COLUMNS)
+"""Columns every recording file must have."""
 FILE_COLUMNS: tuple[str, ...] = (
     TIME_COLUMN,
     *STATE_COLUMNS,
@@ -504,7 +474,17 @@ def _check_track(
     x0: FloatArray, u: FloatArray, y0: FloatArray, v_m: FloatArray, psi: FloatArray, source: str
 ) -> None:
     """Raise RecordingError if the recorded velocities and heading do not integrate to the
-    recorded track (see the module docstring); the message names the reading that would fit."""
+    recorded track; the message names the reading that would fit.
+
+    Compares the displacement over every ``TRACK_SPAN`` samples (5 s) from the recorded x0, y0
+    with the one integrated from u, v_m and psi (x0_dot = u cos psi - v_m sin psi, y0_dot =
+    u sin psi + v_m cos psi). On the 13 recordings their rms difference is 3-5 % of the rms
+    displacement and the least-squares ratio 0.997-1.006; velocities in cm/s give a ratio of 0.01,
+    swapped x0 and y0 a misfit of 95-176 %, a v_m of the wrong sign 20-123 %, a heading of the
+    wrong sense 51-152 %. Above ``TRACK_TOLERANCE`` (15 %) the file is rejected only when a
+    mistaken reading (units, swapped columns, a sign) makes the columns agree within 15 % and
+    three times better; a misfit no such reading explains (a current, a heading offset) is
+    physics or measurement error the diagnosis may name, and passes."""
     misfit, ratio, corr, rms = _track_misfit(x0, u, y0, v_m, psi)
     if rms < TRACK_MIN_RMS or misfit <= TRACK_TOLERANCE:
         return

@@ -1,45 +1,26 @@
 """Discovery: propose a term nobody wrote down, from the equation-level residuals.
 
-Equation error proposes, output error decides (``design/discovery.md``): this module does the
-proposing; the proposed terms become a generated effect (:mod:`mmg.discovered`) that the
-diagnosis fits jointly with the 57 base parameters on trajectories, in two folds, and ranks with
-the catalog's effects by the same rules (:mod:`sweep.diagnose.run`).
+Equation error proposes, output error decides: this module proposes; the proposed terms become a
+generated effect (:mod:`mmg.discovered`) that the diagnosis fits on trajectories and ranks with
+the catalog's effects by the same rules. The steps (other docstrings refer to their numbers):
 
-1. **Equation-level residuals.** In every training window the recorded states are smoothed and
-   differentiated (Savitzky-Golay, cubic, ``sg_window_s``): recorded accelerations (u_dot,
-   v_m_dot, r_dot). The model's accelerations at the smoothed states with the controls smoothed
-   by the same filter and the recorded wind are subtracted: the residual of Eq. (1), every
-   ``stride``-th sample.
-2. **Regressors.** Each library term (:mod:`mmg.library`) adds a force; its column is the
-   acceleration that force with a unit coefficient causes (through the same mass matrix, added
-   masses and x_G coupling as the model: the columns are computed by the model's own kernel, with
-   the term as an effect; only the term's force and Eq. (1), which is linear in the forces, not
-   the whole right-hand side: :func:`mmg.integrate.effect_accelerations_rows`). A term with a
-   shape (a time constant, a step's centre and width: :class:`mmg.library.Shape`) gives one
-   column per point of its grid. The base model's own regressors are the derivatives of its
-   accelerations with respect to the 57 parameters.
-3. **Cancellation.** Refitting the base can reproduce part of any term. Residual and term columns
-   are projected onto the complement of the base regressors (Frisch-Waugh-Lovell: equivalent to
-   a joint refit of base and term, linearised); the *absorbed fraction* of a term is the share of
-   its column the base can imitate. Terms absorbed beyond ``max_absorbed`` are not new physics.
-4. **Selection.** Forward stepwise: the term that most reduces the residual on *held-out
-   windows* (cross-validation over whole windows, which are nearly independent, whereas
-   neighbouring samples are not), then the next, up to ``max_terms``, while each step adds at
-   least ``min_gain`` times the held-out R^2 reached so far; a term enters once, at the grid
-   point of its shape that serves best (the trajectory fits then move the shape). The statistic
-   is the held-out R^2 of the selection; the null runs the same selection over the same grid.
-4b. **Alternatives.** Heading, position and the time in the run drift together over a few
-   windows (the ship crosses the basin as the run goes on), so the equation residual cannot
-   always tell a force fixed to the basin from one that builds up in time, and both explain the
-   training windows about equally. For every such kind of variable in the selection, the
-   selection is repeated without the terms of that kind; a set that reaches at least
-   ``alternative_ratio`` of the held-out R^2 is proposed beside it (up to ``alternatives``), and
-   the trajectory fits decide: every set is fitted and ranked like any candidate (dBIC, the
-   held-out windows as veto and tie-break; :func:`sweep.diagnose.run.rank`).
-5. **Calibration on a null.** The base model is simulated on the same windows with noise of the
-   estimated level and colour (:mod:`sweep.diagnose.floor`) and the *same* procedure run on
-   each such recording set: the statistic's distribution when nothing is missing. The terms are
-   proposed only if the statistic exceeds the null's ``1 - alpha`` quantile.
+1. **Residuals** of Eq. (1): recorded accelerations (u_dot, v_m_dot, r_dot) by a cubic
+   Savitzky-Golay filter (``sg_window_s``) minus the model's at the smoothed states and controls,
+   every ``stride``-th sample of every training window.
+2. **Regressors**: per library term (:mod:`mmg.library`) the accelerations its force with a unit
+   coefficient causes through the model's mass matrix
+   (:func:`mmg.integrate.effect_accelerations_rows`), one column per grid point of its shape;
+   the base's regressors are the derivatives of its accelerations by the 57 parameters.
+3. **Cancellation** (Frisch-Waugh-Lovell): residual and columns are projected off the base
+   regressors; a term whose column the base imitates beyond ``max_absorbed`` is dropped.
+4. **Selection**: forward stepwise on held-out R^2 (cross-validation over whole windows), up to
+   ``max_terms``, each step adding at least ``min_gain`` of the R^2 so far.
+4b. **Alternatives**: heading, position and time drift together over a run, so for each such kind
+   in the selection it is repeated without that kind; sets reaching ``alternative_ratio`` of the
+   R^2 are proposed beside it and the trajectory fits decide.
+5. **Calibration**: the same procedure on base-model simulations with noise of the estimated
+   level and colour (:mod:`sweep.diagnose.floor`); terms are proposed only if the held-out R^2
+   exceeds the null's ``1 - alpha`` quantile.
 """
 
 from __future__ import annotations
@@ -285,6 +266,7 @@ def _projected(data: EquationData) -> tuple[FloatArray, FloatArray]:
     return data.y - Q @ (Q.T @ data.y), data.C - Q @ (Q.T @ data.C)
 
 
+#: labels of the three equations of Eq. (1), in the order of the residual's channels
 CHANNEL_NAMES = ("surge (X)", "sway (Y)", "yaw (N)")
 
 
@@ -447,6 +429,7 @@ class Proposal:
 
     @property
     def terms(self) -> list[str]:
+        """Library ids of the proposed terms (empty when nothing is proposed)."""
         return self.selection.terms if self.proposed else []
 
     def effect(self, widen: float = 4.0) -> Effect:

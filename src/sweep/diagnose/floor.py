@@ -1,27 +1,16 @@
 """Is anything missing at all? The measurement-noise floor of J, estimated from the recordings.
 
-1. **Noise model** (:func:`estimate_noise`): per state channel (x0, u, y0, v_m, psi, r), the
-   measurement noise is taken as a first-order autoregressive process (AR(1): standard deviation
-   sigma, correlation phi between samples; phi = 0 is white noise, phi > 0 a low-pass filtered,
-   *coloured* noise). It is estimated from the high-frequency content of the recordings: the
-   residual e of a local cubic fit (Savitzky-Golay, ``window_s`` seconds) holds the noise and
-   almost none of the ship's motion. The smoother removes part of a coloured noise, so the
-   residual's variance and lag-1 and lag-2 correlations are matched to those an AR(1) noise
-   would leave through the same filter (computed exactly from the filter's coefficients), which
-   gives phi and then sigma.
-2. **Floor of J** (:func:`noise_floor`): the identified model is simulated on every training
-   window (from the recorded first state, with the recorded controls and wind); ``draws`` noise
-   series of the estimated model are added to the simulation and J of the model against these
-   synthetic recordings is computed exactly as the objective does (per window and channel). That
-   is the J a model exact in form and values would reach on these windows: the floor, with its
-   spread over noise draws.
-3. **Test** (:func:`misfit_test`): the base model's J per run and channel against the floor. The
-   base model was fitted to these windows, so its J is compared with the floor of a *fitted*
-   model: the floor times the share of the noise's J that the refit of the 57 parameters keeps
-   (``refit_factor``, from the linearised refits on noise-only copies in
-   :mod:`sweep.diagnose.threshold`). The misfit is significant when the total exceeds that
-   floor by more than ``margin`` (allowance for a noise model that is only an AR(1)
-   approximation) *and* by more than ``z`` standard deviations of its spread over draws.
+1. **Noise model** (:func:`estimate_noise`): per state channel (x0, u, y0, v_m, psi, r) an AR(1)
+   process (standard deviation sigma, lag-1 correlation phi; phi > 0 is coloured noise), fitted to
+   the residual of a cubic Savitzky-Golay smoother (``window_s``): its variance and lag-1 and
+   lag-2 correlations are matched to those an AR(1) noise leaves through the same filter.
+2. **Floor of J** (:func:`noise_floor`): J, computed as the objective does, of the identified
+   model's simulations against themselves plus ``draws`` noise series: what a model exact in
+   form and values would reach on these windows, with its spread over draws.
+3. **Test** (:func:`misfit_test`): the base model's J against the floor of a *fitted* model (the
+   floor times ``refit_factor``, the share of the noise's J a refit of the 57 parameters keeps,
+   from :mod:`sweep.diagnose.threshold`); significant when the total exceeds it by more than
+   ``margin`` and by more than ``z`` standard deviations of its spread.
 """
 
 from __future__ import annotations
@@ -103,6 +92,7 @@ class NoiseModel:
         return out
 
     def as_dict(self) -> dict[str, Any]:
+        """JSON-ready {channel: {"sigma", "phi", "corr_time_s"}} (sigma in the channel's unit)."""
         return {
             c: {"sigma": self.sigma[c], "phi": self.phi[c], "corr_time_s": self.corr_time(c)}
             for c in STATES

@@ -1,25 +1,19 @@
 """Does the model carry over? Its misfit on recordings it was not fitted to, against the floor.
 
-The misfit test of :mod:`sweep.diagnose.floor` looks at the training windows. An effect that the
-training manoeuvres do not excite (a crossflow that only acts going astern, when no training run
-goes astern) leaves the identified model at the noise floor there and shows only on other
-recordings. The test recordings (the paper's test set) are windows the model was not fitted to:
-a model exact in form, identified on the training windows, misses them by the measurement noise
-of the test recordings plus what the noise of the training windows moved its parameters by. The
-null distribution of that J comes from a parametric bootstrap with the identification linearised
-(Gauss-Newton, as in :mod:`sweep.diagnose.threshold`):
+An effect the training manoeuvres do not excite (a crossflow acting only astern) shows only on
+other recordings. On the test windows a model exact in form misses by the test noise plus what the
+training noise moved its parameters by; the null of that J is a parametric bootstrap with the
+identification linearised (Gauss-Newton, as in :mod:`sweep.diagnose.threshold`):
 
-1. ``draws`` noise-only copies of the training windows (the model's simulation plus noise of the
-   estimated level and colour, :mod:`sweep.diagnose.floor`); the linearised refit of the 57
-   parameters on each (with the refinement's prior at the model's weight) moves them by ``dz_d``;
+1. ``draws`` noise-only copies of the training windows (:mod:`sweep.diagnose.floor`); the
+   linearised refit of the 57 parameters on each (with the refinement's prior) moves them by
+   ``dz_d``;
 2. on ``draws`` noise-only copies of the test windows, the model's residual plus the test
-   Jacobian times ``dz_d`` is the residual of that refitted model there: J of it is one draw.
+   Jacobian times ``dz_d`` is the refitted model's residual: J of it is one draw.
 
-The model misses the test recordings significantly when their J exceeds the ``1 - alpha``
-quantile of the null by more than ``margin``, an allowance for identifications that stop short of
-the least-squares optimum (in the planted benchmark, models identified on data without missing
-physics reached up to 1.15 x that 99 % quantile: :data:`MARGIN`). The same comparison per test
-run says where.
+The misfit is significant when the test J exceeds the null's ``1 - alpha`` quantile by more than
+``margin`` (:data:`MARGIN`, an allowance for identifications that stop short of the optimum); the
+same comparison per test run says where.
 """
 
 from __future__ import annotations
@@ -42,8 +36,8 @@ FloatArray = NDArray[np.float64]
 #: false-alarm rate of the test, before the margin
 ALPHA = 0.01
 #: the test J must exceed the null's 1 - ALPHA quantile by this share. Measured on the planted
-#: benchmark's eight no-effect cases (procedure 10): test J at 0.47-1.15 x that quantile, the
-#: highest a base whose training J had stopped 8 % above the floor of a fitted model
+#: benchmark's eight no-effect cases: test J at 0.47-1.15 x that quantile, the highest a base
+#: whose training J had stopped 8 % above the floor of a fitted model
 MARGIN = 0.25
 #: noise-only copies of the training and of the test windows
 DRAWS = 100

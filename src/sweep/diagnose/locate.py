@@ -36,7 +36,9 @@ from mmg import Effect, Parameters, simulate_batch
 from sweep.data.objective import DEFAULT_FLOORS, observables, split_recording
 from sweep.data.recordings import Recording
 
+#: the standardised residual channels (the J2 observables)
 CHANNELS = ("x0", "u", "y0", "v_m", "sin_psi", "cos_psi", "r")
+#: channel groups: velocities (J1's channels) and track (J3's)
 GROUPS = {"velocity": ("u", "v_m", "r"), "track": ("x0", "y0", "sin_psi", "cos_psi")}
 #: regime variables and their bin edges
 BINS: dict[str, np.ndarray] = {
@@ -203,6 +205,7 @@ def rank_windows(frame: pd.DataFrame, group: str = "velocity", top: int = 10) ->
     return table.head(top).reset_index()
 
 
+#: the recorded accelerations used as regime variables (u_dot [m/s^2], v_dot, r_dot)
 ACCELERATIONS = ("u_dot", "v_dot", "r_dot")
 
 

@@ -6,11 +6,8 @@ sample k, with trapezoid weights w_k,
     J = sum_s sum_j sum_k r_sjk^2,   r_sjk = sqrt(w_k dt) (z_hat_in - z_hat_sim)_sjk
 
 (:func:`residual_vectors`; the sum of squares equals :meth:`Objective.evaluate` to rounding).
-Near a minimum, Gauss-Newton steps on r converge in a few tens of iterations where CMA-ES needs
-thousands of evaluations, and they are deterministic: two refinements from the same start differ
-only by what their models can explain. That is what the diagnosis needs to compare a base model
-with and without a candidate effect (:mod:`sweep.diagnose.run`), and what a CMA-ES result gains
-from a final polish.
+Near a minimum this converges in a few tens of iterations and is deterministic, which is what
+the diagnosis needs to compare models with and without a candidate effect.
 
 The Jacobian is a forward difference in the normalised box ([0, 1] per coordinate), all n + 1
 simulations in one batch; each iteration tries several damping factors lambda in one more batch
@@ -324,9 +321,11 @@ def _polish(
     n = width.size
 
     def to_theta(z: FloatArray) -> FloatArray:
+        """Box coordinates z (..., n) in [0, 1] -> parameters theta (..., n)."""
         return np.asarray(box.lower + z * width)
 
     def to_z(theta: FloatArray) -> FloatArray:
+        """Parameters theta (..., n) -> box coordinates z (..., n), clipped to [0, 1]."""
         return np.clip((np.asarray(theta, dtype=np.float64) - box.lower) / width, 0.0, 1.0)
 
     z = to_z(theta0)
@@ -335,6 +334,8 @@ def _polish(
     pm[: s.prior_dims] = s.prior_weight
 
     def prior(zs: FloatArray) -> FloatArray:
+        """Prior penalty (...,) of box points zs (..., n): weighted squared distance from the
+        prior centre over the first ``prior_dims`` coordinates."""
         return np.asarray((pm * (zs - z_prior) ** 2).sum(axis=-1))
 
     r, bad = residual_vectors(obj, to_theta(z)[None])

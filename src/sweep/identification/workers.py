@@ -68,6 +68,7 @@ class InProcess:
             numba.set_num_threads(max(1, min(threads, _max_threads())))
 
     def __call__(self, thetas: FloatArray) -> FloatArray:
+        """Objective values (C,) of the candidates ``thetas`` (C, n)."""
         return safe_evaluate(self.objective, np.asarray(thetas, dtype=np.float64))
 
     @property
@@ -117,6 +118,10 @@ class ProcessPool:
         )
 
     def __call__(self, thetas: FloatArray) -> FloatArray:
+        """Objective values (C,) of the candidates ``thetas`` (C, n), one chunk per worker.
+
+        A chunk whose worker fails is evaluated again here and the pool is restarted.
+        """
         X = np.asarray(thetas, dtype=np.float64)
         chunks = [c for c in np.array_split(X, min(self.workers, len(X))) if len(c)]
         futures = [self._pool.submit(_work, c) for c in chunks]
@@ -135,6 +140,7 @@ class ProcessPool:
         return np.concatenate(results)
 
     def close(self) -> None:
+        """Stop the worker processes (waits for them; pending chunks are cancelled)."""
         self._pool.shutdown(wait=True, cancel_futures=True)
 
     def __enter__(self) -> ProcessPool:

@@ -52,6 +52,7 @@ COLUMNS = {
     "total": "Total",
 }
 
+#: objective values by objective and test subset, {J: {subset: value}} (``SUBSETS`` names)
 ScoreTable = dict[str, dict[str, float]]
 
 

@@ -66,6 +66,7 @@ class _EvalWorker:
         self.objective = objective
 
     def evaluate(self, thetas: np.ndarray) -> np.ndarray:
+        """Objective values (C,) of the candidates ``thetas`` (C, n)."""
         return safe_evaluate(self.objective, thetas)
 
     def seconds(self) -> float:
@@ -73,6 +74,7 @@ class _EvalWorker:
         return self.objective.cpu_seconds
 
 
+#: the Ray actor class of :class:`_EvalWorker` (1 CPU unless ``options`` say otherwise)
 EvalWorker: Any = _remote(num_cpus=1)(_EvalWorker)
 
 
@@ -91,6 +93,10 @@ class RayEvaluator:
         return EvalWorker.options(num_cpus=self.cpus).remote(self._ref, self.threads)
 
     def __call__(self, thetas: np.ndarray) -> np.ndarray:
+        """Objective values (C,) of the candidates ``thetas`` (C, n), one chunk per worker.
+
+        A chunk whose worker is lost or fails is evaluated here and the worker replaced.
+        """
         X = np.asarray(thetas, dtype=np.float64)
         chunks = [c for c in np.array_split(X, min(len(self.workers), len(X))) if len(c)]
         refs = [w.evaluate.remote(c) for w, c in zip(self.workers, chunks, strict=False)]
@@ -109,6 +115,7 @@ class RayEvaluator:
         return np.concatenate(out)
 
     def close(self) -> None:
+        """Add the workers' simulator CPU time to :attr:`sim_seconds` and stop them."""
         try:
             self.sim_seconds += float(sum(ray.get([w.seconds.remote() for w in self.workers])))
         except Exception:  # timing is best effort; a dead worker took its count with it
@@ -131,15 +138,18 @@ class _JobActor:
         self._status: dict[str, float] = {}
 
     def run(self, spec: JobSpec, workers: int, plots: bool = True, cpus: float = 1.0) -> Any:
+        """Run the job with ``workers`` evaluation actors of ``cpus`` CPUs each; its outcome."""
         return run_job(spec, lambda obj: RayEvaluator(obj, workers, cpus), self._set, plots)
 
     def _set(self, row: dict[str, float]) -> None:
         self._status = row
 
     def status(self) -> dict[str, float]:
+        """The last progress row of the running job (empty before the first generation)."""
         return dict(self._status)
 
 
+#: the Ray actor class of :class:`_JobActor`: no CPU, two concurrent calls (run and status)
 JobActor: Any = _remote(num_cpus=0, max_concurrency=2)(_JobActor)
 
 
@@ -185,13 +195,16 @@ class RayExecutor:
         self.cpus_per_worker = max(1e-4, math.floor(cpus_per_worker * 1e4) / 1e4)
 
     def capacity(self) -> int:
+        """How many jobs fit at once: cluster CPUs / (workers per job x CPUs per worker)."""
         cpus = float(ray.cluster_resources().get("CPU", 1))
         return max(1, int(cpus / (self.workers_per_job * self.cpus_per_worker) + 1e-9))
 
     def lost(self, error: BaseException) -> bool:
+        """Whether a job's error means lost to the infrastructure (resubmit it): :func:`is_lost`."""
         return is_lost(error)
 
     def submit(self, spec: JobSpec) -> Any:
+        """Start the job on a new coordinator actor; the handle (an object ref) of its outcome."""
         # coordinators spread over the nodes: a lost node takes as few of them as it can
         actor = JobActor.options(scheduling_strategy="SPREAD").remote()
         ref = actor.run.remote(spec, self.workers_per_job, self.plots, self.cpus_per_worker)
@@ -199,6 +212,8 @@ class RayExecutor:
         return ref
 
     def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, Any]]:
+        """(handle, outcome or exception) of the jobs among ``handles`` that finish within
+        ``timeout`` seconds; their coordinator actors are stopped."""
         if not handles:
             return []
         ready, _ = ray.wait(list(handles), num_returns=len(handles), timeout=timeout)
@@ -215,6 +230,7 @@ class RayExecutor:
         return out
 
     def status(self, handle: Any) -> Mapping[str, float] | None:
+        """The running job's last progress row; None when unknown or not answering in 2 s."""
         actor = self._actors.get(handle)
         if actor is None:
             return None
@@ -224,11 +240,13 @@ class RayExecutor:
             return None
 
     def cancel(self, handles: Sequence[Any]) -> None:
+        """Stop the jobs ``handles`` (their coordinators; checkpoints stay)."""
         for ref in handles:
             actor = self._actors.pop(ref, None)
             if actor is not None:
                 ray.kill(actor, no_restart=True)
 
     def shutdown(self) -> None:
+        """Cancel every running job and shut Ray down."""
         self.cancel(list(self._actors))
         ray.shutdown()

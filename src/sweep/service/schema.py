@@ -89,12 +89,19 @@ def _address(v: Any) -> bool:
 
 @dataclass(frozen=True)
 class Rule:
+    """One validation rule of the composed configuration: a key, its check and what it allows.
+
+    ``allowed`` is what the one-line error says the key accepts (``config key seed = -1: a
+    non-negative integer (seed=0,1,2)``); a key that is not ``required`` may be absent.
+    """
+
     key: str  # dotted path in the composed configuration
     check: Callable[[Any], bool]
     allowed: str
     required: bool = True
 
 
+#: every rule :func:`validate` checks, in order
 RULES: tuple[Rule, ...] = (
     Rule("seed", lambda v: _is_int(v) and v >= 0, "a non-negative integer (seed=0,1,2)"),
     Rule(

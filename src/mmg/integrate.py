@@ -219,7 +219,8 @@ def _rows(
     R = P_rows.shape[0]
 
     def lanes(a: FloatArray, k: int) -> FloatArray:
-        """Points (..., k) broadcast to ``shape`` -> kernel lanes (k, R * M), row-major in R."""
+        """Points (..., k) broadcast to ``shape`` -> kernel lanes (k, R * M); lane r M + m is
+        parameter row r at point m."""
         pts = np.broadcast_to(a, (*shape, k)).reshape(M, k).T
         return kernel_array(np.broadcast_to(pts[:, None, :], (k, R, M)).reshape(k, R * M))
 

@@ -56,7 +56,8 @@ def single_job(cfg: DictConfig) -> Any:
 
 @hydra.main(version_base=None, config_path=CONF, config_name="config")
 def main(cfg: DictConfig) -> Any:
-    """Hydra's entry: one job here, or a multirun through the launcher plugin (Ray).
+    """Hydra's task function: a single run, one job in this process (a multirun goes to the
+    ``mmg_ray`` launcher instead, which does not call it).
 
     Raises SystemExit(1) when the job failed; returns the sweep summary.
     """

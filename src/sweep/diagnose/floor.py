@@ -5,8 +5,8 @@
    the residual of a cubic Savitzky-Golay smoother (``window_s``): its variance and lag-1 and
    lag-2 correlations are matched to those an AR(1) noise leaves through the same filter.
 2. **Floor of J** (:func:`noise_floor`): J, computed as the objective does, of the identified
-   model's simulations against themselves plus ``draws`` noise series: what a model exact in
-   form and values would reach on these windows, with its spread over draws.
+   model against synthetic recordings (its own simulation of each training window plus one of
+   ``draws`` noise series): what a model exact in form and values would reach, with its spread.
 3. **Test** (:func:`misfit_test`): the base model's J against the floor of a *fitted* model (the
    floor times ``refit_factor``, the share of the noise's J a refit of the 57 parameters keeps,
    from :mod:`sweep.diagnose.threshold`); significant when the total exceeds it by more than

@@ -62,3 +62,7 @@ smoke:  ## a two-job sweep at budget=smoke
 
 ui:  ## the MLflow UI on 127.0.0.1:5000 for ./mlflow.db, opened on the sweep's runs table
 	$(PY) -m sweep.ui --tracking-uri sqlite:///$(CURDIR)/mlflow.db --port 5000
+
+.PHONY: docs
+docs:  ## the documentation site (MkDocs, strict) into build/site
+	$(PY) -m mkdocs build --strict --site-dir build/site

@@ -13,7 +13,6 @@ from mmg import derivatives, efd_parameters, get_effect
 from mmg.discovered import discovered_effect, effect_name
 from sweep.data.recordings import Recording, read_recordings
 from sweep.diagnose.__main__ import main
-from sweep.diagnose.fit import with_effects
 from sweep.diagnose.floor import NoiseModel, calibrated_noise, misfit_test, noise_floor
 from sweep.diagnose.planted import (
     PlantedSpec,
@@ -24,6 +23,7 @@ from sweep.diagnose.planted import (
     write_case,
 )
 from sweep.diagnose.run import cut_windows
+from sweep.identification.vector import with_effects
 
 KINDS = ("random", "turning", "zigzag")
 

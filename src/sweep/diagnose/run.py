@@ -100,7 +100,7 @@ from mmg.precompile import precompile, tasks
 from sweep.data.objective import CHANNELS, OBJECTIVES, T_F, Objective, split_recording
 from sweep.data.recordings import Recording
 from sweep.diagnose.discover import DiscoverySettings, Proposal, discover, resemblance
-from sweep.diagnose.fit import Fit, FitSettings, effect_values, fit, with_effects
+from sweep.diagnose.fit import Fit, FitSettings, fit
 from sweep.diagnose.floor import (
     MisfitTest,
     NoiseModel,
@@ -128,6 +128,7 @@ from sweep.diagnose.threshold import (
     acceptance_null,
 )
 from sweep.identification.polish import PolishSettings
+from sweep.identification.vector import effect_values, with_effects
 
 FloatArray = NDArray[np.float64]
 

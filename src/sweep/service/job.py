@@ -22,7 +22,6 @@ from mmg import Effect, Parameters, efd_parameters, get_effect, simulate_batch
 from sweep.data.datasets import split_from_mapping
 from sweep.data.objective import OBJECTIVES, Objective, split_recording
 from sweep.data.recordings import Recording, RecordingWarning
-from sweep.diagnose.fit import from_full_vector, full_vector, joint_box
 from sweep.identification.cmaes import (
     CHECKPOINT_SECONDS,
     Settings,
@@ -31,6 +30,7 @@ from sweep.identification.cmaes import (
     restart_table,
 )
 from sweep.identification.polish import LAMBDA_TRIALS, PolishSettings, polish
+from sweep.identification.vector import from_full_vector, full_vector, joint_box
 from sweep.service.outcome import SUBSETS, JobOutcome, complete_subsets, config_hash, make_job_key
 
 #: test-set labels of conf/test/paper.yaml -> metric suffixes

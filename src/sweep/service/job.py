@@ -32,6 +32,7 @@ from sweep.identification.cmaes import (
 from sweep.identification.polish import LAMBDA_TRIALS, PolishSettings, polish
 from sweep.identification.vector import from_full_vector, full_vector, joint_box
 from sweep.service.outcome import SUBSETS, JobOutcome, complete_subsets, config_hash, make_job_key
+from sweep.service.storage import Location
 
 #: test-set labels of conf/test/paper.yaml -> metric suffixes
 SUBSET_OF_LABEL = {
@@ -65,8 +66,12 @@ class JobSpec:
     checkpoint_seconds: float = CHECKPOINT_SECONDS
 
     @property
-    def checkpoint_location(self) -> str | Path:
-        return self.checkpoint or self.job_dir / "checkpoint.pkl"
+    def checkpoint_location(self) -> Location | Path:
+        """Where the optimiser keeps the checkpoint: the storage location of ``checkpoint``, or
+        ``job_dir/checkpoint.pkl``."""
+        if self.checkpoint:
+            return Location(self.checkpoint)
+        return self.job_dir / "checkpoint.pkl"
 
     @property
     def config_hash(self) -> str:

@@ -146,12 +146,12 @@ def draw_plots(
     history: list[dict[str, float]], params: Parameters, test: Mapping[str, Recording], title: str
 ) -> dict[str, bytes]:
     """Convergence and test trajectories (best vs EFD vs recorded) as PNG bytes by file name."""
-    from sweep import report
+    from sweep.service.figures import plot_convergence, plot_trajectories
 
     files: dict[str, bytes] = {}
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "convergence.png"
-        report.plot_convergence(history, path)
+        plot_convergence(history, path)
         files[path.name] = path.read_bytes()
         efd = efd_parameters()
         for label in ("Test-B-S", "Test-B-P", "Test-R"):
@@ -164,7 +164,7 @@ def draw_plots(
                 "EFD": simulated_subsequences(rec, efd),
             }
             path = Path(tmp) / f"trajectory_{label}.png"
-            report.plot_trajectories(np.asarray(rec.x), sims, path, f"{title}: {label}")
+            plot_trajectories(np.asarray(rec.x), sims, path, f"{title}: {label}")
             files[path.name] = path.read_bytes()
     return files
 

@@ -110,7 +110,7 @@ class SweepSummary:
     failed: dict[str, str] = field(default_factory=dict)
     files: dict[str, Path] = field(default_factory=dict)
     retries: dict[str, int] = field(default_factory=dict)  # resubmissions per job key
-    tables: dict[str, Any] = field(default_factory=dict)  # {J: summary table} (sweep.report)
+    tables: dict[str, Any] = field(default_factory=dict)  # {J: summary table} (service.tables)
     seconds: float = 0.0
 
     @property
@@ -274,7 +274,8 @@ def run_sweep(
     A job lost to the infrastructure (``executor.lost``) is resubmitted, up to ``max_retries``
     times, and resumes from its last checkpoint wherever it lands; an error of the job's own
     code fails the job at once."""
-    from sweep import report
+    from sweep.service.figures import plot_sweep
+    from sweep.service.tables import summary_tables, write_tables
 
     t0 = time.perf_counter()
     efd_table = {k: dict(v) for k, v in efd.items()}
@@ -370,10 +371,10 @@ def run_sweep(
         raise
     outcomes = tracker.job_outcomes(parent)
     if outcomes:
-        tables = report.summary_tables(outcomes, efd_table)
-        summary.files = report.write_tables(tables, out_dir / "summary")
+        tables = summary_tables(outcomes, efd_table)
+        summary.files = write_tables(tables, out_dir / "summary")
         try:
-            figure = report.plot_sweep(
+            figure = plot_sweep(
                 tables, tracker.job_histories(parent), out_dir / "summary" / "sweep.png"
             )
             summary.files[figure.name] = figure

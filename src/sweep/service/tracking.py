@@ -39,7 +39,6 @@ from mlflow.entities import Metric, Param, Run, ViewType
 from mlflow.exceptions import MlflowException
 
 from mmg import Parameters
-from sweep.report import job_note, sweep_note
 from sweep.service.outcome import (
     OBJECTIVE_NAMES,
     SUBSETS,
@@ -49,6 +48,7 @@ from sweep.service.outcome import (
     metric_name,
     source_version,
 )
+from sweep.service.tables import job_note, sweep_note
 
 #: longest error text stored in the ``error`` tag (MLflow allows 8000 characters)
 MAX_ERROR_TAG = 5000

@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from mmg._jit import subfunction
-from mmg.effects import Effect, EffectParam, register
+from mmg.effect import Effect, EffectParam
 
 
 class RudderOffsetParams(NamedTuple):
@@ -31,13 +31,11 @@ def rudder_offset_inputs(
     return delta_log + e.delta_0, n_log
 
 
-RUDDER_OFFSET = register(
-    Effect(
-        name="rudder_offset",
-        description="the logged rudder angle has a constant zero error",
-        regime="all motions with flow at the rudder; a steady yaw tendency on straight runs",
-        params=(EffectParam("delta_0", "rad", 0.0, -0.1, 0.1, "acting minus logged angle"),),
-        param_type=RudderOffsetParams,
-        inputs=rudder_offset_inputs,
-    )
+RUDDER_OFFSET = Effect(
+    name="rudder_offset",
+    description="the logged rudder angle has a constant zero error",
+    regime="all motions with flow at the rudder; a steady yaw tendency on straight runs",
+    params=(EffectParam("delta_0", "rad", 0.0, -0.1, 0.1, "acting minus logged angle"),),
+    param_type=RudderOffsetParams,
+    inputs=rudder_offset_inputs,
 )

@@ -94,7 +94,7 @@ from threadpoolctl import threadpool_limits
 
 from mmg import Effect, Parameters, catalog, get_effect
 from mmg.discovered import discovered_effect, with_bounds
-from mmg.effects import DISCOVERED_PREFIX
+from mmg.effect import DISCOVERED_PREFIX
 from mmg.params import N_THETA
 from mmg.precompile import precompile, tasks
 from sweep.data.objective import CHANNELS, OBJECTIVES, T_F, Objective, split_recording

@@ -4,7 +4,8 @@ The package in four concerns, and the commands at its top level:
 
 - :mod:`sweep.data` (recordings and objectives): validated recordings and their CSV/Parquet
   files (:mod:`sweep.data.recordings`), the paper's train/test splits and the data directory
-  (:mod:`sweep.data.datasets`), the objective functions J1, J2, J3 (:mod:`sweep.data.objective`);
+  (:mod:`sweep.data.datasets`), the objective functions J1, J2, J3 (:mod:`sweep.data.objective`),
+  parameter sets named on a command line (:mod:`sweep.data.parameters`);
 - :mod:`sweep.identification`: restart CMA-ES (:mod:`sweep.identification.cmaes`),
   Levenberg-Marquardt refinement (:mod:`sweep.identification.polish`), population evaluation in
   process or on worker processes (:mod:`sweep.identification.workers`), the parameter vector and
@@ -22,5 +23,6 @@ The package in four concerns, and the commands at its top level:
 Commands: ``python -m sweep`` (the Hydra sweep), ``sweep.evaluate``, ``sweep.identify``,
 ``sweep.diagnose``, ``sweep.report`` (a sweep's tables, regenerated from MLflow), ``sweep.publish``,
 ``sweep.ui`` (the MLflow UI on a sweep), ``sweep.download`` (the recordings at a pinned commit);
-:mod:`sweep.errors` turns user mistakes into one-line errors for all of them.
+:mod:`sweep.errors` (importing nothing of ``sweep``: every layer derives its users' mistakes
+from its :class:`~sweep.errors.UserError`) turns them into one-line errors for all of them.
 """

@@ -39,6 +39,7 @@ from mlflow.entities import Metric, Param, Run, ViewType
 from mlflow.exceptions import MlflowException
 
 from mmg import Parameters
+from sweep.errors import UserError
 from sweep.service.outcome import (
     OBJECTIVE_NAMES,
     SUBSETS,
@@ -59,7 +60,7 @@ PARENT_TAG = "mlflow.parentRunId"
 HISTORY_METRICS = ("best_so_far", "best_f", "median_f", "popsize", "sigma", "evaluations")
 
 
-class ConfigChangedError(RuntimeError):
+class ConfigChangedError(RuntimeError, UserError):
     """A finished run of the same job exists but was made with another configuration."""
 
     def __init__(self, job_key: str, old_hash: str, new_hash: str, run_id: str) -> None:

@@ -274,9 +274,6 @@ def run_sweep(
     A job lost to the infrastructure (``executor.lost``) is resubmitted, up to ``max_retries``
     times, and resumes from its last checkpoint wherever it lands; an error of the job's own
     code fails the job at once."""
-    from sweep.service.figures import plot_sweep
-    from sweep.service.tables import summary_tables, write_tables
-
     t0 = time.perf_counter()
     efd_table = {k: dict(v) for k, v in efd.items()}
     parent = tracker.start_sweep(name, dict(sweep_config or {}), efd_table)
@@ -314,73 +311,113 @@ def run_sweep(
                     todo.insert(0, spec)
                     continue
                 done_evals += budget[spec.key]
-                if isinstance(result, BaseException):
-                    error = "".join(traceback.format_exception(result))
-                    tracker.log_failure(
-                        parent,
-                        spec.key,
-                        {"objective": spec.objective, "train": spec.train, "seed": str(spec.seed)},
-                        dict(spec.config),
-                        error,
-                    )
-                    summary.failed[spec.key] = f"{type(result).__name__}: {result}"
-                else:
-                    outcome, files = result
-                    outcome.retries = summary.retries.get(spec.key, 0)
-                    plots = spec.job_dir / "plots"
-                    plots.mkdir(parents=True, exist_ok=True)
-                    for fname, data in files.items():
-                        (plots / fname).write_bytes(data)
-                    tracker.log_job(parent, outcome, plots)
-                    summary.finished.append(spec.key)
-                    if on_outcome is not None:
-                        on_outcome(outcome)
+                _record_result(spec, result, tracker, parent, summary, on_outcome)
             live = sum(float((executor.status(h) or {}).get("evaluations", 0.0)) for h in running)
-            lines = [
-                f"jobs: {len(summary.finished)} done, {len(running)} running, "
-                f"{len(summary.failed)} failed, {len(todo)} pending, "
-                f"{len(summary.skipped)} skipped | "
-                f"{_eta(done_evals + live, total_evals, time.perf_counter() - t0)}"
-            ]
-            for h, spec in running.items():
-                st = executor.status(h) or {}
-                if "lm_iteration" in st:  # cmaes.polish: the refinement after the restarts
-                    lines.append(
-                        f"  {spec.key}: Levenberg-Marquardt iteration "
-                        f"{int(st['lm_iteration'])}/{int(st.get('lm_iterations', 0))} "
-                        f"J {st['lm_f']:.1f} "
-                        f"(CMA-ES best {st.get('best_so_far', float('nan')):.1f})"
-                    )
-                elif st:
-                    lines.append(
-                        f"  {spec.key}: restart {int(st.get('restart', 0))} "
-                        f"pop {int(st.get('popsize', 0))} "
-                        f"evals {int(st.get('evaluations', 0))}/{int(budget[spec.key])} "
-                        f"best {st.get('best_so_far', float('nan')):.1f}"
-                        + (
-                            f" (retry {summary.retries[spec.key]})"
-                            if summary.retries.get(spec.key)
-                            else ""
-                        )
-                    )
-                else:
-                    lines.append(f"  {spec.key}: starting")
+            eta = _eta(done_evals + live, total_evals, time.perf_counter() - t0)
+            lines = _status_lines(executor, running, len(todo), summary, budget, eta)
             progress.show("\n".join(lines), force=not running and not todo)
     except KeyboardInterrupt:
         executor.cancel(list(running))
         raise
-    outcomes = tracker.job_outcomes(parent)
-    if outcomes:
-        tables = summary_tables(outcomes, efd_table)
-        summary.files = write_tables(tables, out_dir / "summary")
-        try:
-            figure = plot_sweep(
-                tables, tracker.job_histories(parent), out_dir / "summary" / "sweep.png"
-            )
-            summary.files[figure.name] = figure
-        except Exception as exc:  # the figure is a convenience: the tables must still land
-            progress.note(f"warning: the sweep figure could not be drawn ({exc})")
-        summary.tables = tables
-        tracker.finish_sweep(parent, tables, summary.files)
+    _write_summary(tracker, parent, efd_table, out_dir, summary, progress)
     summary.seconds = time.perf_counter() - t0
     return summary
+
+
+def _record_result(
+    spec: JobSpec,
+    result: Any,
+    tracker: Any,
+    parent: str,
+    summary: SweepSummary,
+    on_outcome: Callable[[JobOutcome], None] | None,
+) -> None:
+    """Log a job that ended: its error as a failed run, or its outcome with its plot files
+    (written to ``job_dir/plots``); counted in ``summary``."""
+    if isinstance(result, BaseException):
+        error = "".join(traceback.format_exception(result))
+        tracker.log_failure(
+            parent,
+            spec.key,
+            {"objective": spec.objective, "train": spec.train, "seed": str(spec.seed)},
+            dict(spec.config),
+            error,
+        )
+        summary.failed[spec.key] = f"{type(result).__name__}: {result}"
+        return
+    outcome, files = result
+    outcome.retries = summary.retries.get(spec.key, 0)
+    plots = spec.job_dir / "plots"
+    plots.mkdir(parents=True, exist_ok=True)
+    for fname, data in files.items():
+        (plots / fname).write_bytes(data)
+    tracker.log_job(parent, outcome, plots)
+    summary.finished.append(spec.key)
+    if on_outcome is not None:
+        on_outcome(outcome)
+
+
+def _status_lines(
+    executor: Executor,
+    running: Mapping[Any, JobSpec],
+    pending: int,
+    summary: SweepSummary,
+    budget: Mapping[str, float],
+    eta: str,
+) -> list[str]:
+    """The progress display: the jobs' counts and the ETA, then one line per running job (its
+    restart, population, evaluations of its budget and best f, or its refinement's iteration)."""
+    lines = [
+        f"jobs: {len(summary.finished)} done, {len(running)} running, "
+        f"{len(summary.failed)} failed, {pending} pending, "
+        f"{len(summary.skipped)} skipped | {eta}"
+    ]
+    for h, spec in running.items():
+        st = executor.status(h) or {}
+        if "lm_iteration" in st:  # cmaes.polish: the refinement after the restarts
+            lines.append(
+                f"  {spec.key}: Levenberg-Marquardt iteration "
+                f"{int(st['lm_iteration'])}/{int(st.get('lm_iterations', 0))} "
+                f"J {st['lm_f']:.1f} "
+                f"(CMA-ES best {st.get('best_so_far', float('nan')):.1f})"
+            )
+        elif st:
+            lines.append(
+                f"  {spec.key}: restart {int(st.get('restart', 0))} "
+                f"pop {int(st.get('popsize', 0))} "
+                f"evals {int(st.get('evaluations', 0))}/{int(budget[spec.key])} "
+                f"best {st.get('best_so_far', float('nan')):.1f}"
+                + (f" (retry {summary.retries[spec.key]})" if summary.retries.get(spec.key) else "")
+            )
+        else:
+            lines.append(f"  {spec.key}: starting")
+    return lines
+
+
+def _write_summary(
+    tracker: Any,
+    parent: str,
+    efd_table: Mapping[str, Mapping[str, float]],
+    out_dir: Path,
+    summary: SweepSummary,
+    progress: Progress,
+) -> None:
+    """The summary tables of every logged job (and the sweep figure) to ``out_dir/summary``,
+    logged to the parent run; nothing when no job has an outcome."""
+    from sweep.service.figures import plot_sweep
+    from sweep.service.tables import summary_tables, write_tables
+
+    outcomes = tracker.job_outcomes(parent)
+    if not outcomes:
+        return
+    tables = summary_tables(outcomes, efd_table)
+    summary.files = write_tables(tables, out_dir / "summary")
+    try:
+        figure = plot_sweep(
+            tables, tracker.job_histories(parent), out_dir / "summary" / "sweep.png"
+        )
+        summary.files[figure.name] = figure
+    except Exception as exc:  # the figure is a convenience: the tables must still land
+        progress.note(f"warning: the sweep figure could not be drawn ({exc})")
+    summary.tables = tables
+    tracker.finish_sweep(parent, tables, summary.files)

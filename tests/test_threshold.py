@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from benchmarks.planted import PlantedSpec, generate, noise_levels, perturbed_ship, pick_windows
 
 from mmg import get_effect
 from mmg.discovered import with_bounds
@@ -14,7 +15,6 @@ from mmg.params import N_THETA
 from sweep.data.recordings import Recording, read_recordings
 from sweep.diagnose.fit import FitSettings, fit
 from sweep.diagnose.floor import NoiseModel, simulate_windows
-from sweep.diagnose.planted import PlantedSpec, generate, noise_levels, perturbed_ship, pick_windows
 from sweep.diagnose.run import cut_windows, delta_bic, n_effective
 from sweep.diagnose.threshold import CEILING, Linearised, acceptance_null
 from sweep.identification.polish import PolishSettings

@@ -18,7 +18,7 @@ The package in four concerns, and the commands at its top level:
   tables and run notes (:mod:`sweep.service.tables`), figures (:mod:`sweep.service.figures`),
   MLflow (:mod:`sweep.service.tracking`);
 - :mod:`sweep.diagnose` (missing physics): location, noise floor, discovery, calibrated
-  acceptance, the planted benchmark's forms.
+  acceptance (the planted benchmark's forms are ``benchmarks.planted``, outside the package).
 
 Commands: ``python -m sweep`` (the Hydra sweep), ``sweep.evaluate``, ``sweep.identify``,
 ``sweep.diagnose``, ``sweep.report`` (a sweep's tables, regenerated from MLflow), ``sweep.publish``,

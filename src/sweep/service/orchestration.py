@@ -397,7 +397,7 @@ def _status_lines(
 def _write_summary(
     tracker: Any,
     parent: str,
-    efd_table: Mapping[str, Mapping[str, float]],
+    efd_table: dict[str, dict[str, float]],
     out_dir: Path,
     summary: SweepSummary,
     progress: Progress,

@@ -25,6 +25,8 @@ from mmg.trig import sincos
 
 
 class AHDriftParams(NamedTuple):
+    """The parameters of ``a_h_drift`` in kernel order (unit of each after its field)."""
+
     k_aH: float  # change of a_H at 90 deg drift [-]
 
 

@@ -23,6 +23,8 @@ from mmg.effect import Effect, EffectParam
 
 
 class ActuatorLagParams(NamedTuple):
+    """The parameters of ``actuator_lag`` in kernel order (unit of each after its field)."""
+
     T_delta: float  # rudder time constant [s]
     T_n: float  # propeller time constant [s]
     tau_delta: float  # rudder dead time [s]

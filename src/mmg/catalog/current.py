@@ -16,6 +16,8 @@ from mmg.trig import sincos
 
 
 class CurrentParams(NamedTuple):
+    """The parameters of ``current`` in kernel order (unit of each after its field)."""
+
     V_c: float  # current speed [m/s]
     beta_c: float  # direction the current flows TOWARDS, earth-fixed, clockwise from x0 [rad]
 

@@ -17,6 +17,8 @@ from mmg.effect import Effect, EffectParam
 
 
 class HeadingBiasParams(NamedTuple):
+    """The parameters of ``heading_bias`` in kernel order (unit of each after its field)."""
+
     b_psi: float  # logged minus true heading [rad]
     b_v: float  # rotation of the logged body velocities [rad]
 

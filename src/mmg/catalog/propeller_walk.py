@@ -15,6 +15,8 @@ from mmg.params import Ship, Theta
 
 
 class PropellerWalkParams(NamedTuple):
+    """The parameters of ``propeller_walk`` in kernel order (unit of each after its field)."""
+
     C_Yw: float  # Y = 0.5 rho L d (n_p D_p)^2 C_Yw [-]
     C_Nw: float  # N = 0.5 rho L^2 d (n_p D_p)^2 C_Nw [-]
 

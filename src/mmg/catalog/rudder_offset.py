@@ -15,6 +15,8 @@ from mmg.effect import Effect, EffectParam
 
 
 class RudderOffsetParams(NamedTuple):
+    """The parameters of ``rudder_offset`` in kernel order (unit of each after its field)."""
+
     delta_0: float  # acting minus logged rudder angle [rad]
 
 

@@ -28,6 +28,8 @@ from mmg.trig import atan2, sincos
 
 
 class RudderStallParams(NamedTuple):
+    """The parameters of ``rudder_stall`` in kernel order (unit of each after its field)."""
+
     alpha_s: float  # stall angle of attack [rad]
     k_s: float  # fraction of the growth of sin(alpha_R) lost beyond stall [-]
 

@@ -157,12 +157,15 @@ class Box:
 
     @property
     def n(self) -> int:
+        """The number of dimensions."""
         return int(self.lower.size)
 
     def to_theta(self, y: Any) -> FloatArray:
+        """Parameters (..., n) of normalised coordinates ``y`` (..., n)."""
         return self.lower + np.asarray(y, dtype=np.float64) * (self.upper - self.lower)
 
     def to_y(self, theta: Any) -> FloatArray:
+        """Normalised coordinates (..., n) of parameters ``theta`` (..., n)."""
         return (np.asarray(theta, dtype=np.float64) - self.lower) / (self.upper - self.lower)
 
     def rejected(self, theta: Any) -> bool:
@@ -181,6 +184,7 @@ class BoundPenalty(cma.BoundPenalty):
     upper bound."""
 
     def repair(self, x: Any, copy_if_changed: bool = True) -> Any:
+        """``x`` (n,) projected onto the box (a copy unless ``copy_if_changed`` is False)."""
         if not self.has_bounds():
             return x
         x = np.array(x, dtype=np.float64, copy=True) if copy_if_changed else x

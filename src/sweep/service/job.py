@@ -75,6 +75,7 @@ class JobSpec:
 
     @property
     def config_hash(self) -> str:
+        """The hash of ``config`` that identifies the job's result."""
         return config_hash(dict(self.config))
 
 
@@ -97,6 +98,7 @@ def polish_iterations(config: Mapping[str, Any]) -> int:
 
 
 def settings_of(config: Mapping[str, Any], seed: int) -> Settings:
+    """The CMA-ES settings of a job's config (its ``budget`` and ``cmaes`` groups) and seed."""
     budget = config["budget"]
     cm = config["cmaes"]
     return Settings(

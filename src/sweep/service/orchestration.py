@@ -40,15 +40,27 @@ from sweep.service.outcome import JobOutcome
 class Executor(Protocol):
     """Where jobs run. Handles are opaque; ``wait`` returns (handle, outcome or exception)."""
 
-    def submit(self, spec: JobSpec) -> Any: ...
+    def submit(self, spec: JobSpec) -> Any:
+        """Start the job; returns its handle."""
+        ...
 
-    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, Any]]: ...
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, Any]]:
+        """The jobs among ``handles`` that ended within ``timeout`` seconds, as (handle, outcome
+        or exception) pairs; an outcome is (JobOutcome, {plot file name: PNG bytes})."""
+        ...
 
-    def status(self, handle: Any) -> Mapping[str, float] | None: ...
+    def status(self, handle: Any) -> Mapping[str, float] | None:
+        """The running job's latest progress row (restart, popsize, evaluations, best_so_far,
+        ...; see :func:`sweep.service.job.run_job`), or None before its first generation."""
+        ...
 
-    def cancel(self, handles: Sequence[Any]) -> None: ...
+    def cancel(self, handles: Sequence[Any]) -> None:
+        """Stop the jobs (their checkpoints stay)."""
+        ...
 
-    def capacity(self) -> int: ...
+    def capacity(self) -> int:
+        """How many jobs can run at once."""
+        ...
 
     def lost(self, error: BaseException) -> bool:
         """Whether ``error`` means the job was lost to the infrastructure (a node, an actor, a
@@ -68,6 +80,7 @@ class LocalExecutor:
         self._next = 0
 
     def submit(self, spec: JobSpec) -> int:
+        """Run the job to its end now; returns its handle (its outcome or error waits there)."""
         handle = self._next
         self._next += 1
 
@@ -84,15 +97,18 @@ class LocalExecutor:
         return handle
 
     def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, Any]]:
+        """Every finished job among ``handles`` (all of them: jobs run when submitted)."""
         return [(h, self._done.pop(h)) for h in handles if h in self._done]
 
     def status(self, handle: Any) -> Mapping[str, float] | None:
+        """The job's last progress row."""
         return self._status.get(handle)
 
     def cancel(self, handles: Sequence[Any]) -> None:
         """Jobs run synchronously: nothing is left to cancel."""
 
     def capacity(self) -> int:
+        """One job at a time."""
         return 1
 
     def lost(self, error: BaseException) -> bool:
@@ -115,6 +131,7 @@ class SweepSummary:
 
     @property
     def ok(self) -> bool:
+        """Whether no job failed."""
         return not self.failed
 
 
@@ -209,6 +226,7 @@ class Progress:
         self._lines = 0
 
     def show(self, text: str, force: bool = False) -> None:
+        """Replace the display by ``text`` (at most every ``every`` seconds unless ``force``)."""
         now = time.perf_counter()
         if not force and now - self._last < self.every:
             return

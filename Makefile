@@ -45,7 +45,7 @@ bench-grid-fit:  ## the grid at 3,000 and 30,000 evaluations per job, a fixed + 
 	$(PY) benchmarks/sweep_grid.py --evaluations 3000,30000
 
 bench-diagnose:  ## planted-effect benchmark of the diagnosis (34 cases: catalog, unlisted forms, none; 1-2 h on 2 cores)
-	$(PY) benchmarks/diagnose_planted.py --out benchmarks/out/diagnose
+	PYTHONPATH=. $(PY) benchmarks/diagnose_planted.py --out benchmarks/out/diagnose
 
 diagnose:  ## missing physics on the real recordings: best shipped model, Train-R, paper's test set
 	$(PY) -m sweep.diagnose --params results/best_params.json --train R --test paper \

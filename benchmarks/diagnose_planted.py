@@ -2,14 +2,14 @@
 
 Every case simulates 100-s windows of the real runs (their first states, controls and wind) with a
 "true" ship (EFD parameters perturbed by exp(N(0, 0.15)) each) and one planted effect, in the
-catalog's form or in another one (see :mod:`sweep.diagnose.planted`), at a realistic magnitude,
+catalog's form or in another one (see :mod:`benchmarks.planted`), at a realistic magnitude,
 or none; adds white measurement noise at the levels of the real recordings; writes the windows as
 CSV files, and runs :func:`sweep.diagnose.run.diagnose` on the files only (blind), starting from
 the EFD parameters. Printed per case: planted form, verdict, held-out improvement of the top
 candidates, recovered effect parameters; then per family the top-1 rate, the false-positive rate
 on the no-effect cases, parameter errors, and the test-set J2 before / after / of the true model.
 
-    python benchmarks/diagnose_planted.py [--cases all|quick|N,M,...] [--repeats R]
+    PYTHONPATH=. python benchmarks/diagnose_planted.py [--cases all|quick|N,M,...] [--repeats R]
         [--base-budget 6000] [--candidate-budget 0] [--final-budget 0] [--base-retry-agreement 0.01]
         [--scale 1] [--out DIR]
         [--weak] [--markdown]
@@ -40,11 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from mmg import Parameters, efd_parameters
-from sweep.data.datasets import data_root
-from sweep.data.objective import Objective
-from sweep.data.recordings import Recording, read_recordings
-from sweep.diagnose.planted import (
+from benchmarks.planted import (
     FAMILY,
     PlantedSpec,
     expected_verdict,
@@ -55,6 +51,10 @@ from sweep.diagnose.planted import (
     true_model,
     write_case,
 )
+from mmg import Parameters, efd_parameters
+from sweep.data.datasets import data_root
+from sweep.data.objective import Objective
+from sweep.data.recordings import Recording, read_recordings
 from sweep.diagnose.run import DiagnoseSettings, diagnose
 
 KINDS = ("random", "turning", "zigzag", "berthing")

@@ -22,12 +22,12 @@ import time
 import warnings
 from pathlib import Path
 
+from benchmarks.planted import PlantedSpec, true_model
 from mmg import Effect, Parameters, efd_parameters, get_effect
 from mmg.params import N_THETA
 from sweep.data.objective import Objective
 from sweep.data.recordings import read_recordings
 from sweep.diagnose.fit import FitSettings, fit
-from sweep.diagnose.planted import PlantedSpec, true_model
 from sweep.diagnose.run import cut_windows
 from sweep.identification.polish import PolishSettings
 

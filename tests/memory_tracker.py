@@ -13,8 +13,8 @@ from typing import Any
 
 import pandas as pd
 
-from sweep.report import job_note, sweep_note
 from sweep.service.outcome import JobOutcome, ScoreTable, config_hash
+from sweep.service.tables import job_note, sweep_note
 from sweep.service.tracking import (
     MAX_ERROR_TAG,
     NOTE_TAG,

@@ -10,17 +10,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from mmg import efd_parameters
-from sweep.data.recordings import read_recordings
-from sweep.diagnose.__main__ import main
-from sweep.diagnose.planted import (
+from benchmarks.planted import (
     PlantedSpec,
     generate,
     noise_levels,
     pick_windows,
     write_case,
 )
+
+from mmg import efd_parameters
+from sweep.data.recordings import read_recordings
+from sweep.diagnose.__main__ import main
 from sweep.diagnose.run import cut_windows, delta_bic, routes_agree, split_windows
 
 KINDS = ("random", "turning", "zigzag")
@@ -341,8 +341,9 @@ def test_a_planted_dead_time_is_the_catalog_lag_with_that_dead_time(runs):
     """The planted dead time (controls taken from the run's earlier samples) is what the catalog's
     actuator_lag computes with tau_delta = tau_n = tau: on noise-free windows its J2 is nearly 0
     (only the first tau seconds of each window differ), that of the plain ship is not."""
+    from benchmarks.planted import true_model
+
     from sweep.data.objective import Objective
-    from sweep.diagnose.planted import true_model
 
     rng = np.random.default_rng(5)
     wins = pick_windows(runs, {"zigzag": 2}, rng)

@@ -8,14 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from mmg import derivatives, efd_parameters, get_effect
-from mmg.discovered import discovered_effect, effect_name
-from sweep.data.recordings import Recording, read_recordings
-from sweep.diagnose.__main__ import main
-from sweep.diagnose.fit import with_effects
-from sweep.diagnose.floor import NoiseModel, calibrated_noise, misfit_test, noise_floor
-from sweep.diagnose.planted import (
+from benchmarks.planted import (
     PlantedSpec,
     generate,
     noise_levels,
@@ -23,7 +16,14 @@ from sweep.diagnose.planted import (
     pick_windows,
     write_case,
 )
+
+from mmg import derivatives, efd_parameters, get_effect
+from mmg.discovered import discovered_effect, effect_name
+from sweep.data.recordings import Recording, read_recordings
+from sweep.diagnose.__main__ import main
+from sweep.diagnose.floor import NoiseModel, calibrated_noise, misfit_test, noise_floor
 from sweep.diagnose.run import cut_windows
+from sweep.identification.vector import with_effects
 
 KINDS = ("random", "turning", "zigzag")
 
@@ -114,8 +114,9 @@ def test_a_terms_column_is_its_force_through_eq_1_without_the_rest_of_the_model(
 def test_earth_fixed_force_terms_are_a_basin_force_resolved_through_the_heading():
     """E_x0 and E_y0 (one coefficient each, entering X and Y) reproduce a steady force of any
     direction fixed to the basin (the planted earth_force form) at every heading."""
+    from benchmarks.planted import UNLISTED
+
     from mmg import ESSO_OSAKA
-    from sweep.diagnose.planted import UNLISTED
 
     eff = get_effect(effect_name(["E_x0", "E_y0"]))
     assert eff.param_names == ("C_E_x0", "C_E_y0")
@@ -179,7 +180,7 @@ def test_the_rudder_normal_force_term_is_the_planted_wash_moment_at_every_angle(
     """N_scdnn, sin(delta) cos(delta) (n_p D_p)^2, is the planted propeller-wash yaw moment
     (C_d sin(2 delta) (n_p D_p)^2, written by the planted form's own code) with C = 2 C_d at
     every rudder angle, where delta (n_p D_p)^2 and its cube only approximate it."""
-    from sweep.diagnose.planted import UNLISTED
+    from benchmarks.planted import UNLISTED
 
     eff = get_effect(effect_name(["N_scdnn"]))
     assert "sin(delta) cos(delta) (n_p D_p)^2" in eff.description
@@ -201,7 +202,7 @@ def test_the_planted_reverse_sway_is_in_the_papers_own_form():
     """The reversed propeller's side force of the planted benchmark is Eqs. (12)-(13) with their
     constant coefficients shifted (planted.IN_FORM): derivatives equal in every advance-ratio
     regime of the reversed propeller, and ahead (n_p > 0) the planted form adds nothing."""
-    from sweep.diagnose.planted import FAMILY, IN_FORM, UNLISTED, PlantedSpec
+    from benchmarks.planted import FAMILY, IN_FORM, UNLISTED, PlantedSpec
 
     assert FAMILY["reverse_sway"] == "in_form"
     assert PlantedSpec("reverse_sway", {"C_r": 1e-4}).expected == "none"
@@ -420,9 +421,10 @@ def test_a_step_across_the_basin_is_a_library_term_with_a_centre_and_a_width():
     U^2 tanh((y0 - y_b) / W_b), N = -0.2 L Y), at every position; the proposal's grid lays the
     centres at quantiles of the positions and the widths at shares of their range, and the
     trajectory fits search within a box around the chosen grid point."""
+    from benchmarks.planted import UNLISTED
+
     from mmg.discovered import with_bounds
     from mmg.library import CENTRE_QUANTILES, library_columns, shape_box, term
-    from sweep.diagnose.planted import UNLISTED
 
     eff = get_effect(effect_name(["Y_Usy", "N_Usy"]))
     assert eff.param_names == ("C_Y_Usy", "c_Y_Usy", "W_Y_Usy", "C_N_Usy", "c_N_Usy", "W_N_Usy")

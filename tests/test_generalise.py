@@ -7,15 +7,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from benchmarks.planted import PlantedSpec, generate, noise_levels, perturbed_ship, pick_windows
 
 from mmg import get_effect
 from mmg.discovered import with_bounds
 from sweep.data.recordings import Recording, read_recordings
-from sweep.diagnose.fit import with_effects
 from sweep.diagnose.floor import NoiseModel, simulate_windows
 from sweep.diagnose.generalise import generalisation_test
-from sweep.diagnose.planted import PlantedSpec, generate, noise_levels, perturbed_ship, pick_windows
 from sweep.diagnose.run import cut_windows
+from sweep.identification.vector import with_effects
 
 
 @pytest.fixture(scope="module")

@@ -13,15 +13,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from sweep.report import (
-    display_table,
-    main,
-    plot_convergence,
-    plot_trajectories,
-    summary_tables,
-    write_tables,
-)
+from sweep.report import main
+from sweep.service.figures import plot_convergence, plot_trajectories
 from sweep.service.outcome import COLUMNS, JobOutcome
+from sweep.service.tables import display_table, summary_tables, write_tables
 from sweep.service.tracking import MlflowTracker
 from tests.memory_tracker import NullTracker
 from tests.test_tracking import EFD, history, make_outcome, shared_store

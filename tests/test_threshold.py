@@ -7,17 +7,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from benchmarks.planted import PlantedSpec, generate, noise_levels, perturbed_ship, pick_windows
 
 from mmg import get_effect
 from mmg.discovered import with_bounds
 from mmg.params import N_THETA
 from sweep.data.recordings import Recording, read_recordings
-from sweep.diagnose.fit import FitSettings, fit, with_effects
+from sweep.diagnose.fit import FitSettings, fit
 from sweep.diagnose.floor import NoiseModel, simulate_windows
-from sweep.diagnose.planted import PlantedSpec, generate, noise_levels, perturbed_ship, pick_windows
 from sweep.diagnose.run import cut_windows, delta_bic, n_effective
 from sweep.diagnose.threshold import CEILING, Linearised, acceptance_null
 from sweep.identification.polish import PolishSettings
+from sweep.identification.vector import with_effects
 
 KINDS = ("random", "turning", "zigzag")
 

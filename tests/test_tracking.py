@@ -234,7 +234,7 @@ def test_job_outcomes_records(tracker: Tracker) -> None:
 def test_a_polished_job_reads_back_as_two_table_rows(tracker: Tracker) -> None:
     """cmaes.polish: the refined result's test scores go to the store as polish/* metrics and
     come back as their own row of the summary tables, right after the CMA-ES row."""
-    from sweep.report import summary_tables
+    from sweep.service.tables import summary_tables
 
     parent = tracker.start_sweep("s", {}, EFD)
     for seed in (0, 1):

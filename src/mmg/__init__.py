@@ -4,7 +4,12 @@
 >>> p = efd_parameters()
 """
 
-from mmg.effects import Effect, EffectParam, catalog, get_effect
+from mmg.effect import Effect, EffectParam
+
+# mmg.effects loads the subpackage mmg.catalog, binding it here as ``catalog``; the import of
+# the function below then binds the public name ``mmg.catalog`` to the function for good (a
+# loaded module is never bound again)
+from mmg.effects import catalog, get_effect
 from mmg.integrate import SimulationResult, derivatives, simulate, simulate_batch
 from mmg.model import all_forces
 from mmg.params import (

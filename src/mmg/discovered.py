@@ -3,9 +3,10 @@
 ``discovered_effect(["Y_vav", "N_rrr"])`` writes a small module with a parameter NamedTuple (one
 coefficient ``C_<term>`` per term, followed by the term's shape parameters, e.g. ``tau_N_bt``,
 if it has any) and a ``force_at`` hook that adds the terms' forces, imports
-it and registers the effect as ``discovered:Y_vav+N_rrr``. The module is generated from the
-library alone, so any process (a Ray worker, ``python -m sweep.evaluate`` on a saved parameter
-file) rebuilds the same effect from its name: :func:`mmg.get_effect` does so on first use.
+it and keeps the effect under the name ``discovered:Y_vav+N_rrr``. The module is generated from
+the library alone, so any process (a Ray worker, ``python -m sweep.evaluate`` on a saved
+parameter file) rebuilds the same effect from its name: :func:`mmg.get_effect` does so on first
+use (:func:`by_name`), and a pickled one does so when it is loaded (:class:`DiscoveredEffect`).
 Files live in ``<kernel dir>/effects`` and are named by a hash of their text.
 """
 
@@ -18,11 +19,12 @@ import re
 import sys
 import threading
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from mmg.effects import DISCOVERED_PREFIX, Effect, EffectParam, register
+from mmg.effect import DISCOVERED_PREFIX, Effect, EffectParam
 from mmg.library import T_REF, U_0, U_REF, Column, Term, shape_box, term
 
 FloatArray = NDArray[np.float64]
@@ -67,6 +69,19 @@ def {func}(t, x0, y0, u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh):
 '''
 
 _lock = threading.Lock()
+#: the generated effects of this process by name (the newest of each name)
+_generated: dict[str, DiscoveredEffect] = {}
+
+
+class DiscoveredEffect(Effect):
+    """A generated effect. It pickles by its name and parameter table: its module lives in the
+    kernel directory, not on the import path, so another process (a Ray worker) rebuilds it from
+    the library (:func:`rebuild`), as :func:`mmg.get_effect` does."""
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """(:func:`rebuild`, (name, parameter table))."""
+        return (rebuild, (self.name, tuple(tuple(p) for p in self.params)))
+
 
 #: what the generated code calls in place of the functions of :mod:`math` that terms are written
 #: with: the sine and cosine of the heading and of the rudder angle, taken once per call, and the
@@ -92,7 +107,7 @@ def _vectorisable(code: str) -> str:
 
 
 def effect_name(term_ids: Sequence[str]) -> str:
-    """The registry name of the effect made of these terms (in the given order)."""
+    """The name of the effect made of these terms (in the given order)."""
     return DISCOVERED_PREFIX + "+".join(term_ids)
 
 
@@ -140,7 +155,7 @@ def _source(name: str, terms: Sequence[Term], key: str) -> str:
 
 
 def discovered_effect(term_ids: Sequence[str], bound: float = DEFAULT_BOUND) -> Effect:
-    """The generated effect of ``term_ids`` (registered under :func:`effect_name`).
+    """The generated effect of ``term_ids`` (kept under :func:`effect_name` for :func:`by_name`).
 
     Raises ValueError for an empty list, an unknown or a repeated term.
     """
@@ -181,7 +196,7 @@ def discovered_effect(term_ids: Sequence[str], bound: float = DEFAULT_BOUND) -> 
             )
             for s in t.shape
         ]
-    effect = Effect(
+    effect = DiscoveredEffect(
         name=name,
         description="discovered terms " + "; ".join(t.force_formula() for t in terms),
         regime=", ".join(dict.fromkeys(t.kind for t in terms)),
@@ -189,7 +204,23 @@ def discovered_effect(term_ids: Sequence[str], bound: float = DEFAULT_BOUND) -> 
         param_type=getattr(module, f"DiscoveredParams_{key}"),
         force_at=getattr(module, f"discovered_force_{key}"),
     )
-    return register(effect)
+    _generated[name] = effect
+    return effect
+
+
+def by_name(name: str) -> Effect:
+    """The generated effect ``name`` (``discovered:<term>+<term>...``): the one made last in
+    this process, else made now from the library. Raises ValueError for an unknown or repeated
+    term."""
+    made = _generated.get(name)
+    if made is not None:
+        return made
+    return discovered_effect(name[len(DISCOVERED_PREFIX) :].split("+"))
+
+
+def generated_names() -> list[str]:
+    """The names of the effects generated so far in this process."""
+    return list(_generated)
 
 
 def coefficient_names(effect: Effect) -> list[str]:

@@ -19,7 +19,7 @@ from typing import Any
 import numba
 import numpy as np
 
-from mmg.effects import Effect
+from mmg.effect import Effect
 from mmg.kernel import LANE_BLOCK, LIMIT_A, load_kernel
 from mmg.params import ESSO_OSAKA, N_THETA, FloatArray, Parameters, Ship
 

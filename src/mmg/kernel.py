@@ -28,7 +28,7 @@ import llvmlite.binding as llvm
 import numba
 import platformdirs
 
-from mmg.effects import Effect
+from mmg.effect import Effect
 from mmg.model import Inertia
 from mmg.params import N_THETA
 

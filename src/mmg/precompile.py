@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mmg.effects import Effect, get_effect
+from mmg.effect import Effect
+from mmg.effects import get_effect
 from mmg.kernel import load_kernel
 from mmg.params import N_THETA, efd_parameters
 

@@ -7,5 +7,6 @@ Four concerns, one subpackage each, layered one way (each uses only those before
 :mod:`sweep.diagnose` (missing physics). The modules at the top level are the commands
 (``python -m sweep``, ``sweep.evaluate``, ``sweep.identify``, ``sweep.diagnose``,
 ``sweep.report``, ``sweep.publish``, ``sweep.ui``, ``sweep.download``); :mod:`sweep.errors`
-turns user mistakes into one-line errors for all of them.
+(importing nothing of ``sweep``: every layer derives its users' mistakes from its ``UserError``)
+turns them into one-line errors for all of them.
 """

@@ -1,4 +1,11 @@
-"""User mistakes become one line on stderr and exit status 2, never a traceback."""
+"""User mistakes become one line on stderr and exit status 2, never a traceback.
+
+A user mistake is a :class:`UserError`: the commands raise it for bad arguments, and the data,
+config and tracking layers' own mistakes derive from it (a missing recording or split, a bad
+recording file, a config value outside the rules, a refused config change). A bad parameter file
+raises :class:`mmg.ParameterError` (the model knows nothing of the commands). This module imports
+nothing of ``sweep``, so that every layer can derive its errors from it.
+"""
 
 from __future__ import annotations
 
@@ -7,28 +14,24 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 from mmg.params import ParameterError
-from sweep.data.datasets import DataNotFoundError, SplitError
-from sweep.data.recordings import RecordingError
-from sweep.service.schema import ConfigError
+
+
+class UserError(Exception):
+    """A mistake in the command's input, reported as one line."""
+
 
 #: exceptions that report a mistake in the user's input or set-up, not a bug
-USER_ERRORS: tuple[type[BaseException], ...] = (
-    DataNotFoundError,
-    SplitError,
-    RecordingError,
-    ParameterError,
-    ConfigError,
-)
+USER_ERRORS: tuple[type[BaseException], ...] = (UserError, ParameterError)
 
 
 @contextmanager
 def exit_on_user_error() -> Iterator[None]:
     """Turn a user error (including a refused config change) into ``error: ...`` and exit 2."""
-    from sweep.service.tracking import ConfigChangedError
-
-    errors: tuple[type[BaseException], ...] = (*USER_ERRORS, ConfigChangedError)
     try:
         yield
-    except errors as exc:
+    except USER_ERRORS as exc:
         print(f"error: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
+
+
+__all__ = ["USER_ERRORS", "UserError", "exit_on_user_error"]

@@ -25,11 +25,13 @@ import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
-from mmg.effects import Effect, get_effect
-from mmg.params import ParameterError, Parameters, efd_parameters
-from sweep.data.datasets import DataNotFoundError, SplitError, load_split
+from mmg import Effect, get_effect
+from mmg.params import Parameters
+from sweep.data.datasets import load_split
 from sweep.data.objective import OBJECTIVES, Objective
-from sweep.data.recordings import Recording, RecordingError, read_recordings
+from sweep.data.parameters import load_parameters
+from sweep.data.recordings import Recording, read_recordings
+from sweep.errors import USER_ERRORS, UserError
 
 #: the paper's column order (Tables 6-8)
 TEST_COLUMNS = (
@@ -43,20 +45,6 @@ TEST_COLUMNS = (
 )
 
 Table = dict[str, dict[str, float]]
-
-
-class UserError(Exception):
-    """A mistake in the command's input, reported as one line."""
-
-
-def load_parameters(spec: str) -> Parameters:
-    """``efd`` or the path of a parameter JSON file (as written by Parameters.save_json)."""
-    if spec.lower() == "efd":
-        return efd_parameters()
-    path = Path(spec)
-    if not path.exists():
-        raise UserError(f"{path}: no such parameter file (use 'efd' or a JSON file)")
-    return Parameters.load_json(path)
 
 
 def effects_of(params: Parameters) -> tuple[Effect, ...]:
@@ -154,7 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     warnings.simplefilter("default")
     try:
         run(argv)
-    except (UserError, ParameterError, RecordingError, DataNotFoundError, SplitError) as exc:
+    except USER_ERRORS as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     return 0

@@ -150,7 +150,7 @@ class MmgRayLauncher(Launcher):
             executor.shutdown()
         LAST_SUMMARY = summary
         if "J2" in summary.tables:
-            from sweep.report import format_table
+            from sweep.service.tables import format_table
 
             # the user's question, answered in the terminal: the J2 table, the others' paths
             print("\n" + format_table(summary.tables["J2"], "J2 on the test set"), file=sys.stderr)

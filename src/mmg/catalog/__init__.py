@@ -1,4 +1,5 @@
-"""Catalog of candidate extra physics (see :mod:`mmg.effects`). Each module registers one effect."""
+"""Catalog of candidate extra physics (what an effect is: :mod:`mmg.effect`). Each module
+defines one effect; :data:`EFFECTS` lists them, and :mod:`mmg.effects` knows them by name."""
 
 from mmg.catalog import (
     a_h_drift,
@@ -9,8 +10,21 @@ from mmg.catalog import (
     rudder_offset,
     rudder_stall,
 )
+from mmg.effect import Effect
+
+#: the catalog's effects, in the order :func:`mmg.catalog` lists them
+EFFECTS: tuple[Effect, ...] = (
+    a_h_drift.A_H_DRIFT,
+    actuator_lag.ACTUATOR_LAG,
+    current.CURRENT,
+    heading_bias.HEADING_BIAS,
+    propeller_walk.PROPELLER_WALK,
+    rudder_offset.RUDDER_OFFSET,
+    rudder_stall.RUDDER_STALL,
+)
 
 __all__ = [
+    "EFFECTS",
     "a_h_drift",
     "actuator_lag",
     "current",

@@ -17,7 +17,7 @@ import math
 from typing import NamedTuple
 
 from mmg._jit import subfunction
-from mmg.effects import Effect, EffectParam, register
+from mmg.effect import Effect, EffectParam
 from mmg.model import rudder_inflow_at
 from mmg.params import Ship, Theta
 from mmg.rudder import lift_gradient
@@ -25,6 +25,8 @@ from mmg.trig import sincos
 
 
 class AHDriftParams(NamedTuple):
+    """The parameters of ``a_h_drift`` in kernel order (unit of each after its field)."""
+
     k_aH: float  # change of a_H at 90 deg drift [-]
 
 
@@ -58,13 +60,11 @@ def a_h_drift_force(
     return 0.0, dY, dN
 
 
-A_H_DRIFT = register(
-    Effect(
-        name="a_h_drift",
-        description="the rudder-hull interaction a_H changes with the drift angle",
-        regime="large drift angle |beta| (>= 20-45 deg) with the rudder loaded",
-        params=(EffectParam("k_aH", "-", 0.0, -2.0, 2.0, "change of a_H at 90 deg drift"),),
-        param_type=AHDriftParams,
-        force=a_h_drift_force,
-    )
+A_H_DRIFT = Effect(
+    name="a_h_drift",
+    description="the rudder-hull interaction a_H changes with the drift angle",
+    regime="large drift angle |beta| (>= 20-45 deg) with the rudder loaded",
+    params=(EffectParam("k_aH", "-", 0.0, -2.0, 2.0, "change of a_H at 90 deg drift"),),
+    param_type=AHDriftParams,
+    force=a_h_drift_force,
 )

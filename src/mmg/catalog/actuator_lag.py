@@ -19,10 +19,12 @@ import math
 from typing import NamedTuple
 
 from mmg._jit import subfunction
-from mmg.effects import Effect, EffectParam, register
+from mmg.effect import Effect, EffectParam
 
 
 class ActuatorLagParams(NamedTuple):
+    """The parameters of ``actuator_lag`` in kernel order (unit of each after its field)."""
+
     T_delta: float  # rudder time constant [s]
     T_n: float  # propeller time constant [s]
     tau_delta: float  # rudder dead time [s]
@@ -56,22 +58,20 @@ def actuator_dead_times(e: ActuatorLagParams) -> tuple[float, float]:
     return e.tau_delta, e.tau_n
 
 
-ACTUATOR_LAG = register(
-    Effect(
-        name="actuator_lag",
-        description=(
-            "the acting rudder angle and propeller speed lag the logged values "
-            "(first-order lag and dead time)"
-        ),
-        regime="fast changes of the controls (rudder reversals, propeller reversals)",
-        params=(
-            EffectParam("T_delta", "s", 0.0, 0.0, 5.0, "rudder time constant"),
-            EffectParam("T_n", "s", 0.0, 0.0, 5.0, "propeller time constant"),
-            EffectParam("tau_delta", "s", 0.0, 0.0, 3.0, "rudder dead time"),
-            EffectParam("tau_n", "s", 0.0, 0.0, 3.0, "propeller dead time"),
-        ),
-        param_type=ActuatorLagParams,
-        inputs=actuator_lag_inputs,
-        delay=actuator_dead_times,
-    )
+ACTUATOR_LAG = Effect(
+    name="actuator_lag",
+    description=(
+        "the acting rudder angle and propeller speed lag the logged values "
+        "(first-order lag and dead time)"
+    ),
+    regime="fast changes of the controls (rudder reversals, propeller reversals)",
+    params=(
+        EffectParam("T_delta", "s", 0.0, 0.0, 5.0, "rudder time constant"),
+        EffectParam("T_n", "s", 0.0, 0.0, 5.0, "propeller time constant"),
+        EffectParam("tau_delta", "s", 0.0, 0.0, 3.0, "rudder dead time"),
+        EffectParam("tau_n", "s", 0.0, 0.0, 3.0, "propeller dead time"),
+    ),
+    param_type=ActuatorLagParams,
+    inputs=actuator_lag_inputs,
+    delay=actuator_dead_times,
 )

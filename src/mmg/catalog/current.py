@@ -11,11 +11,13 @@ import math
 from typing import NamedTuple
 
 from mmg._jit import subfunction
-from mmg.effects import Effect, EffectParam, register
+from mmg.effect import Effect, EffectParam
 from mmg.trig import sincos
 
 
 class CurrentParams(NamedTuple):
+    """The parameters of ``current`` in kernel order (unit of each after its field)."""
+
     V_c: float  # current speed [m/s]
     beta_c: float  # direction the current flows TOWARDS, earth-fixed, clockwise from x0 [rad]
 
@@ -27,16 +29,14 @@ def current_velocity(x0: float, y0: float, psi: float, e: CurrentParams) -> tupl
     return e.V_c * c, e.V_c * s
 
 
-CURRENT = register(
-    Effect(
-        name="current",
-        description="a uniform water current: forces act on the velocity through the water",
-        regime="all motions; dominant at low speed, as a steady drift of position",
-        params=(
-            EffectParam("V_c", "m/s", 0.0, 0.0, 0.1, "current speed"),
-            EffectParam("beta_c", "rad", 0.0, -math.pi, math.pi, "direction it flows towards"),
-        ),
-        param_type=CurrentParams,
-        current=current_velocity,
-    )
+CURRENT = Effect(
+    name="current",
+    description="a uniform water current: forces act on the velocity through the water",
+    regime="all motions; dominant at low speed, as a steady drift of position",
+    params=(
+        EffectParam("V_c", "m/s", 0.0, 0.0, 0.1, "current speed"),
+        EffectParam("beta_c", "rad", 0.0, -math.pi, math.pi, "direction it flows towards"),
+    ),
+    param_type=CurrentParams,
+    current=current_velocity,
 )

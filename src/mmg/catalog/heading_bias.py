@@ -13,10 +13,12 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from mmg._jit import subfunction
-from mmg.effects import Effect, EffectParam, register
+from mmg.effect import Effect, EffectParam
 
 
 class HeadingBiasParams(NamedTuple):
+    """The parameters of ``heading_bias`` in kernel order (unit of each after its field)."""
+
     b_psi: float  # logged minus true heading [rad]
     b_v: float  # rotation of the logged body velocities [rad]
 
@@ -27,16 +29,14 @@ def heading_bias_observe(e: HeadingBiasParams) -> tuple[float, float]:
     return e.b_psi, e.b_v
 
 
-HEADING_BIAS = register(
-    Effect(
-        name="heading_bias",
-        description="the logged heading is off by a constant (and with it the logged velocities)",
-        regime="all motions; a steady apparent drift angle on straight runs",
-        params=(
-            EffectParam("b_psi", "rad", 0.0, -0.1, 0.1, "heading offset"),
-            EffectParam("b_v", "rad", 0.0, -0.1, 0.1, "rotation of the logged velocities"),
-        ),
-        param_type=HeadingBiasParams,
-        observe=heading_bias_observe,
-    )
+HEADING_BIAS = Effect(
+    name="heading_bias",
+    description="the logged heading is off by a constant (and with it the logged velocities)",
+    regime="all motions; a steady apparent drift angle on straight runs",
+    params=(
+        EffectParam("b_psi", "rad", 0.0, -0.1, 0.1, "heading offset"),
+        EffectParam("b_v", "rad", 0.0, -0.1, 0.1, "rotation of the logged velocities"),
+    ),
+    param_type=HeadingBiasParams,
+    observe=heading_bias_observe,
 )

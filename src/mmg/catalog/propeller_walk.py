@@ -10,11 +10,13 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from mmg._jit import subfunction
-from mmg.effects import Effect, EffectParam, register
+from mmg.effect import Effect, EffectParam
 from mmg.params import Ship, Theta
 
 
 class PropellerWalkParams(NamedTuple):
+    """The parameters of ``propeller_walk`` in kernel order (unit of each after its field)."""
+
     C_Yw: float  # Y = 0.5 rho L d (n_p D_p)^2 C_Yw [-]
     C_Nw: float  # N = 0.5 rho L^2 d (n_p D_p)^2 C_Nw [-]
 
@@ -41,16 +43,14 @@ def propeller_walk_force(
     return 0.0, q * e.C_Yw, q * sh.L_pp * e.C_Nw
 
 
-PROPELLER_WALK = register(
-    Effect(
-        name="propeller_walk",
-        description="side force and yaw moment of the propeller when going ahead (n_p > 0)",
-        regime="n_p > 0, low advance ratio",
-        params=(
-            EffectParam("C_Yw", "-", 0.0, -2e-3, 2e-3, "side-force coefficient"),
-            EffectParam("C_Nw", "-", 0.0, -2e-3, 2e-3, "yaw-moment coefficient"),
-        ),
-        param_type=PropellerWalkParams,
-        force=propeller_walk_force,
-    )
+PROPELLER_WALK = Effect(
+    name="propeller_walk",
+    description="side force and yaw moment of the propeller when going ahead (n_p > 0)",
+    regime="n_p > 0, low advance ratio",
+    params=(
+        EffectParam("C_Yw", "-", 0.0, -2e-3, 2e-3, "side-force coefficient"),
+        EffectParam("C_Nw", "-", 0.0, -2e-3, 2e-3, "yaw-moment coefficient"),
+    ),
+    param_type=PropellerWalkParams,
+    force=propeller_walk_force,
 )

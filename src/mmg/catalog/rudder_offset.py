@@ -11,10 +11,12 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from mmg._jit import subfunction
-from mmg.effects import Effect, EffectParam, register
+from mmg.effect import Effect, EffectParam
 
 
 class RudderOffsetParams(NamedTuple):
+    """The parameters of ``rudder_offset`` in kernel order (unit of each after its field)."""
+
     delta_0: float  # acting minus logged rudder angle [rad]
 
 
@@ -31,13 +33,11 @@ def rudder_offset_inputs(
     return delta_log + e.delta_0, n_log
 
 
-RUDDER_OFFSET = register(
-    Effect(
-        name="rudder_offset",
-        description="the logged rudder angle has a constant zero error",
-        regime="all motions with flow at the rudder; a steady yaw tendency on straight runs",
-        params=(EffectParam("delta_0", "rad", 0.0, -0.1, 0.1, "acting minus logged angle"),),
-        param_type=RudderOffsetParams,
-        inputs=rudder_offset_inputs,
-    )
+RUDDER_OFFSET = Effect(
+    name="rudder_offset",
+    description="the logged rudder angle has a constant zero error",
+    regime="all motions with flow at the rudder; a steady yaw tendency on straight runs",
+    params=(EffectParam("delta_0", "rad", 0.0, -0.1, 0.1, "acting minus logged angle"),),
+    param_type=RudderOffsetParams,
+    inputs=rudder_offset_inputs,
 )

@@ -20,7 +20,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from mmg._jit import subfunction
-from mmg.effects import Effect, EffectParam, register
+from mmg.effect import Effect, EffectParam
 from mmg.model import rudder_inflow_at
 from mmg.params import Ship, Theta
 from mmg.rudder import lift_gradient
@@ -28,6 +28,8 @@ from mmg.trig import atan2, sincos
 
 
 class RudderStallParams(NamedTuple):
+    """The parameters of ``rudder_stall`` in kernel order (unit of each after its field)."""
+
     alpha_s: float  # stall angle of attack [rad]
     k_s: float  # fraction of the growth of sin(alpha_R) lost beyond stall [-]
 
@@ -68,16 +70,14 @@ def rudder_stall_force(
     return dX, dY, dN
 
 
-RUDDER_STALL = register(
-    Effect(
-        name="rudder_stall",
-        description="the rudder stalls: its normal force stops growing beyond a stall angle",
-        regime="|delta| large (>= 20-30 deg), ahead inflow at the rudder",
-        params=(
-            EffectParam("alpha_s", "rad", 0.35, 0.1, 0.7, "stall angle of attack"),
-            EffectParam("k_s", "-", 0.0, 0.0, 2.0, "share of the lift growth lost beyond stall"),
-        ),
-        param_type=RudderStallParams,
-        force=rudder_stall_force,
-    )
+RUDDER_STALL = Effect(
+    name="rudder_stall",
+    description="the rudder stalls: its normal force stops growing beyond a stall angle",
+    regime="|delta| large (>= 20-30 deg), ahead inflow at the rudder",
+    params=(
+        EffectParam("alpha_s", "rad", 0.35, 0.1, 0.7, "stall angle of attack"),
+        EffectParam("k_s", "-", 0.0, 0.0, 2.0, "share of the lift growth lost beyond stall"),
+    ),
+    param_type=RudderStallParams,
+    force=rudder_stall_force,
 )

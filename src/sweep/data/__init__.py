@@ -1,2 +1,3 @@
 """Recordings and objectives: validated recordings and their files, the paper's splits and
-data directory, and the objective functions J1, J2, J3 over a recording set."""
+data directory, the objective functions J1, J2, J3 over a recording set, and the parameter sets
+named on a command line."""

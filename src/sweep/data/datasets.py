@@ -25,6 +25,7 @@ import platformdirs
 import yaml
 
 from sweep.data.recordings import PathLike, Recording, read_recording
+from sweep.errors import UserError
 
 CONF_DIR = Path(__file__).resolve().parents[3] / "conf"
 """The repository's Hydra ``conf/`` directory (found relative to this file; editable install)."""
@@ -43,11 +44,11 @@ BERTHING_HEAD_S = 5.0
 """Initial window defining the approach line (position and heading) [s]."""
 
 
-class DataNotFoundError(FileNotFoundError):
+class DataNotFoundError(FileNotFoundError, UserError):
     """The data directory or a recording listed by a split is missing."""
 
 
-class SplitError(ValueError):
+class SplitError(ValueError, UserError):
     """A split YAML file is missing, unknown or malformed."""
 
 

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mmg.effects import Effect
+from mmg.effect import Effect
 from mmg.integrate import OBSERVABLES, Segments, segment_moments
 from mmg.params import ESSO_OSAKA, Parameters, Ship
 from sweep.data.recordings import Recording

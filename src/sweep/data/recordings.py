@@ -54,6 +54,8 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from sweep.errors import UserError
+
 FloatArray = NDArray[np.float64]
 PathLike = str | os.PathLike[str]
 
@@ -136,7 +138,7 @@ _MAGNITUDE_LIMITS: tuple[tuple[str, float, str, str], ...] = (
 _SPEED_COLUMNS: tuple[str, ...] = ("wind_velo_true [m/s]", "wind_velo_relative_mid [m/s]")
 
 
-class RecordingError(ValueError):
+class RecordingError(ValueError, UserError):
     """A recording file is unreadable or fails validation; the message names file, column, row."""
 
 

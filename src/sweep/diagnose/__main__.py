@@ -29,10 +29,10 @@ from pathlib import Path
 
 from mmg import catalog
 from sweep.data.datasets import CONF_DIR, DataNotFoundError, SplitError, load_split
+from sweep.data.parameters import load_parameters
 from sweep.data.recordings import Recording, read_recordings
 from sweep.diagnose.run import DiagnoseSettings, diagnose
-from sweep.errors import exit_on_user_error
-from sweep.evaluate import UserError, load_parameters
+from sweep.errors import UserError, exit_on_user_error
 
 
 def _paths(values: Sequence[str], what: str) -> list[Path]:

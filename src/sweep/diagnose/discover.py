@@ -39,8 +39,8 @@ from mmg.integrate import derivatives_rows, effect_accelerations_rows
 from mmg.library import SEARCHED, Column, chosen_shapes, library_columns, term
 from mmg.params import N_THETA
 from sweep.data.recordings import Recording
-from sweep.diagnose.fit import effect_values
 from sweep.diagnose.floor import NoiseModel, simulate_windows
+from sweep.identification.vector import effect_values
 
 FloatArray = NDArray[np.float64]
 

@@ -21,58 +21,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mmg import Effect, Parameters, bounds
+from mmg import Effect, Parameters
 from mmg.params import N_THETA
 from sweep.data.objective import Objective
 from sweep.data.recordings import Recording
 from sweep.identification.cmaes import Box, Result, Settings, optimise
 from sweep.identification.polish import PolishSettings, polish
+from sweep.identification.vector import from_full_vector, full_vector, joint_box
 from sweep.identification.workers import make_evaluator
 
 FloatArray = NDArray[np.float64]
-
-
-def with_effects(
-    base: Parameters, effects: Sequence[Effect], values: Sequence[float] | None = None
-) -> Parameters:
-    """``base`` carrying ``effects`` with the given values in kernel order (neutral if None)."""
-    out: list[tuple[str, tuple[tuple[str, float], ...]]] = []
-    i = 0
-    for eff in effects:
-        k = len(eff.params)
-        vals = eff.neutral() if values is None else tuple(float(v) for v in values[i : i + k])
-        i += k
-        out.append((eff.name, tuple(zip(eff.param_names, vals, strict=True))))
-    return Parameters(base.theta, base.ship, tuple(out))
-
-
-def effect_values(p: Parameters, effects: Sequence[Effect]) -> list[float]:
-    """The effects' values of ``p`` in kernel order (neutral where absent)."""
-    values: list[float] = []
-    for eff in effects:
-        given = p.effect_values(eff.name)
-        values += [given.get(q.name, q.neutral) for q in eff.params]
-    return values
-
-
-def full_vector(p: Parameters, effects: Sequence[Effect]) -> FloatArray:
-    """(57 + k,) base values then effect values."""
-    return np.concatenate([p.vector(), np.asarray(effect_values(p, effects), dtype=np.float64)])
-
-
-def from_full_vector(v: Any, ship_of: Parameters, effects: Sequence[Effect]) -> Parameters:
-    """Inverse of :func:`full_vector`."""
-    v = np.asarray(v, dtype=np.float64)
-    base = Parameters.from_vector(v[:N_THETA], ship=ship_of.ship)
-    return with_effects(base, effects, v[N_THETA:])
-
-
-def joint_box(effects: Sequence[Effect]) -> Box:
-    """The search box of the 57 base parameters and the effects' parameters."""
-    lo, hi = bounds()
-    e_lo = [q.lower for e in effects for q in e.params]
-    e_hi = [q.upper for e in effects for q in e.params]
-    return Box(np.concatenate([lo, e_lo]), np.concatenate([hi, e_hi]))
 
 
 @dataclass(frozen=True)
@@ -240,13 +198,4 @@ def _fit_effect_only(
     return np.concatenate([base, best_x]), used
 
 
-__all__ = [
-    "Fit",
-    "FitSettings",
-    "effect_values",
-    "fit",
-    "from_full_vector",
-    "full_vector",
-    "joint_box",
-    "with_effects",
-]
+__all__ = ["Fit", "FitSettings", "fit"]

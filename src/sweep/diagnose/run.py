@@ -94,13 +94,13 @@ from threadpoolctl import threadpool_limits
 
 from mmg import Effect, Parameters, catalog, get_effect
 from mmg.discovered import discovered_effect, with_bounds
-from mmg.effects import DISCOVERED_PREFIX
+from mmg.effect import DISCOVERED_PREFIX
 from mmg.params import N_THETA
 from mmg.precompile import precompile, tasks
 from sweep.data.objective import CHANNELS, OBJECTIVES, T_F, Objective, split_recording
 from sweep.data.recordings import Recording
 from sweep.diagnose.discover import DiscoverySettings, Proposal, discover, resemblance
-from sweep.diagnose.fit import Fit, FitSettings, effect_values, fit, with_effects
+from sweep.diagnose.fit import Fit, FitSettings, fit
 from sweep.diagnose.floor import (
     MisfitTest,
     NoiseModel,
@@ -128,6 +128,7 @@ from sweep.diagnose.threshold import (
     acceptance_null,
 )
 from sweep.identification.polish import PolishSettings
+from sweep.identification.vector import effect_values, with_effects
 
 FloatArray = NDArray[np.float64]
 

@@ -47,9 +47,9 @@ from mmg.params import N_THETA
 from sweep.data.objective import Objective
 from sweep.data.recordings import Recording
 from sweep.diagnose.discover import null_sets, spans
-from sweep.diagnose.fit import effect_values
 from sweep.diagnose.floor import NoiseModel
 from sweep.identification.polish import residual_vectors
+from sweep.identification.vector import effect_values
 
 FloatArray = NDArray[np.float64]
 

@@ -55,7 +55,7 @@ import numpy as np
 from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
-from sweep.service import storage
+from sweep.identification.store import Store, as_store
 
 FloatArray = NDArray[np.float64]
 BoundHandling = Literal["penalty", "transform", "none"]
@@ -157,12 +157,15 @@ class Box:
 
     @property
     def n(self) -> int:
+        """The number of dimensions."""
         return int(self.lower.size)
 
     def to_theta(self, y: Any) -> FloatArray:
+        """Parameters (..., n) of normalised coordinates ``y`` (..., n)."""
         return self.lower + np.asarray(y, dtype=np.float64) * (self.upper - self.lower)
 
     def to_y(self, theta: Any) -> FloatArray:
+        """Normalised coordinates (..., n) of parameters ``theta`` (..., n)."""
         return (np.asarray(theta, dtype=np.float64) - self.lower) / (self.upper - self.lower)
 
     def rejected(self, theta: Any) -> bool:
@@ -181,6 +184,7 @@ class BoundPenalty(cma.BoundPenalty):
     upper bound."""
 
     def repair(self, x: Any, copy_if_changed: bool = True) -> Any:
+        """``x`` (n,) projected onto the box (a copy unless ``copy_if_changed`` is False)."""
         if not self.has_bounds():
             return x
         x = np.array(x, dtype=np.float64, copy=True) if copy_if_changed else x
@@ -222,10 +226,10 @@ def _new_strategy(state: State, y0: FloatArray) -> cma.CMAEvolutionStrategy:
     return cma.CMAEvolutionStrategy(y0, s.sigma0, opts)
 
 
-def save_checkpoint(state: State, path: str | Path) -> None:
+def save_checkpoint(state: State, path: str | Path | Store) -> None:
     """Write atomically (a crash mid-write leaves the previous checkpoint intact); ``path`` is
-    a file or a storage URI (:mod:`sweep.service.storage`)."""
-    storage.write_bytes(path, pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
+    a local file or a :class:`~sweep.identification.store.Store` (e.g. a storage URI's)."""
+    as_store(path).write_bytes(pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
 
 
 #: where checkpoint classes lived before ``sweep`` was grouped into subpackages
@@ -240,10 +244,12 @@ class _Unpickler(pickle.Unpickler):
         return super().find_class(_MOVED_MODULES.get(module, module), name)
 
 
-def load_checkpoint(path: str | Path) -> State:
+def load_checkpoint(path: str | Path | Store) -> State:
+    """The state a checkpoint holds (a local file or a store); raises ValueError if it holds
+    something else."""
     import io
 
-    state = _Unpickler(io.BytesIO(storage.read_bytes(path))).load()
+    state = _Unpickler(io.BytesIO(as_store(path).read_bytes())).load()
     if not isinstance(state, State):
         raise ValueError(f"{path}: not a checkpoint of sweep.identification.cmaes")
     return state
@@ -258,7 +264,7 @@ def optimise(
     box: Box,
     x0: FloatArray,
     settings: Settings,
-    checkpoint: str | Path | None = None,
+    checkpoint: str | Path | Store | None = None,
     progress: Progress | None = None,
     stop_after_generations: int | None = None,
     checkpoint_seconds: float = CHECKPOINT_SECONDS,
@@ -266,7 +272,9 @@ def optimise(
     """Run (or resume from ``checkpoint``) a restart CMA-ES job.
 
     ``evaluate(thetas (C, n)) -> (C,)`` objective values (finite; penalties for failures).
-    ``x0`` (n,) the initial mean in parameter space. ``stop_after_generations`` interrupts the run
+    ``x0`` (n,) the initial mean in parameter space. ``checkpoint``: a local file or a
+    :class:`~sweep.identification.store.Store` the caller provides (None: no checkpoint).
+    ``stop_after_generations`` interrupts the run
     after that many generations of this call (for tests of resume), leaving a checkpoint.
     ``checkpoint_seconds``: the longest time between two checkpoints within a restart (0: after
     every generation); the first generation of a call and the end of a restart always write one.
@@ -274,7 +282,7 @@ def optimise(
     if not checkpoint_seconds >= 0.0:
         raise ValueError(f"checkpoint_seconds must be >= 0, not {checkpoint_seconds}")
     state: State | None = None
-    if checkpoint is not None and storage.exists(checkpoint):
+    if checkpoint is not None and as_store(checkpoint).exists():
         state = load_checkpoint(checkpoint)
         if state.settings != settings or state.n != box.n:
             raise ValueError(
@@ -307,7 +315,7 @@ def _optimise(
     y0: FloatArray,
     settings: Settings,
     state: State,
-    checkpoint: str | Path | None,
+    checkpoint: str | Path | Store | None,
     progress: Progress | None,
     stop_after_generations: int | None,
     checkpoint_seconds: float,

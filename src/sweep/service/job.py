@@ -22,7 +22,6 @@ from mmg import Effect, Parameters, efd_parameters, get_effect, simulate_batch
 from sweep.data.datasets import split_from_mapping
 from sweep.data.objective import OBJECTIVES, Objective, split_recording
 from sweep.data.recordings import Recording, RecordingWarning
-from sweep.diagnose.fit import from_full_vector, full_vector, joint_box
 from sweep.identification.cmaes import (
     CHECKPOINT_SECONDS,
     Settings,
@@ -31,7 +30,9 @@ from sweep.identification.cmaes import (
     restart_table,
 )
 from sweep.identification.polish import LAMBDA_TRIALS, PolishSettings, polish
+from sweep.identification.vector import from_full_vector, full_vector, joint_box
 from sweep.service.outcome import SUBSETS, JobOutcome, complete_subsets, config_hash, make_job_key
+from sweep.service.storage import Location
 
 #: test-set labels of conf/test/paper.yaml -> metric suffixes
 SUBSET_OF_LABEL = {
@@ -65,11 +66,16 @@ class JobSpec:
     checkpoint_seconds: float = CHECKPOINT_SECONDS
 
     @property
-    def checkpoint_location(self) -> str | Path:
-        return self.checkpoint or self.job_dir / "checkpoint.pkl"
+    def checkpoint_location(self) -> Location | Path:
+        """Where the optimiser keeps the checkpoint: the storage location of ``checkpoint``, or
+        ``job_dir/checkpoint.pkl``."""
+        if self.checkpoint:
+            return Location(self.checkpoint)
+        return self.job_dir / "checkpoint.pkl"
 
     @property
     def config_hash(self) -> str:
+        """The hash of ``config`` that identifies the job's result."""
         return config_hash(dict(self.config))
 
 
@@ -92,6 +98,7 @@ def polish_iterations(config: Mapping[str, Any]) -> int:
 
 
 def settings_of(config: Mapping[str, Any], seed: int) -> Settings:
+    """The CMA-ES settings of a job's config (its ``budget`` and ``cmaes`` groups) and seed."""
     budget = config["budget"]
     cm = config["cmaes"]
     return Settings(
@@ -141,12 +148,12 @@ def draw_plots(
     history: list[dict[str, float]], params: Parameters, test: Mapping[str, Recording], title: str
 ) -> dict[str, bytes]:
     """Convergence and test trajectories (best vs EFD vs recorded) as PNG bytes by file name."""
-    from sweep import report
+    from sweep.service.figures import plot_convergence, plot_trajectories
 
     files: dict[str, bytes] = {}
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "convergence.png"
-        report.plot_convergence(history, path)
+        plot_convergence(history, path)
         files[path.name] = path.read_bytes()
         efd = efd_parameters()
         for label in ("Test-B-S", "Test-B-P", "Test-R"):
@@ -159,7 +166,7 @@ def draw_plots(
                 "EFD": simulated_subsequences(rec, efd),
             }
             path = Path(tmp) / f"trajectory_{label}.png"
-            report.plot_trajectories(np.asarray(rec.x), sims, path, f"{title}: {label}")
+            plot_trajectories(np.asarray(rec.x), sims, path, f"{title}: {label}")
             files[path.name] = path.read_bytes()
     return files
 

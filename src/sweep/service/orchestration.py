@@ -40,15 +40,27 @@ from sweep.service.outcome import JobOutcome
 class Executor(Protocol):
     """Where jobs run. Handles are opaque; ``wait`` returns (handle, outcome or exception)."""
 
-    def submit(self, spec: JobSpec) -> Any: ...
+    def submit(self, spec: JobSpec) -> Any:
+        """Start the job; returns its handle."""
+        ...
 
-    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, Any]]: ...
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, Any]]:
+        """The jobs among ``handles`` that ended within ``timeout`` seconds, as (handle, outcome
+        or exception) pairs; an outcome is (JobOutcome, {plot file name: PNG bytes})."""
+        ...
 
-    def status(self, handle: Any) -> Mapping[str, float] | None: ...
+    def status(self, handle: Any) -> Mapping[str, float] | None:
+        """The running job's latest progress row (restart, popsize, evaluations, best_so_far,
+        ...; see :func:`sweep.service.job.run_job`), or None before its first generation."""
+        ...
 
-    def cancel(self, handles: Sequence[Any]) -> None: ...
+    def cancel(self, handles: Sequence[Any]) -> None:
+        """Stop the jobs (their checkpoints stay)."""
+        ...
 
-    def capacity(self) -> int: ...
+    def capacity(self) -> int:
+        """How many jobs can run at once."""
+        ...
 
     def lost(self, error: BaseException) -> bool:
         """Whether ``error`` means the job was lost to the infrastructure (a node, an actor, a
@@ -68,6 +80,7 @@ class LocalExecutor:
         self._next = 0
 
     def submit(self, spec: JobSpec) -> int:
+        """Run the job to its end now; returns its handle (its outcome or error waits there)."""
         handle = self._next
         self._next += 1
 
@@ -84,15 +97,18 @@ class LocalExecutor:
         return handle
 
     def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, Any]]:
+        """Every finished job among ``handles`` (all of them: jobs run when submitted)."""
         return [(h, self._done.pop(h)) for h in handles if h in self._done]
 
     def status(self, handle: Any) -> Mapping[str, float] | None:
+        """The job's last progress row."""
         return self._status.get(handle)
 
     def cancel(self, handles: Sequence[Any]) -> None:
         """Jobs run synchronously: nothing is left to cancel."""
 
     def capacity(self) -> int:
+        """One job at a time."""
         return 1
 
     def lost(self, error: BaseException) -> bool:
@@ -110,11 +126,12 @@ class SweepSummary:
     failed: dict[str, str] = field(default_factory=dict)
     files: dict[str, Path] = field(default_factory=dict)
     retries: dict[str, int] = field(default_factory=dict)  # resubmissions per job key
-    tables: dict[str, Any] = field(default_factory=dict)  # {J: summary table} (sweep.report)
+    tables: dict[str, Any] = field(default_factory=dict)  # {J: summary table} (service.tables)
     seconds: float = 0.0
 
     @property
     def ok(self) -> bool:
+        """Whether no job failed."""
         return not self.failed
 
 
@@ -209,6 +226,7 @@ class Progress:
         self._lines = 0
 
     def show(self, text: str, force: bool = False) -> None:
+        """Replace the display by ``text`` (at most every ``every`` seconds unless ``force``)."""
         now = time.perf_counter()
         if not force and now - self._last < self.every:
             return
@@ -274,8 +292,6 @@ def run_sweep(
     A job lost to the infrastructure (``executor.lost``) is resubmitted, up to ``max_retries``
     times, and resumes from its last checkpoint wherever it lands; an error of the job's own
     code fails the job at once."""
-    from sweep import report
-
     t0 = time.perf_counter()
     efd_table = {k: dict(v) for k, v in efd.items()}
     parent = tracker.start_sweep(name, dict(sweep_config or {}), efd_table)
@@ -313,73 +329,113 @@ def run_sweep(
                     todo.insert(0, spec)
                     continue
                 done_evals += budget[spec.key]
-                if isinstance(result, BaseException):
-                    error = "".join(traceback.format_exception(result))
-                    tracker.log_failure(
-                        parent,
-                        spec.key,
-                        {"objective": spec.objective, "train": spec.train, "seed": str(spec.seed)},
-                        dict(spec.config),
-                        error,
-                    )
-                    summary.failed[spec.key] = f"{type(result).__name__}: {result}"
-                else:
-                    outcome, files = result
-                    outcome.retries = summary.retries.get(spec.key, 0)
-                    plots = spec.job_dir / "plots"
-                    plots.mkdir(parents=True, exist_ok=True)
-                    for fname, data in files.items():
-                        (plots / fname).write_bytes(data)
-                    tracker.log_job(parent, outcome, plots)
-                    summary.finished.append(spec.key)
-                    if on_outcome is not None:
-                        on_outcome(outcome)
+                _record_result(spec, result, tracker, parent, summary, on_outcome)
             live = sum(float((executor.status(h) or {}).get("evaluations", 0.0)) for h in running)
-            lines = [
-                f"jobs: {len(summary.finished)} done, {len(running)} running, "
-                f"{len(summary.failed)} failed, {len(todo)} pending, "
-                f"{len(summary.skipped)} skipped | "
-                f"{_eta(done_evals + live, total_evals, time.perf_counter() - t0)}"
-            ]
-            for h, spec in running.items():
-                st = executor.status(h) or {}
-                if "lm_iteration" in st:  # cmaes.polish: the refinement after the restarts
-                    lines.append(
-                        f"  {spec.key}: Levenberg-Marquardt iteration "
-                        f"{int(st['lm_iteration'])}/{int(st.get('lm_iterations', 0))} "
-                        f"J {st['lm_f']:.1f} "
-                        f"(CMA-ES best {st.get('best_so_far', float('nan')):.1f})"
-                    )
-                elif st:
-                    lines.append(
-                        f"  {spec.key}: restart {int(st.get('restart', 0))} "
-                        f"pop {int(st.get('popsize', 0))} "
-                        f"evals {int(st.get('evaluations', 0))}/{int(budget[spec.key])} "
-                        f"best {st.get('best_so_far', float('nan')):.1f}"
-                        + (
-                            f" (retry {summary.retries[spec.key]})"
-                            if summary.retries.get(spec.key)
-                            else ""
-                        )
-                    )
-                else:
-                    lines.append(f"  {spec.key}: starting")
+            eta = _eta(done_evals + live, total_evals, time.perf_counter() - t0)
+            lines = _status_lines(executor, running, len(todo), summary, budget, eta)
             progress.show("\n".join(lines), force=not running and not todo)
     except KeyboardInterrupt:
         executor.cancel(list(running))
         raise
-    outcomes = tracker.job_outcomes(parent)
-    if outcomes:
-        tables = report.summary_tables(outcomes, efd_table)
-        summary.files = report.write_tables(tables, out_dir / "summary")
-        try:
-            figure = report.plot_sweep(
-                tables, tracker.job_histories(parent), out_dir / "summary" / "sweep.png"
-            )
-            summary.files[figure.name] = figure
-        except Exception as exc:  # the figure is a convenience: the tables must still land
-            progress.note(f"warning: the sweep figure could not be drawn ({exc})")
-        summary.tables = tables
-        tracker.finish_sweep(parent, tables, summary.files)
+    _write_summary(tracker, parent, efd_table, out_dir, summary, progress)
     summary.seconds = time.perf_counter() - t0
     return summary
+
+
+def _record_result(
+    spec: JobSpec,
+    result: Any,
+    tracker: Any,
+    parent: str,
+    summary: SweepSummary,
+    on_outcome: Callable[[JobOutcome], None] | None,
+) -> None:
+    """Log a job that ended: its error as a failed run, or its outcome with its plot files
+    (written to ``job_dir/plots``); counted in ``summary``."""
+    if isinstance(result, BaseException):
+        error = "".join(traceback.format_exception(result))
+        tracker.log_failure(
+            parent,
+            spec.key,
+            {"objective": spec.objective, "train": spec.train, "seed": str(spec.seed)},
+            dict(spec.config),
+            error,
+        )
+        summary.failed[spec.key] = f"{type(result).__name__}: {result}"
+        return
+    outcome, files = result
+    outcome.retries = summary.retries.get(spec.key, 0)
+    plots = spec.job_dir / "plots"
+    plots.mkdir(parents=True, exist_ok=True)
+    for fname, data in files.items():
+        (plots / fname).write_bytes(data)
+    tracker.log_job(parent, outcome, plots)
+    summary.finished.append(spec.key)
+    if on_outcome is not None:
+        on_outcome(outcome)
+
+
+def _status_lines(
+    executor: Executor,
+    running: Mapping[Any, JobSpec],
+    pending: int,
+    summary: SweepSummary,
+    budget: Mapping[str, float],
+    eta: str,
+) -> list[str]:
+    """The progress display: the jobs' counts and the ETA, then one line per running job (its
+    restart, population, evaluations of its budget and best f, or its refinement's iteration)."""
+    lines = [
+        f"jobs: {len(summary.finished)} done, {len(running)} running, "
+        f"{len(summary.failed)} failed, {pending} pending, "
+        f"{len(summary.skipped)} skipped | {eta}"
+    ]
+    for h, spec in running.items():
+        st = executor.status(h) or {}
+        if "lm_iteration" in st:  # cmaes.polish: the refinement after the restarts
+            lines.append(
+                f"  {spec.key}: Levenberg-Marquardt iteration "
+                f"{int(st['lm_iteration'])}/{int(st.get('lm_iterations', 0))} "
+                f"J {st['lm_f']:.1f} "
+                f"(CMA-ES best {st.get('best_so_far', float('nan')):.1f})"
+            )
+        elif st:
+            lines.append(
+                f"  {spec.key}: restart {int(st.get('restart', 0))} "
+                f"pop {int(st.get('popsize', 0))} "
+                f"evals {int(st.get('evaluations', 0))}/{int(budget[spec.key])} "
+                f"best {st.get('best_so_far', float('nan')):.1f}"
+                + (f" (retry {summary.retries[spec.key]})" if summary.retries.get(spec.key) else "")
+            )
+        else:
+            lines.append(f"  {spec.key}: starting")
+    return lines
+
+
+def _write_summary(
+    tracker: Any,
+    parent: str,
+    efd_table: dict[str, dict[str, float]],
+    out_dir: Path,
+    summary: SweepSummary,
+    progress: Progress,
+) -> None:
+    """The summary tables of every logged job (and the sweep figure) to ``out_dir/summary``,
+    logged to the parent run; nothing when no job has an outcome."""
+    from sweep.service.figures import plot_sweep
+    from sweep.service.tables import summary_tables, write_tables
+
+    outcomes = tracker.job_outcomes(parent)
+    if not outcomes:
+        return
+    tables = summary_tables(outcomes, efd_table)
+    summary.files = write_tables(tables, out_dir / "summary")
+    try:
+        figure = plot_sweep(
+            tables, tracker.job_histories(parent), out_dir / "summary" / "sweep.png"
+        )
+        summary.files[figure.name] = figure
+    except Exception as exc:  # the figure is a convenience: the tables must still land
+        progress.note(f"warning: the sweep figure could not be drawn ({exc})")
+    summary.tables = tables
+    tracker.finish_sweep(parent, tables, summary.files)

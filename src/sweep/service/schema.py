@@ -18,12 +18,13 @@ from typing import Any, get_args
 
 from mmg import catalog
 from sweep.data.objective import OBJECTIVES
+from sweep.errors import UserError
 from sweep.identification.cmaes import BoundHandling
 
 _MISSING = object()
 
 
-class ConfigError(ValueError):
+class ConfigError(ValueError, UserError):
     """A configuration value outside what the sweep accepts (a user mistake: exit 2)."""
 
     def __init__(self, key: str, value: Any, allowed: str) -> None:

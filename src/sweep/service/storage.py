@@ -1,6 +1,7 @@
 """Checkpoint storage that outlives the node a job ran on: a local path or a pyarrow URI.
 
-A job's coordinator writes its checkpoint after every CMA-ES generation. With ``sweep.storage``
+A job's coordinator writes its checkpoint (:mod:`sweep.identification.cmaes` says when) through
+the :class:`Location` the job injects as its store. With ``sweep.storage``
 unset the checkpoint sits in the job's directory under ``multirun/`` on the coordinator's node
 (enough on one machine). With ``sweep.storage=URI`` it goes to
 ``URI/<sweep name>/<job directory name>/checkpoint.pkl`` on any file system pyarrow reaches (a
@@ -19,6 +20,7 @@ import contextlib
 import functools
 import os
 import uuid
+from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import quote, unquote, urlsplit
 
@@ -62,11 +64,13 @@ def join(base: str | os.PathLike[str], *parts: str) -> str:
 
 
 def exists(location: str | os.PathLike[str]) -> bool:
+    """Whether ``location`` (a path or URI) names an existing file or directory."""
     filesystem, path = _resolve(location)
     return bool(filesystem.get_file_info(path).type != pafs.FileType.NotFound)
 
 
 def read_bytes(location: str | os.PathLike[str]) -> bytes:
+    """The bytes of the file at ``location`` (a path or URI)."""
     filesystem, path = _resolve(location)
     with filesystem.open_input_stream(path) as stream:
         return bytes(stream.read())
@@ -98,3 +102,27 @@ def check(location: str) -> None:
         raise ValueError(
             f"unknown storage scheme {scheme!r} (known: {', '.join(SCHEMES)}, or a plain path)"
         )
+
+
+@dataclass(frozen=True)
+class Location:
+    """A checkpoint at a path or storage URI: the
+    :class:`~sweep.identification.store.Store` a job hands to the optimiser."""
+
+    #: a local path or a URI of one of :data:`SCHEMES`
+    uri: str
+
+    def __str__(self) -> str:
+        return self.uri
+
+    def exists(self) -> bool:
+        """Whether something is stored there."""
+        return exists(self.uri)
+
+    def read_bytes(self) -> bytes:
+        """The stored bytes."""
+        return read_bytes(self.uri)
+
+    def write_bytes(self, data: bytes) -> None:
+        """Replace the stored bytes by ``data`` atomically (:func:`write_bytes`)."""
+        write_bytes(self.uri, data)

@@ -39,7 +39,7 @@ from mlflow.entities import Metric, Param, Run, ViewType
 from mlflow.exceptions import MlflowException
 
 from mmg import Parameters
-from sweep.report import job_note, sweep_note
+from sweep.errors import UserError
 from sweep.service.outcome import (
     OBJECTIVE_NAMES,
     SUBSETS,
@@ -49,6 +49,7 @@ from sweep.service.outcome import (
     metric_name,
     source_version,
 )
+from sweep.service.tables import job_note, sweep_note
 
 #: longest error text stored in the ``error`` tag (MLflow allows 8000 characters)
 MAX_ERROR_TAG = 5000
@@ -59,7 +60,7 @@ PARENT_TAG = "mlflow.parentRunId"
 HISTORY_METRICS = ("best_so_far", "best_f", "median_f", "popsize", "sigma", "evaluations")
 
 
-class ConfigChangedError(RuntimeError):
+class ConfigChangedError(RuntimeError, UserError):
     """A finished run of the same job exists but was made with another configuration."""
 
     def __init__(self, job_key: str, old_hash: str, new_hash: str, run_id: str) -> None:

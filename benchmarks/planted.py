@@ -46,6 +46,8 @@ from sweep.diagnose.floor import ar1
 
 
 class StallTanhParams(NamedTuple):
+    """The parameters of the planted form ``stall_tanh`` (unit of each after its field)."""
+
     alpha_s: float  # [rad]
 
 
@@ -83,6 +85,8 @@ def stall_tanh_force(
 
 
 class AHPiecewiseParams(NamedTuple):
+    """The parameters of the planted form ``a_h_piecewise`` (unit of each after its field)."""
+
     beta_0: float  # drift angle at which a_H changes sign [rad]
 
 
@@ -115,9 +119,11 @@ def a_h_piecewise_force(
 
 
 class WalkAdvanceParams(NamedTuple):
-    C_Yw: float
-    C_Nw: float
-    J_0: float  # advance ratio at which the walk vanishes
+    """The parameters of the planted form ``walk_advance`` (unit of each after its field)."""
+
+    C_Yw: float  # [-], as propeller_walk's
+    C_Nw: float  # [-], as propeller_walk's
+    J_0: float  # advance ratio at which the walk vanishes [-]
 
 
 @subfunction
@@ -150,6 +156,8 @@ def walk_advance_force(
 
 
 class BankParams(NamedTuple):
+    """The parameters of the planted form ``bank`` (unit of each after its field)."""
+
     C_b: float  # strength of the bank suction [-]
     y_b: float  # where it changes sign [m]
     W_b: float  # width of the transition [m]
@@ -179,6 +187,8 @@ def bank_force_at(
 
 
 class WaveResistanceParams(NamedTuple):
+    """The parameters of the planted form ``wave_resistance`` (unit of each after its field)."""
+
     C_w: float  # [-], X = -0.5 rho L d C_w u^4 / U_ref^2
 
 
@@ -203,6 +213,8 @@ def wave_resistance_force(
 
 
 class AsternCrossflowParams(NamedTuple):
+    """The parameters of the planted form ``astern_crossflow`` (unit of each after its field)."""
+
     C_a: float  # [-]
 
 
@@ -227,6 +239,8 @@ def astern_crossflow_force(
 
 
 class EarthForceParams(NamedTuple):
+    """The parameters of the planted form ``earth_force`` (unit of each after its field)."""
+
     F_e: float  # [N], a steady force fixed to the basin
     chi_e: float  # its direction, clockwise from x0 [rad]
 
@@ -251,6 +265,8 @@ def earth_force_force(
 
 
 class WashYawParams(NamedTuple):
+    """The parameters of the planted form ``wash_yaw`` (unit of each after its field)."""
+
     C_d: float  # [-]
 
 
@@ -276,6 +292,8 @@ def wash_yaw_force(
 
 
 class ReverseSwayParams(NamedTuple):
+    """The parameters of the planted form ``reverse_sway`` (unit of each after its field)."""
+
     C_r: float  # [-]
 
 
@@ -315,6 +333,8 @@ def _p(*names: str) -> tuple[EffectParam, ...]:
 
 
 class BuildUpParams(NamedTuple):
+    """The parameters of the planted form ``build_up`` (unit of each after its field)."""
+
     C_t: float  # strength of the side force once built up [-]
     tau_t: float  # how fast it builds up [s]
 
@@ -445,6 +465,7 @@ class PlantedSpec:
 
     @property
     def family(self) -> str:
+        """The catalog family the diagnosis should name for this form (:data:`FAMILY`)."""
         return FAMILY[self.form]
 
     @property

@@ -86,8 +86,8 @@ class DiscoveredEffect(Effect):
 #: what the generated code calls in place of the functions of :mod:`math` that terms are written
 #: with: the sine and cosine of the heading and of the rudder angle, taken once per call, and the
 #: vectorisable ones of :mod:`mmg.trig` for any other angle. A C library call in the kernel's lane
-#: loop keeps LLVM from vectorising it: a wind or heading term cost 1.2-2.3 times the model alone
-#: (issue 15). exp and tanh stay the C library's: inlined, each made the kernels' compilation
+#: loop keeps LLVM from vectorising it: a wind or heading term cost 1.2-2.3 times the model alone.
+#: exp and tanh stay the C library's: inlined, each made the kernels' compilation
 #: 6-10 s longer for an effect of a few terms (and the library's 122 terms 113 -> 219 s).
 _VECTORISABLE = {
     "math.sin(psi)": "sin_psi",

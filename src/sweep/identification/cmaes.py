@@ -241,6 +241,7 @@ class _Unpickler(pickle.Unpickler):
     interrupted under the old layout resumes under the new one."""
 
     def find_class(self, module: str, name: str) -> Any:
+        """The class ``name`` of ``module``, looked up under the module's current name."""
         return super().find_class(_MOVED_MODULES.get(module, module), name)
 
 

@@ -35,7 +35,7 @@ from mmg import Parameters
 from sweep.data.recordings import Recording
 from sweep.diagnose.discover import null_sets
 from sweep.diagnose.floor import NoiseModel, run_of
-from sweep.diagnose.threshold import Linearised
+from sweep.diagnose.linearised import Linearised
 
 FloatArray = NDArray[np.float64]
 

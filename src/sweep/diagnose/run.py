@@ -113,6 +113,7 @@ from sweep.diagnose.generalise import ALPHA as GENERALISATION_ALPHA
 from sweep.diagnose.generalise import DRAWS as GENERALISATION_DRAWS
 from sweep.diagnose.generalise import MARGIN as GENERALISATION_MARGIN
 from sweep.diagnose.generalise import GeneralisationTest, generalisation_test
+from sweep.diagnose.linearised import Linearised, TrajectorySelection
 from sweep.diagnose.locate import (
     equation_residuals,
     locate,
@@ -120,13 +121,7 @@ from sweep.diagnose.locate import (
     rank_windows,
     residual_frame,
 )
-from sweep.diagnose.threshold import (
-    CEILING,
-    AcceptanceNull,
-    Linearised,
-    TrajectorySelection,
-    acceptance_null,
-)
+from sweep.diagnose.threshold import CEILING, AcceptanceNull, acceptance_null
 from sweep.identification.polish import PolishSettings
 
 FloatArray = NDArray[np.float64]

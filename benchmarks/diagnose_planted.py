@@ -55,7 +55,8 @@ from sweep.diagnose.planted import (
     true_model,
     write_case,
 )
-from sweep.diagnose.run import DiagnoseSettings, diagnose
+from sweep.diagnose.run import diagnose
+from sweep.diagnose.settings import DiagnoseSettings
 
 KINDS = ("random", "turning", "zigzag", "berthing")
 TRAIN = {"random": 5, "turning": 3, "zigzag": 2, "berthing": 2}

@@ -20,7 +20,7 @@ from sweep.data.datasets import data_root
 from sweep.diagnose.discover import DiscoverySettings, discover
 from sweep.diagnose.floor import calibrated_noise, misfit_test, noise_floor
 from sweep.diagnose.planted import PlantedSpec, generate, noise_levels, perturbed_ship, pick_windows
-from sweep.diagnose.run import cut_windows
+from sweep.diagnose.windows import cut_windows
 
 FORMS = [
     ("none", {}),

@@ -28,7 +28,7 @@ from sweep.data.objective import Objective
 from sweep.data.recordings import read_recordings
 from sweep.diagnose.fit import FitSettings, fit
 from sweep.diagnose.planted import PlantedSpec, true_model
-from sweep.diagnose.run import cut_windows
+from sweep.diagnose.windows import cut_windows
 from sweep.identification.polish import PolishSettings
 
 

@@ -23,7 +23,7 @@ from sweep.diagnose.planted import (
     pick_windows,
     write_case,
 )
-from sweep.diagnose.run import cut_windows
+from sweep.diagnose.windows import cut_windows
 
 KINDS = ("random", "turning", "zigzag")
 

@@ -15,7 +15,7 @@ from sweep.diagnose.fit import with_effects
 from sweep.diagnose.floor import NoiseModel, simulate_windows
 from sweep.diagnose.generalise import generalisation_test
 from sweep.diagnose.planted import PlantedSpec, generate, noise_levels, perturbed_ship, pick_windows
-from sweep.diagnose.run import cut_windows
+from sweep.diagnose.windows import cut_windows
 
 
 @pytest.fixture(scope="module")

@@ -16,8 +16,9 @@ from sweep.diagnose.fit import FitSettings, fit, with_effects
 from sweep.diagnose.floor import NoiseModel, simulate_windows
 from sweep.diagnose.linearised import Linearised
 from sweep.diagnose.planted import PlantedSpec, generate, noise_levels, perturbed_ship, pick_windows
-from sweep.diagnose.run import cut_windows, delta_bic, n_effective
+from sweep.diagnose.scoring import delta_bic, n_effective
 from sweep.diagnose.threshold import CEILING, acceptance_null
+from sweep.diagnose.windows import cut_windows
 from sweep.identification.polish import PolishSettings
 
 KINDS = ("random", "turning", "zigzag")

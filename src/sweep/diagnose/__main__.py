@@ -30,7 +30,8 @@ from pathlib import Path
 from mmg import catalog
 from sweep.data.datasets import CONF_DIR, DataNotFoundError, SplitError, load_split
 from sweep.data.recordings import Recording, read_recordings
-from sweep.diagnose.run import DiagnoseSettings, diagnose
+from sweep.diagnose.run import diagnose
+from sweep.diagnose.settings import DiagnoseSettings
 from sweep.errors import exit_on_user_error
 from sweep.evaluate import UserError, load_parameters
 

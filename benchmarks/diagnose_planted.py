@@ -9,7 +9,7 @@ the EFD parameters. Printed per case: planted form, verdict, held-out improvemen
 candidates, recovered effect parameters; then per family the top-1 rate, the false-positive rate
 on the no-effect cases, parameter errors, and the test-set J2 before / after / of the true model.
 
-    PYTHONPATH=. python benchmarks/diagnose_planted.py [--cases all|quick|N,M,...] [--repeats R]
+    python benchmarks/diagnose_planted.py [--cases all|quick|N,M,...] [--repeats R]
         [--base-budget 6000] [--candidate-budget 0] [--final-budget 0] [--base-retry-agreement 0.01]
         [--scale 1] [--out DIR]
         [--weak] [--markdown]
@@ -55,7 +55,8 @@ from mmg import Parameters, efd_parameters
 from sweep.data.datasets import data_root
 from sweep.data.objective import Objective
 from sweep.data.recordings import Recording, read_recordings
-from sweep.diagnose.run import DiagnoseSettings, diagnose
+from sweep.diagnose.run import diagnose
+from sweep.diagnose.settings import DiagnoseSettings
 
 KINDS = ("random", "turning", "zigzag", "berthing")
 TRAIN = {"random": 5, "turning": 3, "zigzag": 2, "berthing": 2}

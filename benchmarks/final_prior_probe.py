@@ -28,7 +28,7 @@ from mmg.params import N_THETA
 from sweep.data.objective import Objective
 from sweep.data.recordings import read_recordings
 from sweep.diagnose.fit import FitSettings, fit
-from sweep.diagnose.run import cut_windows
+from sweep.diagnose.windows import cut_windows
 from sweep.identification.polish import PolishSettings
 
 

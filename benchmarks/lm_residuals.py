@@ -24,7 +24,7 @@ import numpy as np
 from mmg import Parameters
 from sweep.data.datasets import load_split
 from sweep.data.objective import Objective
-from sweep.diagnose.run import cut_windows
+from sweep.diagnose.windows import cut_windows
 from sweep.identification.polish import MAX_LANES, residual_vectors, simulate_subsequences
 
 

@@ -21,7 +21,9 @@ from benchmarks.planted import (
 from mmg import efd_parameters
 from sweep.data.recordings import read_recordings
 from sweep.diagnose.__main__ import main
-from sweep.diagnose.run import cut_windows, delta_bic, routes_agree, split_windows
+from sweep.diagnose.base import routes_agree
+from sweep.diagnose.scoring import delta_bic
+from sweep.diagnose.windows import cut_windows, split_windows
 
 KINDS = ("random", "turning", "zigzag")
 
@@ -275,7 +277,7 @@ def test_delta_bic_trades_fit_against_parameters():
 
 
 def test_rank_breaks_near_ties_of_dbic_by_held_out_improvement():
-    from sweep.diagnose.run import CandidateScore, rank
+    from sweep.diagnose.scoring import CandidateScore, rank
 
     def c(name: str, bic: float, imp: float) -> CandidateScore:
         return CandidateScore(name, "", "", {}, 1.0, 1.0, imp, bic)
@@ -305,7 +307,7 @@ def test_rank_keeps_the_dbic_winner_among_accepted_candidates_whatever_the_held_
     position terms N_x + N_var + Y_dnn (dBIC -56.7, +12.9 %), both accepted. Ranked by the
     held-out windows the position terms won and made the test set 11 % worse (2757 -> 3051);
     the dBIC winner makes it 2 % better. Outside the tie margin dBIC decides."""
-    from sweep.diagnose.run import CandidateScore, rank
+    from sweep.diagnose.scoring import CandidateScore, rank
 
     def c(name: str, bic: float, imp: float) -> CandidateScore:
         return CandidateScore(name, "", "", {}, 1.0, 1.0, imp, bic, accepted=True)
@@ -322,7 +324,7 @@ def test_held_out_improvement_is_the_typical_window_not_one_outlier():
     """Case 26 of the planted benchmark: the right terms improved 9 of 12 held-out windows, but
     one window that a half's fit threw off (2.1 -> 8.5) made the summed held-out J 67 % worse.
     The typical change (geometric mean of the per-window ratios) counts it as one window."""
-    from sweep.diagnose.run import typical_change
+    from sweep.diagnose.scoring import typical_change
 
     control = np.array([0.55, 0.54, 0.15, 0.65, 2.08, 0.12, 0.42, 1.36, 0.59, 0.60, 0.11, 0.12])
     effect = np.array([0.67, 0.37, 0.09, 0.45, 8.51, 0.39, 0.20, 1.27, 0.07, 0.15, 0.03, 0.03])

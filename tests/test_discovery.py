@@ -22,7 +22,7 @@ from mmg.discovered import discovered_effect, effect_name
 from sweep.data.recordings import Recording, read_recordings
 from sweep.diagnose.__main__ import main
 from sweep.diagnose.floor import NoiseModel, calibrated_noise, misfit_test, noise_floor
-from sweep.diagnose.run import cut_windows
+from sweep.diagnose.windows import cut_windows
 from sweep.identification.vector import with_effects
 
 KINDS = ("random", "turning", "zigzag")

@@ -14,7 +14,7 @@ from mmg.discovered import with_bounds
 from sweep.data.recordings import Recording, read_recordings
 from sweep.diagnose.floor import NoiseModel, simulate_windows
 from sweep.diagnose.generalise import generalisation_test
-from sweep.diagnose.run import cut_windows
+from sweep.diagnose.windows import cut_windows
 from sweep.identification.vector import with_effects
 
 

@@ -15,8 +15,10 @@ from mmg.params import N_THETA
 from sweep.data.recordings import Recording, read_recordings
 from sweep.diagnose.fit import FitSettings, fit
 from sweep.diagnose.floor import NoiseModel, simulate_windows
-from sweep.diagnose.run import cut_windows, delta_bic, n_effective
-from sweep.diagnose.threshold import CEILING, Linearised, acceptance_null
+from sweep.diagnose.linearised import Linearised
+from sweep.diagnose.scoring import delta_bic, n_effective
+from sweep.diagnose.threshold import CEILING, acceptance_null
+from sweep.diagnose.windows import cut_windows
 from sweep.identification.polish import PolishSettings
 from sweep.identification.vector import with_effects
 

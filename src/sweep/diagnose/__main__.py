@@ -31,7 +31,8 @@ from mmg import catalog
 from sweep.data.datasets import CONF_DIR, DataNotFoundError, SplitError, load_split
 from sweep.data.parameters import load_parameters
 from sweep.data.recordings import Recording, read_recordings
-from sweep.diagnose.run import DiagnoseSettings, diagnose
+from sweep.diagnose.run import diagnose
+from sweep.diagnose.settings import DiagnoseSettings
 from sweep.errors import UserError, exit_on_user_error
 
 
@@ -66,7 +67,6 @@ def _split_names(group: str) -> list[str]:
 
 
 def parse(argv: Sequence[str] | None) -> argparse.Namespace:
-    """The command-line options (``argv`` None: ``sys.argv``); defaults from DiagnoseSettings."""
     ap = argparse.ArgumentParser(
         prog="python -m sweep.diagnose", description=(__doc__ or "").splitlines()[0]
     )
@@ -145,11 +145,6 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
 
 
 def run(argv: Sequence[str] | None = None) -> dict[str, object]:
-    """Check the options, run the diagnosis, write the report and log the MLflow run.
-
-    Returns the report dict (as written to ``report.json``). Raises UserError for an option
-    out of range, an unknown candidate or data the diagnosis cannot use.
-    """
     args = parse(argv)
     known = catalog()
     names = tuple(n.strip() for n in args.candidates.split(",") if n.strip())
@@ -215,8 +210,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
 
         uri = args.tracking_uri or default_tracking_uri()
 
-        def key(effect: str) -> str:
-            """Metric-name part of an effect (a generated effect's name lists its terms)."""
+        def key(effect: str) -> str:  # a generated effect's name lists terms: not a metric name
             return "discovered" if effect.startswith("discovered:") else effect
 
         metrics = {f"improvement/{key(c.effect)}": c.improvement for c in result.candidates}
@@ -248,7 +242,6 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m sweep.diagnose``; the exit status (0, or 2 with a one-line error)."""
     warnings.simplefilter("default")
     with exit_on_user_error():
         try:

@@ -9,7 +9,7 @@
    ``draws`` noise series): what a model exact in form and values would reach, with its spread.
 3. **Test** (:func:`misfit_test`): the base model's J against the floor of a *fitted* model (the
    floor times ``refit_factor``, the share of the noise's J a refit of the 57 parameters keeps,
-   from :mod:`sweep.diagnose.threshold`); significant when the total exceeds it by more than
+   from :mod:`sweep.diagnose.linearised`); significant when the total exceeds it by more than
    ``margin`` and by more than ``z`` standard deviations of its spread.
 """
 
@@ -234,7 +234,7 @@ class Floor:
 
 
 def run_of(window: Recording) -> str:
-    """The run a window was cut from (``run@t0`` names, :func:`sweep.diagnose.run.cut_windows`)."""
+    """The run a window was cut from (``run@t0`` names: :func:`sweep.diagnose.windows.cut_windows`)."""
     return window.name.rsplit("@", 1)[0]
 
 
@@ -293,7 +293,7 @@ def misfit_test(
     """Total and per run and channel ratio of J to the floor; significance (module docstring).
 
     ``refit_factor``: the share of the floor a model *fitted* to the windows keeps (its fit
-    takes part of the noise out; :meth:`sweep.diagnose.threshold.Linearised.refit_factor`);
+    takes part of the noise out; :meth:`sweep.diagnose.linearised.Linearised.refit_factor`);
     the base model's J is compared with the floor times this factor."""
     ch = list(CHANNELS[objective])
     draws, mean = refit_factor * f.draws, refit_factor * f.mean  # the floor of a fitted model

@@ -3,7 +3,7 @@
 An effect the training manoeuvres do not excite (a crossflow acting only astern) shows only on
 other recordings. On the test windows a model exact in form misses by the test noise plus what the
 training noise moved its parameters by; the null of that J is a parametric bootstrap with the
-identification linearised (Gauss-Newton, as in :mod:`sweep.diagnose.threshold`):
+identification linearised (Gauss-Newton, as in :mod:`sweep.diagnose.linearised`):
 
 1. ``draws`` noise-only copies of the training windows (:mod:`sweep.diagnose.floor`); the
    linearised refit of the 57 parameters on each (with the refinement's prior) moves them by
@@ -29,7 +29,7 @@ from mmg import Parameters
 from sweep.data.recordings import Recording
 from sweep.diagnose.discover import null_sets
 from sweep.diagnose.floor import NoiseModel, run_of
-from sweep.diagnose.threshold import Linearised
+from sweep.diagnose.linearised import Linearised
 
 FloatArray = NDArray[np.float64]
 
@@ -87,7 +87,7 @@ def generalisation_test(
 ) -> GeneralisationTest:
     """The test of the module docstring for ``params`` identified on the windows ``train``,
     judged on the windows ``test`` (both cut as the objective cuts them, e.g. by
-    :func:`sweep.diagnose.run.cut_windows`)."""
+    :func:`sweep.diagnose.windows.cut_windows`)."""
     if not test:
         raise ValueError("the generalisation test needs test recordings")
     lin = Linearised(params, train, [], (), objective=objective, prior_weight=prior_weight)

@@ -76,10 +76,6 @@ def generalisation_text(d: Diagnosis) -> str:
     return text
 
 
-def _with_value(formula: str, name: str, values: dict[str, float]) -> str:
-    return formula.replace(name, f"({values[name]:.4g})")
-
-
 def discovered_entry(d: Diagnosis) -> dict[str, Any]:
     """The discovered terms: formulas, coefficients, and how to reuse them."""
     if d.verdict != "discovered":
@@ -116,66 +112,66 @@ def discovered_entry(d: Diagnosis) -> dict[str, Any]:
     }
 
 
-def statement(d: Diagnosis) -> str:
-    """The verdict in plain words."""
-    s = d.settings
-    if d.verdict == "unexplained":
-        m = d.misfit
-        assert m is not None
-        best = d.candidates[0] if d.candidates else None
-        g = d.generalisation
-        if m.significant or g is None:
-            text = (
-                f"Unexplained misfit: the base model misses by {m.ratio:.1f} x what measurement "
-                f"noise alone gives ({s.objective} {m.J:.3g} against a floor of {m.floor:.3g}, "
-                f"z = {m.z:.0f}), and no candidate (catalog or discovered) was accepted."
-            )
-        else:
-            beyond = ", ".join(
-                f"{r['run']} ({r['ratio']:.1f} x)" for r in g.per_run if r["significant"]
-            )
-            text = (
-                f"Unexplained misfit on recordings the model was not fitted to: on the training "
-                f"windows the base model is at the noise floor ({m.ratio:.2f} x), but on the "
-                f"test recordings its {g.objective} is {g.J:.3g}, {g.ratio:.1f} x the median of "
-                f"what a model exact in form, identified on the same training windows, reaches "
-                f"there ({g.median:.3g}; significant above {g.limit:.3g}). Something the "
-                f"training manoeuvres do not excite is missing: no candidate (catalog or "
-                f"discovered) could be fitted to it. Runs beyond their own limit: "
-                f"{beyond or 'none alone'}; add training recordings of their regime."
-            )
-        conf = d.extra.get("confirmation")
-        if conf:
-            text += (
-                f" ({conf['effect']} passed on the two halves, but re-identified on all windows "
-                f"it does not lower J beyond the threshold: dBIC {conf['delta_bic']:.1f}; it "
-                "only re-balanced the base parameters.)"
-            )
-        if m.per_run and m.significant:
-            worst = m.per_run[0]
-            ch = max(worst["channels"], key=worst["channels"].get)
-            text += f" Worst run: {worst['run']} ({worst['ratio']:.1f} x its floor, most in {ch})."
-        if best is not None:
-            text += (
-                f" The best candidate was {best.effect} (dBIC {best.delta_bic:.1f}, held-out "
-                f"change {100 * best.improvement:+.1f} %)."
-            )
-        return text
-    if d.verdict == "none":
-        best = d.candidates[0] if d.candidates else None
+def _best_text(d: Diagnosis) -> str:
+    best = d.candidates[0] if d.candidates else None
+    if best is None:
+        return ""
+    return (
+        f" The best candidate was {best.effect} (dBIC {best.delta_bic:.1f}, held-out "
+        f"change {100 * best.improvement:+.1f} %)."
+    )
+
+
+def _unexplained_statement(d: Diagnosis) -> str:
+    m = d.misfit
+    assert m is not None
+    g = d.generalisation
+    if m.significant or g is None:
         text = (
-            "Nothing significant was found: the model fits to the noise floor and no candidate "
-            "effect, fitted jointly with the base "
-            f"parameters, reached dBIC <= {d.threshold:.1f} against the base model refitted "
-            "by the same procedure with a held-out change of J of at least "
-            f"{100 * s.min_improvement:+.0f} %."
+            f"Unexplained misfit: the base model misses by {m.ratio:.1f} x what measurement "
+            f"noise alone gives ({d.settings.objective} {m.J:.3g} against a floor of "
+            f"{m.floor:.3g}, z = {m.z:.0f}), and no candidate (catalog or discovered) was accepted."
         )
-        if best is not None:
-            text += (
-                f" The best candidate was {best.effect} (dBIC {best.delta_bic:.1f}, held-out "
-                f"change {100 * best.improvement:+.1f} %)."
-            )
-        return text + " " + misfit_text(d) + (" " + generalisation_text(d)).rstrip()
+    else:
+        beyond = ", ".join(
+            f"{r['run']} ({r['ratio']:.1f} x)" for r in g.per_run if r["significant"]
+        )
+        text = (
+            f"Unexplained misfit on recordings the model was not fitted to: on the training "
+            f"windows the base model is at the noise floor ({m.ratio:.2f} x), but on the "
+            f"test recordings its {g.objective} is {g.J:.3g}, {g.ratio:.1f} x the median of "
+            f"what a model exact in form, identified on the same training windows, reaches "
+            f"there ({g.median:.3g}; significant above {g.limit:.3g}). Something the "
+            f"training manoeuvres do not excite is missing: no candidate (catalog or "
+            f"discovered) could be fitted to it. Runs beyond their own limit: "
+            f"{beyond or 'none alone'}; add training recordings of their regime."
+        )
+    conf = d.extra.get("confirmation")
+    if conf:
+        text += (
+            f" ({conf['effect']} passed on the two halves, but re-identified on all windows "
+            f"it does not lower J beyond the threshold: dBIC {conf['delta_bic']:.1f}; it "
+            "only re-balanced the base parameters.)"
+        )
+    if m.per_run and m.significant:
+        worst = m.per_run[0]
+        ch = max(worst["channels"], key=worst["channels"].get)
+        text += f" Worst run: {worst['run']} ({worst['ratio']:.1f} x its floor, most in {ch})."
+    return text + _best_text(d)
+
+
+def _none_statement(d: Diagnosis) -> str:
+    text = (
+        "Nothing significant was found: the model fits to the noise floor and no candidate "
+        "effect, fitted jointly with the base "
+        f"parameters, reached dBIC <= {d.threshold:.1f} against the base model refitted "
+        "by the same procedure with a held-out change of J of at least "
+        f"{100 * d.settings.min_improvement:+.0f} %."
+    ) + _best_text(d)
+    return text + " " + misfit_text(d) + (" " + generalisation_text(d)).rstrip()
+
+
+def _found_statement(d: Diagnosis) -> str:
     c = d.chosen
     assert c is not None
     after = dict(next(v for n, v in d.after.params.effects if n == d.verdict_effect))
@@ -201,7 +197,7 @@ def statement(d: Diagnosis) -> str:
         f"typically by {100 * c.improvement:+.1f} % (geometric mean over windows; their sum "
         f"by {100 * c.improvement_total:+.1f} %)."
     )
-    J = s.objective
+    J = d.settings.objective
     if d.test_before:
         b, a = d.test_before[J]["Total"], d.test_after[J]["Total"]
         change = 100 * (a - b) / b
@@ -213,6 +209,15 @@ def statement(d: Diagnosis) -> str:
             f"would reach there ({ga.median:.3g}): more is missing than this effect."
         )
     return text
+
+
+def statement(d: Diagnosis) -> str:
+    """The verdict in plain words."""
+    if d.verdict == "unexplained":
+        return _unexplained_statement(d)
+    if d.verdict == "none":
+        return _none_statement(d)
+    return _found_statement(d)
 
 
 def _generalisation_dict(g: GeneralisationTest | None) -> dict[str, Any] | None:
@@ -564,18 +569,14 @@ def _regression_md(view: dict[str, Any]) -> list[str]:
     return [*lines, "", "![equation residuals](equation_residuals.png)"]
 
 
-def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str, Any]:
-    """Write report.json, report.md and the plots into ``out``; returns the report dict."""
-    out.mkdir(parents=True, exist_ok=True)
-    data = report_dict(d)
-    (out / "report.json").write_text(json.dumps(data, indent=2, default=float) + "\n")
-    d.before.params.save_json(out / "params_before.json", stage="base model, re-identified")
-    d.after.params.save_json(
-        out / "params_after.json", stage=f"with effect {d.verdict_effect or d.verdict}"
-    )
+def write_figures(
+    d: Diagnosis, test: Sequence[Recording], out: Path, view: dict[str, Any]
+) -> list[str]:
+    """The report's plots in ``out``: candidates, the regression ``view`` of the equation
+    residual (when it has terms) and, with test recordings, residual by regime and
+    trajectories; returns their file names."""
     plot_candidates(d, out / "candidates.png")
     figures = ["candidates.png"]
-    view = d.proposal.extra.get("regression", {}) if d.proposal is not None else {}
     if view.get("terms"):
         plot_regression(view, out / "equation_residuals.png")
         figures.append("equation_residuals.png")
@@ -592,11 +593,11 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
         plot_regimes(fb, fa, variables, out / "residual_vs_regime.png")
         plot_trajectories(d, test, out / "trajectories.png")
         figures += ["residual_vs_regime.png", "trajectories.png"]
-    md = [
-        "# Diagnosis report",
-        "",
-        f"**Verdict: `{d.verdict}`.** {data['statement']}",
-        "",
+    return figures
+
+
+def _misfit_md(d: Diagnosis) -> list[str]:
+    return [
         "## Is anything missing? The misfit against the noise floor",
         "",
         misfit_text(d),
@@ -609,16 +610,11 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
             for r in (d.misfit.per_run[:8] if d.misfit else [])
         ),
         "",
-        *_generalisation_md(d),
-        "## Discovery: equation-level residuals regressed on the term library",
-        "",
-        *_discovery_md(d),
-        *_regression_md(view),
-        "",
-        "## Acceptance threshold, calibrated on these windows",
-        "",
-        *_acceptance_md(d),
-        "",
+    ]
+
+
+def _location_md(d: Diagnosis) -> list[str]:
+    md = [
         "## Where the base model misses (training windows)",
         "",
         "| regime variable | channels | eta^2 | worst bin | worst / mean |",
@@ -635,8 +631,11 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
         md.append(
             f"| {b['variable']} {b['bin']} | {b['channel']} | {b['mean']:.3g} | {b['t']:.1f} |"
         )
-    md += [
-        "",
+    return md
+
+
+def _candidates_md(d: Diagnosis) -> list[str]:
+    md = [
         "## Candidates (fitted jointly with the 57 base parameters)",
         "",
         "| effect | dBIC | held-out improvement (typical) | (summed J) | accepted "
@@ -650,10 +649,11 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
             f"{100 * c.improvement:+.1f} % | {100 * c.improvement_total:+.1f} % | "
             f"{'yes' if c.accepted else 'no'} | {vals} |"
         )
-    md += [
-        "",
-        "![candidates](candidates.png)",
-        "",
+    return [*md, "", "![candidates](candidates.png)", ""]
+
+
+def _test_md(d: Diagnosis, test: Sequence[Recording]) -> list[str]:
+    md = [
         f"## Test recordings: J before and after (the base model refitted vs with `{d.verdict}`)",
         "",
         _table_md(d.test_before, d.test_after),
@@ -665,27 +665,75 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
             "![trajectories](trajectories.png)",
             "",
         ]
-    md += [
+    return md
+
+
+def _procedure_md(d: Diagnosis) -> list[str]:
+    s = d.settings
+    return [
         "## Procedure",
         "",
         f"{d.train_windows} training windows in two halves of {d.fit_windows} and "
         f"{d.heldout_windows}; base identification on all of them: {d.base.evaluations} "
-        f"evaluations (CMA-ES {d.settings.base_budget} then Levenberg-Marquardt, and "
-        f"Levenberg-Marquardt alone for up to {d.settings.base_lm_iterations} iterations; the "
+        f"evaluations (CMA-ES {s.base_budget} then Levenberg-Marquardt, and "
+        f"Levenberg-Marquardt alone for up to {s.base_lm_iterations} iterations; the "
         f"lower end kept), J = "
         f"{d.base.f:.2f}. Control and candidates: fitted on each half from the base (effect grid "
-        f"{d.settings.effect_only_budget} evaluations, then up to {d.settings.polish_iterations} "
+        f"{s.effect_only_budget} evaluations, then up to {s.polish_iterations} "
         "Levenberg-Marquardt iterations on base and effect jointly) and judged on the other half; "
-        f"the {d.settings.refine_top} leading candidates (marked *) and the control continued "
-        f"with up to {d.settings.refine_iterations} more iterations; "
+        f"the {s.refine_top} leading candidates (marked *) and the control continued "
+        f"with up to {s.refine_iterations} more iterations; "
         "dBIC from both fits. Re-identification on all training windows (up to "
-        f"{d.settings.final_polish_iterations} iterations); objective {d.settings.objective}, "
-        f"seed {d.settings.seed}; {d.seconds:.0f} s in all. Ranking: lowest dBIC; accepted if "
+        f"{s.final_polish_iterations} iterations); objective {s.objective}, "
+        f"seed {s.seed}; {d.seconds:.0f} s in all. Ranking: lowest dBIC; accepted if "
         f"dBIC <= {d.threshold:.1f} ({_threshold_origin(d)}) and held-out improvement >= "
-        f"{100 * d.settings.min_improvement:.0f} % (typical window: 1 - the geometric mean "
+        f"{100 * s.min_improvement:.0f} % (typical window: 1 - the geometric mean "
         "of the per-window ratios of J).",
         "",
     ]
-    (out / "report.md").write_text("\n".join(md))
+
+
+def report_md(
+    d: Diagnosis, statement_text: str, test: Sequence[Recording], view: dict[str, Any]
+) -> str:
+    """The text of ``report.md``: the verdict's ``statement_text``, then one section per stage."""
+    md = [
+        "# Diagnosis report",
+        "",
+        f"**Verdict: `{d.verdict}`.** {statement_text}",
+        "",
+        *_misfit_md(d),
+        *_generalisation_md(d),
+        "## Discovery: equation-level residuals regressed on the term library",
+        "",
+        *_discovery_md(d),
+        *_regression_md(view),
+        "",
+        "## Acceptance threshold, calibrated on these windows",
+        "",
+        *_acceptance_md(d),
+        "",
+        *_location_md(d),
+        "",
+        *_candidates_md(d),
+        *_test_md(d, test),
+        *_procedure_md(d),
+    ]
+    return "\n".join(md)
+
+
+def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str, Any]:
+    """Write report.json, report.md, the parameter files and the plots into ``out``; returns
+    the report dict (with the figures' file names)."""
+    out.mkdir(parents=True, exist_ok=True)
+    data = report_dict(d)
+    (out / "report.json").write_text(json.dumps(data, indent=2, default=float) + "\n")
+    d.before.params.save_json(out / "params_before.json", stage="base model, re-identified")
+    d.after.params.save_json(
+        out / "params_after.json", stage=f"with effect {d.verdict_effect or d.verdict}"
+    )
+    view = d.proposal.extra.get("regression", {}) if d.proposal is not None else {}
+    figures = write_figures(d, test, out, view)
+    (out / "report.md").write_text(report_md(d, data["statement"], test, view))
     data["figures"] = figures
     return data

@@ -1,73 +1,26 @@
 """The acceptance threshold of candidates, calibrated on the data at hand.
 
-A candidate (a catalog effect or the discovered terms) is accepted when its information
-criterion over the two folds, ``dBIC = N_eff ln(J_fit(effect) / J_fit(control)) + k ln N_eff``
-(:func:`sweep.diagnose.run.delta_bic`), is below a threshold. A fixed threshold ignores how much a
-candidate gains from noise alone on *these* windows: the gain depends on the manoeuvres, the noise
-level and colour, and on how many candidates (and library terms) were tried. The threshold is
-therefore the ``alpha`` quantile of the null distribution of the **best** candidate's dBIC, from a
-parametric bootstrap that linearises the fits (Gauss-Newton):
-
-1. **Null recordings.** The base model is simulated on every training window and noise of the
-   estimated level and colour is added (:mod:`sweep.diagnose.floor`), ``draws`` times. The
-   residual vector ``r_d`` the objective squares
-   (:func:`sweep.identification.polish.residual_vectors`) of the base model on copy ``d`` is what a
-   refit would have to explain when nothing is missing. 2. **Directions.** The Jacobian ``A`` of the
-   residuals with respect to the 57 base parameters (forward differences in the normalised box, the
-   coordinates of the fits' prior) and, for each candidate, the directions its effect can move the
-   residuals in: the derivatives at its neutral values and, for effects that are not linear in their
-   parameters, the change from neutral to each point of a grid over the effect's box (an onset angle
-   gives no derivative at neutral, but a direction at every angle of the grid). With discovery on,
-   the library terms' columns too: the discovered candidate's null is a greedy forward selection of
-   up to ``max_terms`` of them per copy (the look-elsewhere of choosing among the library).
-3. **Linearised fits.** In each fold (the windows a fold fit sees) the control fit is the least
-   squares of ``r_d`` on ``A`` with the fits' prior (rows ``sqrt(mu) I``); a candidate adds its
-   directions (the best single grid direction, or the span of its derivatives, whichever gains
-   more), which is what a converged joint fit gains to first order. ``dBIC`` follows from the
-   fold sums exactly as for the real fits, and the best over candidates is one draw of the null.
-
-The threshold used is the ``alpha`` quantile of those draws, but never above ``CEILING``
-(strong evidence on the BIC scale). The fits of the diagnosis stop after a bounded number of
-iterations, so they gain at most what the linearised fits gain: the null errs on the strict side.
+A candidate is accepted when its dBIC over the two folds is below a threshold: the ``alpha``
+quantile of the null distribution of the *best* candidate's dBIC, from a parametric bootstrap
+(noise-only copies of the training windows simulated by the base model) with the fold fits
+linearised (:class:`sweep.diagnose.linearised.Linearised`), never above :data:`CEILING`.
+The procedure is described in the user guide (docs/guide/diagnosis.md).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
-from mmg import Effect, Parameters, bounds, get_effect
-from mmg.discovered import discovered_effect, unit_rows
-from mmg.library import SEARCHED, Column, chosen_shapes, library_columns
-from mmg.params import N_THETA
-from sweep.data.objective import Objective
-from sweep.data.recordings import Recording
-from sweep.diagnose.discover import null_sets, spans
+from sweep.diagnose.discover import null_sets
 from sweep.diagnose.floor import NoiseModel
-from sweep.identification.polish import residual_vectors
-from sweep.identification.vector import effect_values
-
-FloatArray = NDArray[np.float64]
+from sweep.diagnose.linearised import Linearised
 
 #: the threshold is never above this dBIC (Kass and Raftery: a BIC difference beyond 10 is very
 #: strong evidence); it matters only when the null's quantile is closer to zero
 CEILING = -10.0
-#: forward-difference step of the base Jacobian, in the normalised box
-FD_STEP = 1e-3
-#: grid points per effect parameter for the directions of a nonlinear effect
-GRID = 5
-#: a library term whose trajectory column the base imitates beyond 1 - MIN_FREE of its squared
-#: norm counts nothing (as ``DiscoverySettings.max_absorbed`` in the equation-level proposal)
-MIN_FREE = 0.01
-#: the library's span keeps the directions whose squared singular value exceeds this share of
-#: the largest (singular values down to 1e-5 of it: the Gram matrix's rounding is ~1e-16)
-GRAM_RCOND = 1e-10
-#: coefficient step of the library columns (the terms are linear in their coefficient)
-LIBRARY_STEP = 1e-4
 
 
 @dataclass
@@ -86,6 +39,7 @@ class AcceptanceNull:
     refit_factor: float = 1.0
 
     def as_dict(self) -> dict[str, Any]:
+        """The null as ``report.json`` shows it (``acceptance``), with a summary of ``best``."""
         b = np.asarray(self.best)
         return {
             "method": "parametric bootstrap, linearised fits (sweep.diagnose.threshold)",
@@ -106,363 +60,6 @@ class AcceptanceNull:
         }
 
 
-def _residuals(obj: Objective, thetas: FloatArray) -> FloatArray:
-    r, _ = residual_vectors(obj, thetas)
-    return r  # (C, S, M)
-
-
-def _effect_directions(
-    obj: Objective, theta0: FloatArray, eff: Effect, r0: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """(derivative columns (S, M, k), grid directions (S, M, g)) of ``eff`` at the base."""
-    k = len(eff.params)
-    lo = np.array([q.lower for q in eff.params])
-    hi = np.array([q.upper for q in eff.params])
-    neutral = np.array(eff.neutral())
-    rows = np.repeat(theta0[None, :], k, axis=0)
-    h = 1e-3 * (hi - lo)
-    rows[np.arange(k), N_THETA + np.arange(k)] += h
-    d = (_residuals(obj, rows) - r0[None]) / h[:, None, None]
-    axes = [np.linspace(lo[j], hi[j], GRID) for j in range(k)] if k <= 2 else []
-    if axes:
-        grid = np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
-        grid = grid[np.any(np.abs(grid - neutral) > 1e-12, axis=1)]
-        gr = np.repeat(theta0[None, :], len(grid), axis=0)
-        gr[:, N_THETA:] = grid
-        g = _residuals(obj, gr) - r0[None]
-        good = np.isfinite(g).all(axis=(1, 2))
-        g = g[good]
-    else:
-        g = np.zeros((0, *r0.shape))
-    return np.moveaxis(d, 0, -1), np.moveaxis(g, 0, -1)
-
-
-def _orth(X: FloatArray, rcond: float = 1e-10) -> FloatArray:
-    """Orthonormal basis of the column span of X (rank-revealing by the SVD)."""
-    if X.shape[1] == 0:
-        return X
-    U, s, _ = np.linalg.svd(X, full_matrices=False)
-    keep = s > rcond * max(float(s[0]), 1e-300)
-    return U[:, keep]
-
-
-def _span_gain(X: FloatArray, R: FloatArray) -> FloatArray:
-    """Squared norm of the projection of each column of R onto the span of X: (D,)."""
-    Q = _orth(X)
-    if Q.shape[1] == 0:
-        return np.zeros(R.shape[1])
-    return np.asarray(((Q.T @ R) ** 2).sum(axis=0))
-
-
-def _direction_gain(G: FloatArray, R: FloatArray) -> FloatArray:
-    """Best single direction of G for each column of R: max_i (g_i.r)^2 / |g_i|^2, (D,)."""
-    if G.shape[1] == 0:
-        return np.zeros(R.shape[1])
-    n2 = (G * G).sum(axis=0)
-    ok = n2 > 1e-300
-    if not ok.any():
-        return np.zeros(R.shape[1])
-    G = G[:, ok] / np.sqrt(n2[ok])
-    return np.asarray(((G.T @ R) ** 2).max(axis=0))
-
-
-def _greedy(
-    parts: Sequence[tuple[FloatArray, FloatArray, FloatArray]],
-    max_terms: int,
-    groups: Sequence[str] | None = None,
-) -> tuple[FloatArray, list[list[int]]]:
-    """Greedy forward selection of library columns, the same terms in every fold.
-
-    ``parts`` holds per fold (columns (m, T), residuals (m, D)) in an orthonormal basis of that
-    fold, the columns scaled by their norm *before* the base was projected out, so that a
-    column's squared norm is the share of the term the base cannot imitate; a term the base
-    imitates beyond ``1 - MIN_FREE`` in a fold counts nothing there; columns of one group (one
-    term at several points of its shape's grid) enter once. Returns the summed gains
-    (max_terms, D) (row t: with t + 1 terms) and the chosen columns of each residual.
-    """
-    D = parts[0][1].shape[1]
-    out = np.zeros((max_terms, D))
-    paths: list[list[int]] = []
-    for d in range(D):
-        rs = [R[:, d].copy() for _, R, _ in parts]
-        Cs = [C.copy() for C, _, _ in parts]
-        gain = 0.0
-        chosen: list[int] = []
-        for t in range(max_terms):
-            score = np.zeros(Cs[0].shape[1])
-            for C, r in zip(Cs, rs, strict=True):
-                cn = (C * C).sum(axis=0)
-                score += np.where(cn > MIN_FREE, (C.T @ r) ** 2 / np.maximum(cn, 1e-300), 0.0)
-            score[chosen] = -1.0
-            if groups is not None:
-                taken = {groups[c] for c in chosen}
-                score[[i for i, g in enumerate(groups) if g in taken]] = -1.0
-            j = int(np.argmax(score))
-            if score[j] <= 0:
-                out[t:, d] = gain
-                break
-            for i, (C, r) in enumerate(zip(Cs, rs, strict=True)):
-                cn = float(C[:, j] @ C[:, j])
-                if cn <= MIN_FREE:
-                    continue
-                q = C[:, j] / np.sqrt(cn)
-                gain += float(q @ r) ** 2
-                rs[i] = r - q * (q @ r)
-                Cs[i] = C - np.outer(q, q @ C)
-            chosen.append(j)
-            out[t, d] = gain
-        paths.append(chosen)
-    return out, paths
-
-
-def _library_part(
-    fold: _Fold, lib: FloatArray, Rf: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """(columns, residuals, column scales) of a fold in an orthonormal basis of the library's
-    projected span; columns divided by their norm before the base was projected out (the
-    scales)."""
-    raw = fold.stack(lib)
-    n0 = np.sqrt((raw * raw).sum(axis=0))
-    n0 = np.where(n0 > 1e-300, n0, np.inf)
-    L = fold.resid(raw) / n0
-    # the basis U = L V s^-1 from the eigenvectors of the Gram matrix L'L (T x T), never formed:
-    # the coordinates are U'L = s V' and U'Rf = s^-1 V'(L'Rf). The SVD of the tall L gave the
-    # same span and took most of the null's time on long recordings
-    lam, V = np.linalg.eigh(L.T @ L)
-    keep = lam > GRAM_RCOND * max(float(lam[-1]), 1e-300)
-    s, V = np.sqrt(lam[keep]), V[:, keep]
-    return s[:, None] * V.T, (V.T @ (L.T @ Rf)) / s[:, None], n0
-
-
-class _Fold:
-    """The rows of one fold fit, with the base Jacobian and the prior projected out."""
-
-    def __init__(self, ix: list[int], A: FloatArray, mu: float) -> None:
-        self.ix = ix
-        Aa = np.vstack([self.rows(A), np.sqrt(mu) * np.eye(N_THETA)])
-        self.Qr, self.Rr = np.linalg.qr(Aa)
-        # with the prior's rows the stacked Jacobian has full column rank: Q of the QR spans it
-        self.Q = self.Qr if mu > 0 else _orth(Aa)
-
-    def base_coef(self, X: FloatArray) -> FloatArray:
-        """(57, c) least-squares base coefficients of stacked columns X (with the prior)."""
-        return np.asarray(np.linalg.solve(self.Rr, self.Qr.T @ X))
-
-    def rows(self, X: FloatArray) -> FloatArray:
-        Y = X[self.ix]
-        return Y.reshape(Y.shape[0] * Y.shape[1], -1)
-
-    def stack(self, X: FloatArray) -> FloatArray:
-        """(S, M, c) columns as fold rows with the prior's rows (zero for these columns)."""
-        Y = self.rows(X)
-        return np.vstack([Y, np.zeros((N_THETA, Y.shape[1]))])
-
-    def resid(self, X: FloatArray) -> FloatArray:
-        return X - self.Q @ (self.Q.T @ X)
-
-
-@dataclass
-class TrajectorySelection:
-    """Library terms chosen on the trajectory residuals (:meth:`Linearised.select`)."""
-
-    terms: list[str]
-    coefficients: list[float]  # linearised estimates, in the terms' coefficient units
-    heldout_gain: list[float]  # held-out gain with 1, 2, ... of the terms, share of the fit J
-    dbic: float  # in-sample linearised dBIC of the terms
-    #: the grid point of each chosen term that has a shape: {term: {placeholder: value}}
-    shapes: dict[str, dict[str, float]] = field(default_factory=dict)
-
-
-class Linearised:
-    """The fold fits of the diagnosis linearised at the base model (module docstring, 2-3).
-
-    ``folds``: the indices into ``windows`` each fold fit sees; ``library_terms`` > 0 adds the
-    discovered candidate (greedy selection of up to that many library terms).
-    """
-
-    def __init__(
-        self,
-        params: Parameters,
-        windows: Sequence[Recording],
-        folds: Sequence[Sequence[int]],
-        candidates: Sequence[Effect],
-        *,
-        objective: str = "J2",
-        prior_weight: float = 1.0,
-        library_terms: int = 0,
-    ) -> None:
-        self.params = params
-        self.windows = list(windows)
-        self.objective = objective
-        self.library_terms = library_terms
-        self.base_effects = tuple(get_effect(n) for n, _ in params.effects)
-        ship = params.ship
-        theta_b = np.concatenate(
-            [params.vector(), np.asarray(effect_values(params, self.base_effects), dtype=float)]
-        )
-        self.theta = theta_b
-        lo, hi = bounds()
-        obj = Objective(windows, objective, effects=self.base_effects, ship=ship)
-        r0 = _residuals(obj, theta_b[None])[0]  # (S, M)
-        # base Jacobian in normalised coordinates (the prior's units)
-        rows = np.repeat(theta_b[None, :], N_THETA, axis=0)
-        rows[np.arange(N_THETA), np.arange(N_THETA)] += FD_STEP * (hi - lo)
-        A = np.moveaxis((_residuals(obj, rows) - r0[None]) / FD_STEP, 0, -1)  # (S, M, 57)
-        # candidate directions (derivatives, grid directions) on the same windows
-        self.cand: dict[str, tuple[FloatArray, FloatArray, int]] = {}
-        for eff in candidates:
-            o = Objective(windows, objective, effects=(*self.base_effects, eff), ship=ship)
-            th = np.concatenate([theta_b, np.asarray(eff.neutral(), dtype=np.float64)])
-            re = _residuals(o, th[None])[0]
-            d, g = _effect_directions(o, th, eff, re)
-            self.cand[eff.name] = (d, g, len(eff.params))
-        self.lib: FloatArray | None = None
-        #: the library's columns: each term at every point of its shape's grid
-        self.columns: list[Column] = []
-        if library_terms > 0:
-            ids = list(SEARCHED)
-            leff = discovered_effect(ids)
-            self.columns = library_columns(ids, spans(windows))
-            o = Objective(windows, objective, effects=(*self.base_effects, leff), ship=ship)
-            th = np.concatenate([theta_b, np.asarray(leff.neutral(), dtype=np.float64)])
-            rl = np.repeat(th[None, :], len(self.columns), axis=0)
-            rl[:, theta_b.size :] = unit_rows(leff, self.columns, LIBRARY_STEP)
-            lib = np.moveaxis((_residuals(o, rl) - r0[None]) / LIBRARY_STEP, 0, -1)  # (S, M, T)
-            self.lib = np.where(np.isfinite(lib), lib, 0.0)
-        self.A = A
-        self.folds = [_Fold(list(idx), A, float(prior_weight)) for idx in folds]
-        self.all = _Fold(list(range(len(self.windows))), A, float(prior_weight))
-        self.term_ids = [c.term for c in self.columns]  # (T,) the term of each column
-
-    def select(self, r: FloatArray, n_eff: float, min_gain: float = 0.15) -> TrajectorySelection:
-        """Discovery in trajectory space for the base's residual ``r`` (S, M).
-
-        Forward selection of library terms by their *held-out* gain: base and terms fitted
-        (linearised) on one fold's windows, the gain over the control measured on the other
-        fold's windows without refitting, both ways round; a further term must add at least
-        ``min_gain`` times the held-out gain reached so far. A term that only fits the windows
-        it was fitted on (a position term standing in for a drift) gains nothing held out. The
-        chosen terms' in-sample linearised dBIC is the statistic compared with the null, and
-        their coefficients come from the linearised fit on all windows.
-        """
-        if self.lib is None:
-            raise ValueError("no library: build Linearised with library_terms > 0")
-        R = r[..., None]
-        J0 = 0.0
-        parts = []
-        for fold in self.folds:
-            Rf = fold.resid(fold.stack(R))
-            J0 += float((Rf * Rf).sum())
-            parts.append(_library_part(fold, self.lib, Rf))
-        # held-out images: control residual and term columns of fold k fitted on fold j
-        pairs = []
-        for j, k in ((0, 1), (1, 0)):
-            fj, fk = self.folds[j], self.folds[k]
-            Ak = fk.rows(self.A)
-            ho0 = fk.rows(R)[:, 0] - Ak @ fj.base_coef(fj.stack(R))[:, 0]
-            E = fk.rows(self.lib) - Ak @ fj.base_coef(fj.stack(self.lib))
-            # the held-out residual with terms S at coefficients a is e = ho0 + E_S a, and its
-            # gain |ho0|^2 - |e|^2 = -(2 a'E_S'ho0 + a'E_S'E_S a): from E'ho0 and E'E, formed
-            # once (gathering E_S from the tall E for every trial took most of the selection)
-            pairs.append((parts[j], E.T @ ho0, E.T @ E))
-
-        def heldout(S: list[int]) -> float:
-            total = 0.0
-            for (C, Rp, n0), Eh, EE in pairs:
-                cols = C[:, S]
-                if np.any((cols * cols).sum(axis=0) <= MIN_FREE):
-                    return -np.inf
-                a = -np.linalg.lstsq(cols, Rp[:, 0], rcond=None)[0] / n0[S]
-                total -= float(2.0 * (a @ Eh[S]) + a @ EE[np.ix_(S, S)] @ a)
-            return total
-
-        chosen: list[int] = []
-        path_gain: list[float] = []
-        best = 0.0
-        for _ in range(self.library_terms):
-            taken = {self.term_ids[c] for c in chosen}
-            scores = [
-                (heldout([*chosen, t]), t)
-                for t in range(len(self.term_ids))
-                if self.term_ids[t] not in taken
-            ]
-            g, t = max(scores)
-            if not np.isfinite(g) or g <= best * (1.0 + min_gain) or g <= 0.0:
-                break
-            chosen.append(t)
-            path_gain.append(g)
-            best = g
-        gain = 0.0
-        for C, Rp, _ in parts:
-            gain += float(_span_gain(C[:, chosen], Rp)[0]) if chosen else 0.0
-        k = len(chosen)
-        dbic = float(n_eff * np.log(max((J0 - gain) / J0, 1e-12)) + k * np.log(n_eff))
-        G = self.all.resid(self.all.stack(self.lib[:, :, chosen]))
-        y = self.all.resid(self.all.stack(R))[:, 0]
-        coef = -np.linalg.lstsq(G, y, rcond=None)[0] if k else np.zeros(0)
-        return TrajectorySelection(
-            terms=[self.term_ids[j] for j in chosen],
-            coefficients=[float(c) for c in coef],
-            heldout_gain=[g / J0 for g in path_gain],
-            dbic=dbic if k else 0.0,
-            shapes=chosen_shapes([self.columns[j] for j in chosen]),
-        )
-
-    def residuals(self, recordings: Sequence[Recording]) -> FloatArray:
-        """(S, M) residual vector of the base model on recordings of the same windows."""
-        obj = Objective(
-            recordings, self.objective, effects=self.base_effects, ship=self.params.ship
-        )
-        return _residuals(obj, self.theta[None])[0]
-
-    def gains(self, R: FloatArray) -> tuple[FloatArray, dict[str, tuple[FloatArray, int]]]:
-        """(J of the control fits (D,), {candidate: (gain of its fits (D,), parameters)}) for
-        residual vectors R (S, M, D), summed over the folds; the discovered candidate's gain
-        is per number of terms (rows)."""
-        D = R.shape[-1]
-        J0 = np.zeros(D)
-        gains = {name: np.zeros(D) for name in self.cand}
-        lib_parts: list[tuple[FloatArray, FloatArray, FloatArray]] = []
-        for fold in self.folds:
-            resid, stack = fold.resid, fold.stack
-            Rf = resid(stack(R))
-            J0 += (Rf * Rf).sum(axis=0)
-            for name, (dcols, gcols, _) in self.cand.items():
-                gd = _span_gain(resid(stack(dcols)), Rf)
-                gg = _direction_gain(resid(stack(gcols)), Rf) if gcols.shape[-1] else 0.0 * gd
-                gains[name] += np.maximum(gd, gg)
-            if self.lib is not None:
-                lib_parts.append(_library_part(fold, self.lib, Rf))
-        out = {name: (gains[name], k) for name, (_, _, k) in self.cand.items()}
-        if self.lib is not None:
-            lib_gain, _ = _greedy(lib_parts, self.library_terms, self.term_ids)
-            for t in range(self.library_terms):
-                out[f"discovered/{t + 1}"] = (lib_gain[t], t + 1)
-        return J0, out
-
-    def refit_factor(self, R: FloatArray) -> float:
-        """Mean J of the base refitted (linearised, with the prior) on all windows over the mean
-        J before refitting, for residual vectors R (S, M, D): below 1 by what the refit fits of
-        the noise itself (the floor of a *fitted* model's J is this times the plain floor)."""
-        raw = float(np.sum(R * R))
-        if raw <= 0.0:
-            return 1.0
-        Rf = self.all.resid(self.all.stack(R))
-        return float(np.sum(Rf * Rf)) / raw
-
-    def dbic(self, R: FloatArray, n_eff: float) -> dict[str, FloatArray]:
-        """dBIC (D,) of every candidate's linearised fits for residual vectors R (S, M, D);
-        ``discovered``: the best over the number of library terms."""
-        J0, gains = self.gains(R)
-        out: dict[str, FloatArray] = {}
-        for name, (gain, k) in gains.items():
-            ratio = np.clip((J0 - gain) / J0, 1e-12, None)
-            v = np.asarray(n_eff * np.log(ratio) + k * np.log(n_eff))
-            key = name.split("/")[0]
-            out[key] = np.minimum(out[key], v) if key in out else v
-        return out
-
-
 def acceptance_null(
     lin: Linearised,
     noise: NoiseModel,
@@ -472,7 +69,8 @@ def acceptance_null(
     draws: int = 200,
     alpha: float = 0.05,
 ) -> AcceptanceNull:
-    """The null of the best dBIC (module docstring) for the fold fits of the diagnosis."""
+    """The null of the best dBIC for the fold fits of the diagnosis, linearised in ``lin``
+    (``draws`` noise-only copies of its windows; the threshold is its ``alpha`` quantile)."""
     import time
 
     t0 = time.perf_counter()

@@ -1,0 +1,184 @@
+"""The candidates' fold fits and scores: each effect (catalog and proposed) fitted with the 57
+base parameters on one half of the windows and judged on the other, both ways round, against a
+control fit of the base alone by the same procedure; then the leading candidates and the control
+refined with more Levenberg-Marquardt iterations.
+
+The procedure is described in the user guide (docs/guide/diagnosis.md).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mmg import Effect
+from mmg.effect import DISCOVERED_PREFIX
+from sweep.diagnose.context import Context
+from sweep.diagnose.fit import Fit, FitSettings
+from sweep.diagnose.scoring import CandidateScore, delta_bic, heldout_per_window, typical_change
+from sweep.diagnose.store import stage_label
+from sweep.identification.polish import PolishSettings
+from sweep.identification.vector import effect_values
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FoldFits:
+    """The two fold fits of one model and the J of every held-out window (fold 0's, then
+    fold 1's), shape (held-out windows,)."""
+
+    fits: list[Fit]
+    J_heldout: FloatArray
+
+
+@dataclass
+class Candidates:
+    """Every candidate's fold fits and score against the control's fold fits.
+
+    ``best_fold`` holds, per candidate, the fold fit that gained more over its control (it
+    carries the effect's values); ``leaders`` the candidates that were refined."""
+
+    effects: tuple[Effect, ...]
+    control: FoldFits
+    folds: dict[str, FoldFits]
+    scores: list[CandidateScore]
+    best_fold: dict[str, Fit]
+    leaders: list[str]
+
+
+def candidate_settings(ctx: Context) -> FitSettings:
+    """The fold fits: the effect alone on a grid, then Levenberg-Marquardt on base and effect
+    jointly (CMA-ES before it when ``candidate_budget`` > 0)."""
+    s = ctx.settings
+    return replace(
+        ctx.common,
+        budget=s.candidate_budget,
+        seed=s.seed + 1,
+        sigma0=s.refit_sigma,
+        effect_only_budget=s.effect_only_budget,
+        polish=ctx.lm(s.polish_iterations, PolishSettings.rtol),
+    )
+
+
+def refine_settings(ctx: Context) -> FitSettings:
+    """The refinement of fold fits: more Levenberg-Marquardt iterations alone."""
+    return replace(
+        candidate_settings(ctx),
+        budget=0,
+        effect_only_budget=0,
+        polish=ctx.lm(ctx.settings.refine_iterations, 1e-4),
+    )
+
+
+def fold_fits(
+    ctx: Context,
+    base: Fit,
+    name: str,
+    effs: tuple[Effect, ...],
+    settings: FitSettings,
+    starts: Sequence[Fit] | None = None,
+) -> FoldFits:
+    """Stages ``NAME-fold0`` and ``NAME-fold1``: ``effs`` fitted on each half from the base
+    (or from ``starts``), each judged on the other half."""
+    fits: list[Fit] = []
+    J_ho: list[float] = []
+    halves = ((ctx.fit_w, ctx.held_w), (ctx.held_w, ctx.fit_w))
+    for j, (fit_half, held_half) in enumerate(halves):
+        p0 = base.params if starts is None else starts[j].params
+        res = ctx.staged(
+            f"{stage_label(name, effs)}-fold{j}",
+            effs,
+            lambda fh=fit_half, p0=p0: ctx.refit(fh, p0, effs, settings, name),  # type: ignore[misc]
+        )
+        fits.append(res)
+        J_ho += heldout_per_window(held_half, res.params, ctx.settings.objective)
+    return FoldFits(fits, np.asarray(J_ho))
+
+
+def score(
+    eff: Effect, cand: FoldFits, control: FoldFits, n_eff: float
+) -> tuple[CandidateScore, Fit]:
+    """The score of ``eff``'s fold fits against the control's, and the fold fit that carries
+    the effect's values (the one that gained more over its control)."""
+    J_fit = sum(f.f for f in cand.fits)
+    best = min(range(2), key=lambda j: cand.fits[j].f / max(control.fits[j].f, 1e-300))
+    vals = effect_values(cand.fits[best].params, (eff,))
+    J_ho, J_ho_control = cand.J_heldout, control.J_heldout
+    scored = CandidateScore(
+        effect=eff.name,
+        description=eff.description,
+        regime=eff.regime,
+        params=dict(zip(eff.param_names, vals, strict=True)),
+        J_fit=J_fit,
+        J_heldout=float(J_ho.sum()),
+        improvement=typical_change(J_ho, J_ho_control),
+        improvement_total=float(1.0 - J_ho.sum() / max(J_ho_control.sum(), 1e-300)),
+        delta_bic=delta_bic(J_fit, sum(f.f for f in control.fits), len(eff.params), n_eff),
+        evaluations=sum(f.evaluations for f in cand.fits),
+    )
+    return scored, cand.fits[best]
+
+
+def fit_candidates(ctx: Context, base: Fit, extra: Sequence[Effect]) -> Candidates:
+    """The control and every candidate (the catalog's, then ``extra``) fitted and scored."""
+    settings = candidate_settings(ctx)
+    control = fold_fits(ctx, base, "control", (), settings)
+    effects = (*ctx.settings.candidate_effects(), *extra)
+    out = Candidates(effects, control, {}, [], {}, [])
+    for i, eff in enumerate(effects, 1):
+        ctx.log(f"candidate {i}/{len(effects)}: {eff.name}")
+        t_c = time.perf_counter()
+        out.folds[eff.name] = fold_fits(ctx, base, f"candidate-{eff.name}", (eff,), settings)
+        c, out.best_fold[eff.name] = score(eff, out.folds[eff.name], control, ctx.n_eff)
+        c.seconds = time.perf_counter() - t_c
+        out.scores.append(c)
+    return out
+
+
+def leading(scores: Sequence[CandidateScore], threshold: float, top: int) -> list[str]:
+    """The candidates to refine: the ``top`` best by dBIC, and every discovered candidate that
+    passes ``threshold`` already (a proposal and its alternatives are ranked against each
+    other, and only refined candidates can be accepted)."""
+    leaders = [c.effect for c in sorted(scores, key=lambda c: c.delta_bic)[:top]]
+    leaders += [
+        c.effect
+        for c in scores
+        if c.effect.startswith(DISCOVERED_PREFIX)
+        and c.delta_bic <= threshold
+        and c.effect not in leaders
+    ]
+    return leaders
+
+
+def refine(ctx: Context, base: Fit, cands: Candidates, threshold: float) -> Candidates:
+    """The leading candidates and the control continued from their fold fits (a joint fit that
+    must undo what the base had absorbed can still be descending); the refined scores come
+    first, the others follow unchanged."""
+    s = ctx.settings
+    leaders = leading(cands.scores, threshold, s.refine_top)
+    if not (s.refine_top > 0 and s.refine_iterations > 0):
+        return replace(cands, leaders=leaders)
+    settings = refine_settings(ctx)
+    control = fold_fits(ctx, base, "control-refined", (), settings, cands.control.fits)
+    by_name = {e.name: e for e in cands.effects}
+    best_fold = dict(cands.best_fold)
+    refined = []
+    for name in leaders:
+        eff = by_name[name]
+        t_c = time.perf_counter()
+        folds = fold_fits(
+            ctx, base, f"candidate-{name}-refined", (eff,), settings, cands.folds[name].fits
+        )
+        c, best_fold[name] = score(eff, folds, control, ctx.n_eff)
+        c.refined = True
+        c.seconds = time.perf_counter() - t_c
+        refined.append(c)
+    others = [c for c in cands.scores if c.effect not in leaders]
+    return replace(
+        cands, control=control, scores=refined + others, best_fold=best_fold, leaders=leaders
+    )

@@ -1,0 +1,155 @@
+"""What every stage of a diagnosis reads: the inputs, the windows, the settings, the stage store
+and the log, with the one way the diagnosis fits a model (:meth:`Context.refit`) and stores a
+stage (:meth:`Context.staged`)."""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from mmg import Effect, Parameters
+from mmg.params import N_THETA
+from sweep.data.recordings import Recording
+from sweep.diagnose.fit import Fit, FitSettings, fit
+from sweep.diagnose.scoring import n_effective
+from sweep.diagnose.settings import DiagnoseSettings
+from sweep.diagnose.store import StageStore, data_fingerprint
+from sweep.diagnose.windows import cut_windows, split_windows
+from sweep.identification.polish import PolishSettings
+
+#: where the diagnosis reports its progress: one line per call
+Log = Callable[[str], None]
+
+
+def stderr_log(message: str) -> None:
+    """The default :data:`Log`: ``[diagnose] message`` on standard error."""
+    print(f"[diagnose] {message}", file=sys.stderr, flush=True)
+
+
+def progress(log: Log, label: str, every: float = 10.0) -> Any:
+    """A CMA-ES progress callback that logs ``label``'s evaluations at most every ``every`` s."""
+    last = [time.perf_counter()]
+
+    def show(state: Any, row: dict[str, float]) -> None:
+        now = time.perf_counter()
+        if now - last[0] >= every:
+            last[0] = now
+            log(
+                f"{label}: {int(row['evaluations'])}/{state.settings.max_evaluations} evaluations,"
+                f" best {row['best_so_far']:.2f}"
+            )
+
+    return show
+
+
+@dataclass(frozen=True)
+class Context:
+    """One diagnosis's inputs and surroundings, shared by its stages.
+
+    ``windows`` are the training recordings cut into the objective's windows, ``fit_w`` and
+    ``held_w`` their two halves (the same Recording objects); ``n_eff`` is the effective number
+    of independent residuals of all windows (:func:`sweep.diagnose.scoring.n_effective`).
+    """
+
+    start: Parameters
+    train: Sequence[Recording]
+    test: Sequence[Recording]
+    test_labels: list[str]
+    settings: DiagnoseSettings
+    windows: list[Recording]
+    fit_w: list[Recording]
+    held_w: list[Recording]
+    store: StageStore
+    log: Log
+    n_eff: float
+
+    @classmethod
+    def open(
+        cls,
+        start: Parameters,
+        train: Sequence[Recording],
+        test: Sequence[Recording],
+        out: Path,
+        settings: DiagnoseSettings,
+        test_labels: Sequence[str] | None,
+        log: Log,
+    ) -> Context:
+        """Cut and split the training windows and open the stage store under ``out/stages``."""
+        windows = cut_windows(train)
+        fit_w, held_w = split_windows(windows)
+        log(
+            f"{len(train)} training recording(s) -> {len(windows)} windows: "
+            f"{len(fit_w)} to fit, {len(held_w)} held out; {len(test)} test recording(s)"
+        )
+        fingerprint = settings.fingerprint() + data_fingerprint(train, start)
+        return cls(
+            start=start,
+            train=train,
+            test=test,
+            test_labels=list(test_labels) if test_labels is not None else [r.name for r in test],
+            settings=settings,
+            windows=windows,
+            fit_w=fit_w,
+            held_w=held_w,
+            store=StageStore(out / "stages", fingerprint),
+            log=log,
+            n_eff=n_effective(windows, settings.objective),
+        )
+
+    def lm(self, iterations: int, rtol: float, prior_weight: float | None = None) -> PolishSettings:
+        """Levenberg-Marquardt settings; every refinement carries the weak prior toward the
+        starting parameters (``prior_weight``, by default the settings')."""
+        return PolishSettings(
+            max_iterations=iterations,
+            rtol=rtol,
+            max_evaluations=10**7,
+            prior_weight=self.settings.prior_weight if prior_weight is None else prior_weight,
+            prior_dims=N_THETA,
+        )
+
+    @property
+    def common(self) -> FitSettings:
+        """The fit settings every stage starts from."""
+        s = self.settings
+        return FitSettings(
+            objective=s.objective,
+            sigma0=s.sigma0,
+            effect_sigma=s.effect_sigma,
+            polish=self.lm(s.final_polish_iterations, 1e-4),
+        )
+
+    def refit(
+        self,
+        recs: Sequence[Recording],
+        p0: Parameters,
+        effs: Sequence[Effect],
+        settings: FitSettings,
+        label: str,
+    ) -> Fit:
+        """Every fit of the diagnosis: from ``p0`` on ``recs``; its refinement's prior is
+        centred on the start (``--params``)."""
+        return fit(
+            recs,
+            p0,
+            effs,
+            settings,
+            self.settings.workers,
+            progress(self.log, label),
+            prior_center=self.start,
+        )
+
+    def staged(self, name: str, effects: Sequence[Effect], run: Callable[[], Fit]) -> Fit:
+        """The fit of stage ``name``: from the store when it is there, else ``run()`` stored."""
+        done = self.store.load(name, effects)
+        if done is not None:
+            self.log(f"{name}: resumed from {self.store.path(name)} (J = {done.f:.2f})")
+            return done
+        result = run()
+        self.store.save(name, result)
+        n, sec = result.evaluations, result.seconds
+        self.log(f"{name}: J = {result.f:.2f} after {n} evaluations ({sec:.0f} s)")
+        return result

@@ -1,0 +1,117 @@
+"""How a candidate is scored against the control fit and how candidates are ranked.
+
+``dBIC = N_eff ln(J_fit(effect) / J_fit(control)) + k ln(N_eff)`` over both folds' fits, and the
+held-out improvement, the typical change of J on a held-out window. The procedure is described
+in the user guide (docs/guide/diagnosis.md).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mmg import Parameters, get_effect
+from mmg.effect import DISCOVERED_PREFIX
+from sweep.data.objective import CHANNELS, OBJECTIVES, Objective
+from sweep.data.recordings import Recording
+
+FloatArray = NDArray[np.float64]
+
+#: decorrelation time of trajectory residuals [s] used for the effective sample count of dBIC
+TAU = 10.0
+#: candidates whose dBIC is within TIE_MARGIN x |best dBIC| (at least TIE_ABSOLUTE) of the best are
+#: tied, and the held-out improvement decides between them: N_eff is an estimate, so differences of
+#: a few per cent of dBIC are within its uncertainty (e.g. a rudder offset and a propeller walk
+#: both act as a yaw moment growing with n_p^2 and reach nearly the same fit)
+TIE_MARGIN = 0.05
+TIE_ABSOLUTE = 10.0
+
+
+@dataclass
+class CandidateScore:
+    """One candidate effect after its joint fit."""
+
+    effect: str
+    description: str
+    regime: str
+    params: dict[str, float]
+    J_fit: float
+    J_heldout: float
+    improvement: float  # typical held-out improvement over the control fit (geometric mean)
+    delta_bic: float
+    accepted: bool = False
+    evaluations: int = 0
+    seconds: float = 0.0
+    refined: bool = False  # scores after the refinement of the leading candidates
+    improvement_total: float = 0.0  # relative change of the summed held-out J
+
+
+def rank(scores: Sequence[CandidateScore], tie_margin: float = TIE_MARGIN) -> list[CandidateScore]:
+    """Candidates by dBIC, except that those tied with the best (dBIC within
+    ``max(TIE_ABSOLUTE, tie_margin x |best|)``) come first: accepted ones before the others, a
+    catalog effect before generated (discovered) terms that fit as well (named physics over a
+    generic form: n_p|n_p| terms imitate a propeller walk), then by held-out improvement."""
+    by_bic = sorted(scores, key=lambda c: c.delta_bic)
+    if not by_bic:
+        return []
+    best = by_bic[0].delta_bic
+    margin = max(TIE_ABSOLUTE, tie_margin * abs(best)) if math.isfinite(best) else 0.0
+    tied = [c for c in by_bic if c.delta_bic - best <= margin]
+    tied.sort(
+        key=lambda c: (not c.accepted, c.effect.startswith(DISCOVERED_PREFIX), -c.improvement)
+    )
+    return tied + [c for c in by_bic if c not in tied]
+
+
+def heldout_per_window(
+    windows: Sequence[Recording], params: Parameters, objective: str
+) -> list[float]:
+    """J of ``params`` (with its effects) on each window, in order (:func:`test_table`)."""
+    labels = [f"w{i}" for i in range(len(windows))]
+    row = test_table(params, windows, labels)[objective]
+    return [row[lab] for lab in labels]
+
+
+def typical_change(J_effect: FloatArray, J_control: FloatArray) -> float:
+    """Held-out improvement of an effect: 1 - the geometric mean of the per-window ratios
+    J(effect) / J(control) (positive: the held-out windows fit better). A diverged window
+    (J infinite or NaN) counts as 100 times worse."""
+    a = np.asarray(J_effect, dtype=np.float64)
+    b = np.asarray(J_control, dtype=np.float64)
+    if a.size == 0:
+        return 0.0
+    ratio = np.where(np.isfinite(a), a, np.inf) / np.maximum(b, 1e-300)
+    ratio = np.where(np.isfinite(ratio), ratio, 100.0)
+    return float(1.0 - np.exp(np.mean(np.log(np.maximum(ratio, 1e-12)))))
+
+
+def n_effective(windows: Sequence[Recording], objective: str) -> float:
+    """Effective number of independent residuals: channels x duration / TAU."""
+    duration = sum(w.duration for w in windows)
+    return len(CHANNELS[objective]) * duration / TAU
+
+
+def delta_bic(J_effect: float, J_control: float, k: int, n_eff: float) -> float:
+    """BIC(effect) - BIC(control) with J as the residual sum of squares of n_eff samples."""
+    if J_effect <= 0 or J_control <= 0:
+        return math.inf
+    return n_eff * math.log(J_effect / J_control) + k * math.log(n_eff)
+
+
+def test_table(
+    params: Parameters, recordings: Sequence[Recording], labels: Sequence[str]
+) -> dict[str, dict[str, float]]:
+    """{J: {label: value, "Total": value}} of ``params`` (with its effects) on the recordings."""
+    effects = tuple(get_effect(n) for n, _ in params.effects)
+    obj = Objective(recordings, labels=labels, effects=effects, ship=params.ship)
+    raw = obj.table(params)
+    out: dict[str, dict[str, float]] = {}
+    for J in OBJECTIVES:
+        row = {label: float(raw[J][label][0]) for label in dict.fromkeys(labels)}
+        row["Total"] = float(sum(row.values()))
+        out[J] = row
+    return out

@@ -1,0 +1,86 @@
+"""The verdict: which candidates pass the acceptance threshold and the held-out veto, how they
+rank, and what the verdict is called.
+
+The procedure is described in the user guide (docs/guide/diagnosis.md).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from mmg.effect import DISCOVERED_PREFIX
+from sweep.diagnose.context import Context
+from sweep.diagnose.scoring import CandidateScore, rank
+from sweep.diagnose.settings import DiagnoseSettings
+from sweep.diagnose.threshold import CEILING, AcceptanceNull
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The ranked candidates, the verdict and the chosen candidate's effect name (empty when
+    none was chosen; the verdict is ``discovered`` for a generated effect)."""
+
+    scores: list[CandidateScore]
+    verdict: str
+    effect: str
+
+
+def verdict_name(effect: str, significant: bool) -> str:
+    """The verdict for the chosen ``effect`` ("" for none), given whether the misfit test found
+    the base significantly above the noise floor."""
+    if effect:
+        return "discovered" if effect.startswith(DISCOVERED_PREFIX) else effect
+    return "unexplained" if significant else "none"
+
+
+def acceptance_threshold(settings: DiagnoseSettings, null: AcceptanceNull) -> float:
+    """The dBIC a candidate must reach: ``--max-delta-bic`` or the calibrated null's."""
+    return null.threshold if settings.max_delta_bic is None else settings.max_delta_bic
+
+
+def _log_threshold(ctx: Context, null: AcceptanceNull, threshold: float) -> None:
+    s = ctx.settings
+    ctx.log(
+        f"acceptance: dBIC <= {threshold:.1f} ("
+        + (
+            f"the {s.alpha:.0%} quantile of the best candidate's dBIC over {null.draws} "
+            f"noise-only copies, {null.quantile:.1f}, capped at {CEILING:.0f}"
+            if s.max_delta_bic is None
+            else "set by --max-delta-bic"
+        )
+        + ")"
+    )
+
+
+def decide(
+    ctx: Context,
+    scores: Sequence[CandidateScore],
+    leaders: Sequence[str],
+    null: AcceptanceNull,
+    significant: bool,
+) -> Verdict:
+    """Mark the accepted candidates (refined when the refinement ran, held-out improvement at
+    least ``min_improvement``, dBIC at most the threshold), rank the leaders (:func:`rank`)
+    before the others (by dBIC), and name the verdict; logged."""
+    s = ctx.settings
+    threshold = acceptance_threshold(s, null)
+    _log_threshold(ctx, null, threshold)
+    refined = s.refine_top > 0 and s.refine_iterations > 0
+    for c in scores:
+        c.accepted = (
+            c.refined == refined and c.improvement >= s.min_improvement and c.delta_bic <= threshold
+        )
+    top = rank([c for c in scores if c.effect in leaders], s.tie_margin)
+    ranked = top + sorted([c for c in scores if c.effect not in leaders], key=lambda c: c.delta_bic)
+    effect = ranked[0].effect if ranked and ranked[0].accepted else ""
+    verdict = verdict_name(effect, significant)
+    ctx.log(
+        "ranking: "
+        + ", ".join(
+            f"{c.effect} dBIC {c.delta_bic:.0f} ({100 * c.improvement:+.1f}% held out)"
+            for c in ranked
+        )
+        + f" -> verdict: {verdict}"
+    )
+    return Verdict(ranked, verdict, effect)

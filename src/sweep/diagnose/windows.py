@@ -1,0 +1,69 @@
+"""The windows a diagnosis runs on: recordings cut into the objective's windows, and the
+two halves of the fold fits (one fits, the other judges, then the other way round)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from sweep.data.objective import T_F, split_recording
+from sweep.data.recordings import Recording
+from sweep.diagnose.floor import run_of
+
+#: shortest window kept [s] (the last window of a run may be short)
+MIN_WINDOW = 20.0
+
+
+def cut_windows(
+    recordings: Sequence[Recording], t_f: float = T_F, min_window: float = MIN_WINDOW
+) -> list[Recording]:
+    """Each recording cut into the objective's windows (shorter than ``min_window`` [s] dropped;
+    0 keeps every window the objective sums over)."""
+    out: list[Recording] = []
+    for rec in recordings:
+        for seg in split_recording(rec, t_f):
+            if seg.n_steps * rec.dt < min_window - 1e-9:
+                continue
+            sl = slice(seg.start, seg.start + seg.n_steps + 1)
+            t = np.asarray(rec.t[sl])
+            out.append(
+                Recording(
+                    name=f"{rec.name}@{t[0]:.1f}s",
+                    path=None,
+                    t=t,
+                    x=np.asarray(rec.x[sl]),
+                    u=np.asarray(rec.u[sl]),
+                    w=np.asarray(rec.w[sl]),
+                )
+            )
+    return out
+
+
+def split_windows(windows: Sequence[Recording]) -> tuple[list[Recording], list[Recording]]:
+    """(fit, held-out) windows; needs at least two windows.
+
+    Whole runs are held out when there are several: the windows of one recording share its
+    conditions (the day's wind, the basin's region, the run's manoeuvre), so a term must carry
+    over to other runs to count as better. The runs go, longest first, to the fold with less
+    recorded time so far. From a single run (or when one run holds nearly all the time) the
+    windows alternate between the folds instead."""
+    if len(windows) < 2:
+        raise ValueError(
+            f"the training recordings give {len(windows)} window(s) of up to {T_F:.0f} s; "
+            "the diagnosis needs at least 2 (one to fit, one held out)"
+        )
+    runs: dict[str, list[Recording]] = {}
+    for w in windows:
+        runs.setdefault(run_of(w), []).append(w)
+    total = sum(w.duration for w in windows)
+    longest = max(sum(w.duration for w in ws) for ws in runs.values())
+    if len(runs) < 2 or longest > (2.0 / 3.0) * total:
+        return list(windows[0::2]), list(windows[1::2])
+    folds: tuple[list[Recording], list[Recording]] = ([], [])
+    time_in = [0.0, 0.0]
+    for ws in sorted(runs.values(), key=lambda ws: -sum(w.duration for w in ws)):
+        j = 0 if time_in[0] <= time_in[1] else 1
+        folds[j].extend(ws)
+        time_in[j] += sum(w.duration for w in ws)
+    return folds

@@ -1,0 +1,169 @@
+"""Stages of the diagnosis on their own, from hand-made contexts and inputs (no simulation)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mmg import efd_parameters, get_effect
+from sweep.diagnose.candidates import FoldFits, leading, score
+from sweep.diagnose.context import Context
+from sweep.diagnose.fit import Fit
+from sweep.diagnose.scoring import CandidateScore, typical_change
+from sweep.diagnose.settings import DiagnoseSettings
+from sweep.diagnose.store import StageStore
+from sweep.diagnose.threshold import AcceptanceNull
+from sweep.diagnose.verdict import decide
+from sweep.identification.vector import with_effects
+
+N_EFF = 400.0
+
+
+def _context(tmp_path: Path, lines: list[str], **settings: object) -> Context:
+    """A context without windows: enough for the stages that only score, rank and store."""
+    return Context(
+        start=efd_parameters(),
+        train=(),
+        test=(),
+        test_labels=[],
+        settings=DiagnoseSettings(**settings),  # type: ignore[arg-type]
+        windows=[],
+        fit_w=[],
+        held_w=[],
+        store=StageStore(tmp_path / "stages", "fingerprint"),
+        log=lines.append,
+        n_eff=N_EFF,
+    )
+
+
+def _null(threshold: float) -> AcceptanceNull:
+    return AcceptanceNull(alpha=0.05, draws=3, threshold=threshold, quantile=threshold, best=[])
+
+
+def _score(effect: str, dbic: float, improvement: float, refined: bool = True) -> CandidateScore:
+    return CandidateScore(
+        effect=effect,
+        description="",
+        regime="",
+        params={},
+        J_fit=1.0,
+        J_heldout=1.0,
+        improvement=improvement,
+        delta_bic=dbic,
+        refined=refined,
+    )
+
+
+def _fit(f: float, value: float = 0.0) -> Fit:
+    params = with_effects(efd_parameters(), (get_effect("rudder_offset"),), [value])
+    return Fit(params=params, effects=(), f=f, evaluations=10, seconds=0.0, history=[])
+
+
+def test_the_verdict_stage_accepts_ranks_and_names_the_verdict(tmp_path: Path) -> None:
+    lines: list[str] = []
+    ctx = _context(tmp_path, lines)
+    scores = [
+        _score("rudder_offset", -50.0, 0.10),
+        _score("current", -48.0, 0.30),  # tied with the best (within 10): held out decides
+        _score("propeller_walk", -45.0, -0.40),  # passes dBIC, vetoed by the held-out change
+        _score("rudder_stall", 5.0, 0.0, refined=False),  # not a leader: after them, unrefined
+    ]
+    leaders = ["rudder_offset", "current", "propeller_walk"]
+    v = decide(ctx, scores, leaders, _null(-10.0), significant=True)
+    assert [c.effect for c in v.scores] == [
+        "current",
+        "rudder_offset",
+        "propeller_walk",
+        "rudder_stall",
+    ]
+    assert [c.accepted for c in v.scores] == [True, True, False, False]
+    assert (v.verdict, v.effect) == ("current", "current")
+    assert lines[0].startswith("acceptance: dBIC <= -10.0 (the 5% quantile")
+    assert lines[1].endswith("-> verdict: current")
+
+
+def test_the_verdict_stage_without_an_accepted_candidate(tmp_path: Path) -> None:
+    lines: list[str] = []
+    ctx = _context(tmp_path, lines, max_delta_bic=-60.0)  # set by hand: nothing reaches it
+    for significant, verdict in ((True, "unexplained"), (False, "none")):
+        scores = [_score("rudder_offset", -50.0, 0.1), _score("current", -20.0, 0.2)]
+        v = decide(ctx, scores, ["rudder_offset", "current"], _null(-10.0), significant)
+        assert (v.verdict, v.effect) == (verdict, "")
+        assert not any(c.accepted for c in v.scores)
+    assert "set by --max-delta-bic" in lines[0]
+
+
+def test_a_catalog_effect_goes_before_tied_discovered_terms(tmp_path: Path) -> None:
+    ctx = _context(tmp_path, [])
+    found = "discovered:X_nn"
+    scores = [_score(found, -100.0, 0.5), _score("propeller_walk", -97.0, 0.1)]
+    v = decide(ctx, scores, [found, "propeller_walk"], _null(-10.0), significant=True)
+    assert v.effect == "propeller_walk"
+    # ... but not when the catalog effect is beyond the tie margin
+    scores = [_score(found, -300.0, 0.5), _score("propeller_walk", -97.0, 0.1)]
+    v = decide(ctx, scores, [found, "propeller_walk"], _null(-10.0), significant=True)
+    assert (v.verdict, v.effect) == ("discovered", found)
+
+
+def test_without_refinement_the_unrefined_scores_are_accepted(tmp_path: Path) -> None:
+    ctx = _context(tmp_path, [], refine_top=0)
+    scores = [_score("current", -40.0, 0.1, refined=False)]
+    assert decide(ctx, scores, ["current"], _null(-10.0), significant=False).effect == "current"
+    ctx = _context(tmp_path, [])
+    scores = [_score("current", -40.0, 0.1, refined=False)]
+    assert decide(ctx, scores, ["current"], _null(-10.0), significant=False).verdict == "none"
+
+
+def test_the_leaders_are_the_best_by_dbic_and_every_passing_discovered_candidate() -> None:
+    scores = [
+        _score("a", -5.0, 0.0),
+        _score("discovered:x", -30.0, 0.0),
+        _score("b", -50.0, 0.0),
+        _score("discovered:y", -11.0, 0.0),
+        _score("discovered:z", -9.0, 0.0),
+    ]
+    assert leading(scores, -10.0, 2) == ["b", "discovered:x", "discovered:y"]
+    assert leading(scores, -10.0, 0) == ["discovered:x", "discovered:y"]
+
+
+def test_a_candidate_is_scored_against_the_control_fold_by_fold() -> None:
+    eff = get_effect("rudder_offset")
+    control = FoldFits([_fit(4.0), _fit(3.0)], np.array([1.0, 2.0, 4.0]))
+    cand = FoldFits([_fit(2.0, 0.03), _fit(3.0, 0.07)], np.array([0.5, 2.0, 2.0]))
+    c, carrier = score(eff, cand, control, N_EFF)
+    assert carrier is cand.fits[0]  # 2/4 gained more over its control than 3/3
+    assert c.params == {"delta_0": pytest.approx(0.03)}
+    assert c.J_fit == 5.0 and c.J_heldout == 4.5 and c.evaluations == 20
+    assert c.delta_bic == pytest.approx(N_EFF * math.log(5.0 / 7.0) + math.log(N_EFF))
+    assert c.improvement == pytest.approx(1.0 - (0.5 * 1.0 * 0.5) ** (1 / 3))
+    assert c.improvement == typical_change(cand.J_heldout, control.J_heldout)
+    assert c.improvement_total == pytest.approx(1.0 - 4.5 / 7.0)
+    assert not c.accepted and not c.refined
+
+
+def test_a_stored_stage_is_resumed_and_another_fingerprint_is_not(tmp_path: Path) -> None:
+    lines: list[str] = []
+    ctx = _context(tmp_path, lines)
+    first = ctx.staged("candidate-rudder_offset-fold0", (), lambda: _fit(2.5, 0.04))
+    assert (tmp_path / "stages" / "candidate-rudder_offset-fold0.json").exists()
+
+    def refit() -> Fit:
+        raise AssertionError("a stored stage was fitted again")
+
+    again = ctx.staged("candidate-rudder_offset-fold0", (), refit)
+    assert again.f == first.f and again.params.to_dict() == first.params.to_dict()
+    assert "resumed from" in lines[-1]
+    other = StageStore(tmp_path / "stages", "another")
+    assert other.load("candidate-rudder_offset-fold0", ()) is None
+
+
+def test_the_settings_fingerprint_names_the_stored_stages_as_before() -> None:
+    """Diagnosis directories written before keep resuming: the fingerprint of the defaults
+    (and of the end-to-end tests' settings) is unchanged; thresholds do not enter it."""
+    assert DiagnoseSettings().fingerprint() == "2f9052432b11"
+    quick = DiagnoseSettings(candidates=("rudder_offset", "current"), base_budget=200)
+    assert quick.fingerprint() == "76ffddc613fa"
+    assert DiagnoseSettings(max_delta_bic=-5.0, tie_margin=0.2).fingerprint() == "2f9052432b11"

@@ -2,9 +2,10 @@
 
 The kernel is Python written by :func:`mmg.kernel.render` from a template, imported from the
 kernel cache and never seen by the linter run over src/. These tests render it for the base
-model, for every catalog effect at once (every kind of hook), for a discovered term beside a
-catalog effect and for a replacement right-hand side, and run ``ruff check`` and
-``ruff format --check`` on it with the project's configuration. Nothing is compiled.
+model, for every catalog effect at once (every kind of hook), for discovered terms beside
+catalog effects, for the benchmarks' planted forms and for a replacement right-hand side, and
+run ``ruff check`` and ``ruff format --check`` on it with the project's configuration. Nothing
+is compiled.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from benchmarks.planted import UNLISTED
 
 from mmg import catalog, get_effect
 from mmg.kernel import render
@@ -48,9 +50,10 @@ CASES = {
     "current and discovered terms": lambda: render(
         (get_effect("current"), get_effect("discovered:N_dnn+Y_t+X_wuu"))
     ),
-    "discovered term last, no force": lambda: render(
+    "discovered term, then an effect without a force": lambda: render(
         (get_effect("discovered:Y_vav"), get_effect("rudder_offset"))
     ),
+    "planted forms": lambda: render((UNLISTED["wash_yaw"], UNLISTED["earth_force"])),
     "replacement right-hand side": lambda: render(rhs_override=linear_rhs),
 }
 

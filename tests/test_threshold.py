@@ -19,6 +19,14 @@ from sweep.diagnose.run import cut_windows, delta_bic, n_effective
 from sweep.diagnose.threshold import CEILING, Linearised, acceptance_null
 from sweep.identification.polish import PolishSettings
 from sweep.identification.vector import with_effects
+from tests.conftest import kernels
+
+pytestmark = [
+    pytest.mark.integration,  # planted cases; the library's kernels
+    pytest.mark.kernels(
+        *kernels((), "simulate", "moments"), *kernels(("discovered:Y_one",), "simulate", "moments")
+    ),
+]
 
 KINDS = ("random", "turning", "zigzag")
 

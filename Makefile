@@ -1,16 +1,19 @@
 # Common commands; see README.md.
 PY ?= python
 
-.PHONY: install test test-all lint format typecheck check bench bench-peak bench-parts bench-lm bench-grid bench-grid-fit bench-diagnose data sweep \
+.PHONY: install test test-integration test-all lint format typecheck check bench bench-peak bench-parts bench-lm bench-grid bench-grid-fit bench-diagnose data sweep \
 	smoke ui diagnose
 
 install:  ## install the project and its development tools
 	$(PY) -m pip install -e ".[dev]"
 
-test:  ## fast test suite (the README's test command)
-	$(PY) -m pytest
+test:  ## the fast tier: every test but the integration and slow ones (under 6 min on 2 cores)
+	$(PY) -m pytest -m "not integration and not slow"
 
-test-all:  ## including slow tests (identification runs)
+test-integration:  ## the integration tier: Ray clusters, the browser, planted end-to-end diagnoses, heavy compilation
+	$(PY) -m pytest -m "integration and not slow"
+
+test-all:  ## both tiers and the slow tests (identification runs)
 	$(PY) -m pytest -m "slow or not slow"
 
 lint:
@@ -24,7 +27,8 @@ format:
 typecheck:
 	mypy
 
-check: lint typecheck test  ## what CI runs
+check: lint typecheck  ## what CI runs: lint, types and both test tiers (the README's test command)
+	$(PY) -m pytest
 
 bench:  ## simulator throughput (traj-steps/s) for B = 20, 540, 19440
 	$(PY) benchmarks/throughput.py

@@ -1,15 +1,81 @@
-"""Shared fixtures: where the reference files and the real recordings are."""
+"""Shared fixtures: where the reference files and the real recordings are; the kernels the tests
+compile, one effect kernel for the whole session, compiled side by side before the first test."""
 
 from __future__ import annotations
 
+import fcntl
 import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import pytest
 
+from mmg.effect import Effect
+
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+
+#: the effects of the one effect kernel the fast tier compiles: every catalog effect and two
+#: generated terms, one of them a time term. A test that needs some effect uses this combination,
+#: with the effects it does not study at their neutral values (which add exactly nothing), rather
+#: than a kernel of its own: each kernel entry point costs 20-60 s of compilation from a cold
+#: cache, and a session used to compile some fifty
+SHARED_EFFECTS = (
+    "a_h_drift",
+    "actuator_lag",
+    "current",
+    "heading_bias",
+    "propeller_walk",
+    "rudder_offset",
+    "rudder_stall",
+    "discovered:N_dnn+Y_t",
+)
+#: every kernel entry point that mmg.precompile compiles
+ENTRIES = ("simulate", "moments", "derivatives")
+
+
+def kernels(effects: tuple[str, ...], *entries: str) -> tuple[tuple[tuple[str, ...], str], ...]:
+    """The arguments of a ``kernels`` mark: (effect names, entry point) for each of ``entries``
+    (:data:`ENTRIES` if none); ``effects`` () is the base model."""
+    return tuple((effects, entry) for entry in entries or ENTRIES)
+
+
+def shared_effects() -> tuple[Effect, ...]:
+    """The effects of :data:`SHARED_EFFECTS`, in that order."""
+    from mmg import get_effect
+
+    return tuple(get_effect(name) for name in SHARED_EFFECTS)
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """Compile the kernels that the selected tests name in their ``kernels`` marks ((effect
+    names, entry point) pairs) and the cache lacks, two at a time (mmg.precompile), before the
+    first test. Under xdist every worker collects the whole selection: the first to take the
+    lock compiles, the others then find the cache warm. A failure is left to the tests."""
+    wanted = {
+        kernel: None
+        for item in session.items
+        for mark in item.iter_markers("kernels")
+        for kernel in mark.args
+    }
+    if not wanted or os.environ.get("NUMBA_DISABLE_JIT") == "1":
+        return
+    from mmg import get_effect
+    from mmg.kernel import kernel_dir
+    from mmg.precompile import precompile
+
+    directory = kernel_dir()
+    directory.mkdir(parents=True, exist_ok=True)
+    tasks = [(tuple(get_effect(n) for n in names), entry) for names, entry in wanted]
+    with open(directory / ".precompile.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            precompile(tasks, processes=2)
+        except Exception as exc:  # the tests that use the kernel say what failed
+            warnings.warn(f"precompiling the tests' kernels failed: {exc}", stacklevel=1)
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
 
 
 def recordings_root() -> Path:

@@ -18,6 +18,9 @@ from sweep.identification.cmaes import (
     population_schedule,
 )
 from sweep.identification.workers import InProcess, ProcessPool
+from tests.conftest import kernels
+
+pytestmark = pytest.mark.kernels(*kernels((), "moments"))
 
 N = 8
 BOX = Box(-5.0 * np.ones(N), 5.0 * np.ones(N))

@@ -24,6 +24,14 @@ from sweep.diagnose.__main__ import main
 from sweep.diagnose.base import routes_agree
 from sweep.diagnose.scoring import delta_bic
 from sweep.diagnose.windows import cut_windows, split_windows
+from tests.conftest import SHARED_EFFECTS, kernels, shared_effects
+
+pytestmark = pytest.mark.kernels(*kernels((), "simulate", "moments", "derivatives"))
+#: the kernels of the candidates the end-to-end cases fit (--candidates rudder_offset,current)
+CANDIDATES = pytest.mark.kernels(
+    *kernels(("rudder_offset",), "simulate", "moments"),
+    *kernels(("current",), "simulate", "moments"),
+)
 
 KINDS = ("random", "turning", "zigzag")
 
@@ -59,6 +67,8 @@ def _diagnose(case: Path, out: Path, *extra: str) -> int:
     )  # fmt: skip
 
 
+@pytest.mark.integration  # a planted case, end to end
+@CANDIDATES
 def test_planted_rudder_offset_is_found_end_to_end(runs, tmp_path, capsys):
     """A 2.9-deg zero error of the rudder log: named, recovered within 20 %, test J2 falls.
 
@@ -150,6 +160,8 @@ def test_planted_rudder_offset_beats_the_librarys_proposals(runs, tmp_path):
     assert report["discovery"] is not None
 
 
+@pytest.mark.integration  # a planted case, end to end
+@CANDIDATES
 def test_no_planted_effect_gives_verdict_none(runs, tmp_path):
     case = tmp_path / "case"
     _case(runs, PlantedSpec("none"), case)
@@ -163,6 +175,8 @@ def test_no_planted_effect_gives_verdict_none(runs, tmp_path):
     assert gen is not None and not gen["significant"] and gen["J"] < gen["limit"]
 
 
+@pytest.mark.integration  # a planted case, end to end
+@CANDIDATES
 def test_an_effect_only_the_test_recordings_excite_is_flagged_unexplained(runs, tmp_path):
     """Training windows without missing physics, a test window (zigzag) with a 2.9-deg rudder
     zero error: the training fit is at the floor and no candidate is accepted, but the model does
@@ -339,6 +353,7 @@ def test_held_out_improvement_is_the_typical_window_not_one_outlier():
     assert typical_change(np.array([]), np.array([])) == 0.0
 
 
+@pytest.mark.kernels(*kernels(SHARED_EFFECTS, "moments"))
 def test_a_planted_dead_time_is_the_catalog_lag_with_that_dead_time(runs):
     """The planted dead time (controls taken from the run's earlier samples) is what the catalog's
     actuator_lag computes with tau_delta = tau_n = tau: on noise-free windows its J2 is nearly 0
@@ -355,7 +370,8 @@ def test_a_planted_dead_time_is_the_catalog_lag_with_that_dead_time(runs):
     assert not diverged
     p, effects = true_model(efd_parameters(), spec)
     assert [e.name for e in effects] == ["actuator_lag"]
-    J_true = float(Objective(recs, "J2", effects=effects).evaluate(p)[0])
+    # in the shared effects' kernel (actuator_lag among them, the others neutral)
+    J_true = float(Objective(recs, "J2", effects=shared_effects()).evaluate(p)[0])
     J_plain = float(Objective(recs, "J2").evaluate(efd_parameters())[0])
     assert J_true < 1e-2 * J_plain, (J_true, J_plain)
 
@@ -370,6 +386,8 @@ def test_the_second_base_start_is_skipped_only_when_both_routes_ended_together()
     assert not routes_agree((1.0, float("nan")), 0.01)
 
 
+@pytest.mark.integration  # a planted case, end to end
+@CANDIDATES
 def test_a_second_base_start_runs_when_asked_and_the_lower_end_is_the_base(runs, tmp_path, capsys):
     """``--base-retry-agreement 0``: a misfit above the floor always gets the second CMA-ES
     start; the lower of the two ends is the base the rest of the diagnosis starts from."""

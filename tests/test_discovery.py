@@ -24,6 +24,9 @@ from sweep.diagnose.__main__ import main
 from sweep.diagnose.floor import NoiseModel, calibrated_noise, misfit_test, noise_floor
 from sweep.diagnose.windows import cut_windows
 from sweep.identification.vector import with_effects
+from tests.conftest import kernels
+
+pytestmark = pytest.mark.kernels(*kernels((), "simulate", "moments", "derivatives"))
 
 KINDS = ("random", "turning", "zigzag")
 
@@ -35,6 +38,7 @@ def runs(data_dir: Path) -> dict[str, list]:
         return {k: read_recordings(data_dir / "data" / k) for k in KINDS}
 
 
+@pytest.mark.integration  # compiles kernels of its own terms and forms
 def test_generated_effect_adds_its_term_through_the_mass_matrix():
     """Y += 0.5 rho L d C v_m|v_m|: the sway and yaw accelerations change exactly as a force Y
     through the model's own mass matrix (x_G couples sway and yaw), surge not at all."""
@@ -55,6 +59,7 @@ def test_generated_effect_adds_its_term_through_the_mass_matrix():
         get_effect("discovered:Y_warp")
 
 
+@pytest.mark.integration  # compiles kernels of its own terms and forms
 def test_a_terms_column_is_its_force_through_eq_1_without_the_rest_of_the_model():
     """effect_accelerations_rows (the last effect's forces alone through Eq. (1)) equals the
     difference of whole right-hand sides with and without them: with a current acting (the
@@ -111,6 +116,7 @@ def test_a_terms_column_is_its_force_through_eq_1_without_the_rest_of_the_model(
         effect_accelerations_rows(x, u, w, rows[:, : N_THETA + 2], (effects[0],))
 
 
+@pytest.mark.integration  # compiles kernels of its own terms and forms
 def test_earth_fixed_force_terms_are_a_basin_force_resolved_through_the_heading():
     """E_x0 and E_y0 (one coefficient each, entering X and Y) reproduce a steady force of any
     direction fixed to the basin (the planted earth_force form) at every heading."""
@@ -176,6 +182,7 @@ def test_generated_terms_take_each_angles_sine_once_and_the_wind_only_where_used
         assert f_N == pytest.approx(q * sh.L_pp * C[2] * math.sin(psi), rel=1e-13)
 
 
+@pytest.mark.integration  # compiles kernels of its own terms and forms
 def test_the_rudder_normal_force_term_is_the_planted_wash_moment_at_every_angle():
     """N_scdnn, sin(delta) cos(delta) (n_p D_p)^2, is the planted propeller-wash yaw moment
     (C_d sin(2 delta) (n_p D_p)^2, written by the planted form's own code) with C = 2 C_d at
@@ -198,6 +205,7 @@ def test_the_rudder_normal_force_term_is_the_planted_wash_moment_at_every_angle(
         np.testing.assert_allclose(d_term, d_true, rtol=1e-9, atol=1e-14)
 
 
+@pytest.mark.integration  # compiles kernels of its own terms and forms
 def test_the_planted_reverse_sway_is_in_the_papers_own_form():
     """The reversed propeller's side force of the planted benchmark is Eqs. (12)-(13) with their
     constant coefficients shifted (planted.IN_FORM): derivatives equal in every advance-ratio
@@ -318,6 +326,7 @@ def _diagnose(case: Path, out: Path) -> dict:
     return json.loads((out / "report.json").read_text())
 
 
+@pytest.mark.integration  # a planted case, end to end
 def test_unlisted_wave_resistance_is_discovered_reidentified_and_improves_the_test(runs, tmp_path):
     """A resistance growing with u^4 is in no catalog entry: the misfit is significantly above
     the floor, discovery proposes library terms, their joint trajectory fit passes the
@@ -353,6 +362,7 @@ def test_unlisted_wave_resistance_is_discovered_reidentified_and_improves_the_te
     assert "Regression view" in md
 
 
+@pytest.mark.integration  # a planted case, end to end
 def test_no_effect_with_coloured_noise_gives_none_and_no_accepted_term(runs, tmp_path):
     _case(runs, PlantedSpec("none"), tmp_path / "case")
     report = _diagnose(tmp_path / "case", tmp_path / "out")
@@ -415,6 +425,7 @@ def test_a_time_term_that_fits_nearly_as_well_as_a_position_term_is_proposed_bes
     assert "Y_t" in sel2.terms and sel2.alternatives == []
 
 
+@pytest.mark.integration  # compiles kernels of its own terms and forms
 def test_a_step_across_the_basin_is_a_library_term_with_a_centre_and_a_width():
     """The position steps U^2 tanh((y0 - c) / W) (Y_Usy, N_Usy) carry their centre and width as
     named parameters: at the planted bank's values they reproduce its force exactly (Y = q C_b
@@ -499,6 +510,7 @@ def test_the_selection_takes_a_shaped_term_once_at_its_best_grid_point():
     assert alone["Y_bt(tau=300 s)"] > max(alone["Y_bt(tau=100 s)"], alone["Y_bt(tau=1000 s)"])
 
 
+@pytest.mark.integration  # compiles kernels of its own terms and forms
 def test_former_fixed_time_constant_terms_still_load_and_equal_the_shaped_term():
     """Parameter files of earlier versions name transients at fixed time constants
     (``discovered:N_b300``): they still load, are no longer searched, and give the force of the

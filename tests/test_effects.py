@@ -6,6 +6,11 @@ import numpy as np
 import pytest
 
 from mmg import ESSO_OSAKA, Parameters, catalog, derivatives, efd_parameters, get_effect, simulate
+from mmg.integrate import effect_vector
+from tests.conftest import SHARED_EFFECTS, kernels, shared_effects
+
+#: one effect kernel for every test here (the effects not studied at their neutral values)
+pytestmark = pytest.mark.kernels(*kernels((), "simulate", "moments"), *kernels(SHARED_EFFECTS))
 
 
 def test_catalog_lists_effects_with_parameters():
@@ -41,8 +46,11 @@ def test_loading_the_catalog_keeps_the_public_catalog_function():
 
 
 def test_neutral_effect_changes_nothing():
+    """Every catalog effect (and the shared generated terms) at neutral values: bit for bit the
+    ship without effects."""
     p = efd_parameters()
-    effects = tuple(catalog().values())
+    effects = shared_effects()
+    assert set(catalog()) <= {e.name for e in effects}
     x = np.array([[1.0, 0.25, -2.0, 0.03, 0.4, 0.01]])
     u = np.tile([0.2, 9.0], (1, 200, 1))
     w = np.tile([2.0, 1.0], (1, 200, 1))
@@ -61,24 +69,22 @@ def test_ship_drifting_with_the_current_feels_no_water_force():
     u0 = V_c * np.cos(beta_c - psi)
     v0 = V_c * np.sin(beta_c - psi)
     x = np.array([[0.0, u0, 0.0, v0, psi, 0.0]])
-    traj = simulate(
-        x, np.zeros((1, 500, 2)), np.zeros((1, 500, 2)), p, effects=(get_effect("current"),)
-    )[0]
+    traj = simulate(x, np.zeros((1, 500, 2)), np.zeros((1, 500, 2)), p, effects=shared_effects())[0]
     np.testing.assert_allclose(traj[-1, 0], 50.0 * V_c * np.cos(beta_c), rtol=1e-9)
     np.testing.assert_allclose(traj[-1, 2], 50.0 * V_c * np.sin(beta_c), rtol=1e-9)
     np.testing.assert_allclose(traj[-1, [1, 3, 4, 5]], [u0, v0, psi, 0.0], atol=1e-12)
 
 
 def test_propeller_walk_adds_its_side_force():
-    eff = get_effect("propeller_walk")
+    effects = shared_effects()
     p0 = efd_parameters()
     p1 = Parameters(
         p0.theta, p0.ship, effects=(("propeller_walk", (("C_Yw", 1e-3), ("C_Nw", 0.0))),)
     )
     x = np.array([0.0, 0.2, 0.0, 0.0, 0.0, 0.0])
     u = np.array([0.0, 10.0])
-    a = derivatives(x, u, np.zeros(2), p0, effects=(eff,))
-    b = derivatives(x, u, np.zeros(2), p1, effects=(eff,))
+    a = derivatives(x, u, np.zeros(2), p0, effects=effects)
+    b = derivatives(x, u, np.zeros(2), p1, effects=effects)
     sh = p0.ship
     Y = 0.5 * sh.rho * sh.L_pp * sh.d * (10.0 * sh.D_p) ** 2 * 1e-3
     m = sh.m_nd * 0.5 * sh.rho * sh.L_pp**2 * sh.d
@@ -146,7 +152,6 @@ def test_rudder_stall_caps_the_normal_force_beyond_the_stall_angle():
 def test_actuator_lag_is_a_first_order_lag_of_the_logged_rudder():
     """With the ship held still in an empty world, the lagged rudder shows in X_R over time:
     compare simulations with the logged step and with the analytic lagged input."""
-    eff = get_effect("actuator_lag")
     ship = ESSO_OSAKA._replace(rho_A=0.0)
     p0 = Parameters(efd_parameters().theta, ship)
     T = 1.5
@@ -164,7 +169,7 @@ def test_actuator_lag_is_a_first_order_lag_of_the_logged_rudder():
         d = d + a * (log[0, k, 0] - d) if k else log[0, 0, 0]
         lagged[0, k, 0] = d
     w = np.zeros((1, K, 2))
-    with_effect = simulate(x, log, w, p1, effects=(eff,))
+    with_effect = simulate(x, log, w, p1, effects=shared_effects())
     by_hand = simulate(x, lagged, w, p0)
     np.testing.assert_allclose(with_effect, by_hand, rtol=1e-12, atol=1e-12)
     assert np.abs(simulate(x, log, w, p0) - by_hand).max() > 1e-3
@@ -188,12 +193,11 @@ def _dead_time_case(tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
 
 @pytest.mark.parametrize("tau", [1.0, 0.35])
 def test_actuator_dead_time_shifts_the_logged_controls(tau: float) -> None:
-    eff = get_effect("actuator_lag")
     vals = (("T_delta", 0.0), ("T_n", 0.0), ("tau_delta", tau), ("tau_n", tau))
     p0 = efd_parameters()
     p1 = Parameters(p0.theta, p0.ship, effects=(("actuator_lag", vals),))
     x, log, acting, w = _dead_time_case(tau)
-    with_effect = simulate(x, log, w, p1, effects=(eff,))
+    with_effect = simulate(x, log, w, p1, effects=shared_effects())
     by_hand = simulate(x, acting, w, p0)
     np.testing.assert_allclose(with_effect, by_hand, rtol=1e-12, atol=1e-12)
     assert np.abs(simulate(x, log, w, p0) - by_hand).max() > 1e-2
@@ -204,7 +208,7 @@ def test_dead_time_acts_in_the_objective_kernel_too():
     from sweep.data.objective import Objective
     from sweep.data.recordings import Recording
 
-    eff = get_effect("actuator_lag")
+    effects = shared_effects()
     p0 = efd_parameters()
     tau = 1.0
     x, log, acting, w = _dead_time_case(tau)
@@ -213,16 +217,15 @@ def test_dead_time_acts_in_the_objective_kernel_too():
     u_rec = np.vstack([log[0], log[0, -1:]])
     w_rec = np.vstack([w[0], w[0, -1:]])
     rec = Recording(name="dead_time", path=None, t=t, x=truth, u=u_rec, w=w_rec)
-    obj = Objective([rec], "J2", effects=(eff,))
-    theta = np.concatenate([p0.vector(), [0.0, 0.0, 0.0, 0.0]])
-    right = theta.copy()
-    right[-2:] = tau
+    obj = Objective([rec], "J2", effects=effects)
+    theta = np.concatenate([p0.vector(), effect_vector(p0, effects)])  # neutral: no dead time
+    dead = Parameters(p0.theta, p0.ship, (("actuator_lag", (("tau_delta", tau), ("tau_n", tau))),))
+    right = np.concatenate([p0.vector(), effect_vector(dead, effects)])
     f = obj.evaluate(np.stack([theta, right]))
     assert f[1] < 1e-12 < 1e-4 < f[0]
 
 
 def test_rudder_offset_shifts_the_logged_rudder():
-    eff = get_effect("rudder_offset")
     p0 = efd_parameters()
     p1 = _with("rudder_offset", delta_0=0.03)
     x = np.array([[0.0, 0.3, 0.0, 0.0, 0.2, 0.0]])
@@ -231,13 +234,15 @@ def test_rudder_offset_shifts_the_logged_rudder():
     shifted = u.copy()
     shifted[..., 0] += 0.03
     np.testing.assert_allclose(
-        simulate(x, u, w, p1, effects=(eff,)), simulate(x, shifted, w, p0), rtol=1e-12, atol=1e-12
+        simulate(x, u, w, p1, effects=shared_effects()),
+        simulate(x, shifted, w, p0),
+        rtol=1e-12,
+        atol=1e-12,
     )
 
 
 def test_heading_bias_reports_the_logged_heading_and_velocities():
     """The simulation starts from the true state behind the log and returns logged quantities."""
-    eff = get_effect("heading_bias")
     b_psi, b_v = 0.05, 0.03
     p1 = _with("heading_bias", b_psi=b_psi, b_v=b_v)
     p0 = efd_parameters()
@@ -248,7 +253,7 @@ def test_heading_bias_reports_the_logged_heading_and_velocities():
     true0[3] = logged0[1] * np.sin(b_v) + logged0[3] * np.cos(b_v)
     u = np.tile([0.2, 8.0], (1, 200, 1))
     w = np.tile([2.0, 0.5], (1, 200, 1))
-    got = simulate(logged0[None], u, w, p1, effects=(eff,))[0]
+    got = simulate(logged0[None], u, w, p1, effects=shared_effects())[0]
     truth = simulate(true0[None], u, w, p0)[0]
     np.testing.assert_allclose(got[0], logged0, rtol=1e-12)
     np.testing.assert_allclose(got[1:, 4], truth[1:, 4] + b_psi, rtol=1e-12)
@@ -267,19 +272,19 @@ def test_time_terms_see_the_recordings_clock():
     from sweep.data.objective import Objective
     from sweep.data.recordings import Recording
 
-    eff = get_effect("discovered:Y_t")
+    effects = shared_effects()  # with the generated terms N_dnn and the time term Y_t
     p0 = efd_parameters()
-    p1 = Parameters(p0.theta, p0.ship, (("discovered:Y_t", (("C_Y_t", 0.02),)),))
+    p1 = Parameters(p0.theta, p0.ship, (("discovered:N_dnn+Y_t", (("C_Y_t", 0.02),)),))
     K = 200
     x = np.array([[0.0, 0.6, 0.0, 0.0, 0.0, 0.0]])
     u = np.tile([0.0, 10.0], (1, K, 1))
     w = np.zeros((1, K, 2))
-    at_0 = simulate(x, u, w, p1, effects=(eff,), t0=0.0)[0]
-    at_900 = simulate(x, u, w, p1, effects=(eff,), t0=900.0)[0]
+    at_0 = simulate(x, u, w, p1, effects=effects, t0=0.0)[0]
+    at_900 = simulate(x, u, w, p1, effects=effects, t0=900.0)[0]
     # Y = 0.5 rho L d C t / T_ref: at 900 s the side force is ~0.9 * 0.02 * q, at 0 s nearly none
     without = simulate(x, u, w, p0)[0]
     assert abs(at_900[-1, 3] - at_0[-1, 3]) > 20 * abs(at_0[-1, 3] - without[-1, 3])
-    ref = rk4_reference(x[0], u[0], w[0], p1, effects=(eff,), t0=900.0)
+    ref = rk4_reference(x[0], u[0], w[0], p1, effects=effects, t0=900.0)
     np.testing.assert_allclose(at_900, ref, rtol=1e-9, atol=1e-9)
     # the objective: the same recording on two clocks gives different J with the time term only
     traj = simulate(x, u, w, p0)[0]
@@ -288,9 +293,9 @@ def test_time_terms_see_the_recordings_clock():
     wind = np.zeros((K + 1, 2))
     early = Recording("early", None, t, traj, log, wind)
     late = Recording("late", None, t + 900.0, traj, log, wind)
-    for p, effects, same in ((p0, (), True), (p1, (eff,), False)):
-        J_early = Objective([early], "J2", effects=effects).evaluate(p)[0]
-        J_late = Objective([late], "J2", effects=effects).evaluate(p)[0]
+    for p, with_effects, same in ((p0, (), True), (p1, effects, False)):
+        J_early = Objective([early], "J2", effects=with_effects).evaluate(p)[0]
+        J_late = Objective([late], "J2", effects=with_effects).evaluate(p)[0]
         assert (abs(J_early - J_late) < 1e-9 * max(J_early, 1e-12)) == same, (J_early, J_late)
 
 

@@ -11,6 +11,9 @@ import pytest
 
 from mmg import efd_parameters
 from sweep.evaluate import TEST_COLUMNS, main
+from tests.conftest import kernels
+
+pytestmark = pytest.mark.kernels(*kernels((), "moments"))
 
 
 def test_efd_on_the_real_test_set(data_dir, tmp_path, monkeypatch, capsys):

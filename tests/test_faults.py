@@ -39,6 +39,8 @@ from sweep.service.orchestration import (
 )
 from tests.memory_tracker import NullTracker
 
+pytestmark = pytest.mark.integration  # a real Ray cluster
+
 BUDGET = 1500
 JOBS = ("J1", "J2")
 

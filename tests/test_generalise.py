@@ -16,6 +16,12 @@ from sweep.diagnose.floor import NoiseModel, simulate_windows
 from sweep.diagnose.generalise import generalisation_test
 from sweep.diagnose.windows import cut_windows
 from sweep.identification.vector import with_effects
+from tests.conftest import kernels
+
+pytestmark = [
+    pytest.mark.integration,  # a planted case through the diagnosis's fits
+    pytest.mark.kernels(*kernels((), "simulate"), *kernels(("discovered:Y_one",), "simulate")),
+]
 
 
 @pytest.fixture(scope="module")

@@ -13,6 +13,9 @@ from mmg import all_forces, derivatives, efd_parameters
 from mmg.model import hydrodynamic_forces  # noqa: F401  (compiled alongside)
 from mmg.propeller import advance_ratio, propeller_forces, wake_factor
 from mmg.rudder import rudder_inflow
+from tests.conftest import kernels
+
+pytestmark = pytest.mark.kernels(*kernels((), "derivatives"))
 
 FORCE_NAMES = ("XH", "YH", "NH", "XP", "YP", "NP", "XR", "YR", "NR", "XA", "YA", "NA")
 ROWS = [

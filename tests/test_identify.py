@@ -12,6 +12,9 @@ from sweep.data.objective import Objective
 from sweep.data.recordings import Recording, read_recording
 from sweep.identification.cmaes import Settings
 from sweep.identify import identify, main
+from tests.conftest import kernels
+
+pytestmark = pytest.mark.kernels(*kernels((), "simulate", "moments"))
 
 
 @pytest.fixture(scope="module")

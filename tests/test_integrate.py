@@ -13,7 +13,10 @@ from scipy.linalg import expm
 from mmg import bounds, derivatives, efd_parameters, simulate, simulate_batch
 from mmg.integrate import chunk_width, parameter_matrix, rk4_reference
 from mmg.kernel import LANE_BLOCK, LIMIT_A, load_kernel
+from tests.conftest import SHARED_EFFECTS, kernels, shared_effects
 from tests.rk4_linear import A, linear_rhs
+
+pytestmark = pytest.mark.kernels(*kernels(()), *kernels(SHARED_EFFECTS, "derivatives"))
 
 
 def _run_linear(dt: float, T: float) -> np.ndarray:
@@ -136,29 +139,29 @@ def test_objective_moments_do_not_depend_on_chunking_and_match_the_trajectories(
 def test_derivatives_of_many_parameter_rows_equal_the_per_point_evaluation():
     """derivatives_rows (each point reads its set from R columns) gives bit for bit what
     derivatives gives with the sets broadcast to every point, with an effect and time."""
-    from mmg import get_effect
     from mmg.integrate import derivatives, derivatives_rows
 
     rng = np.random.default_rng(4)
     x0, u, w = _random_inputs(rng, 1, 30)
-    eff = get_effect("discovered:N_dnn+Y_t")
-    rows = np.concatenate([_perturbed(rng, 5), rng.normal(0.0, 1e-3, (5, 2))], axis=1)
+    effects = shared_effects()  # the catalog's, neutral, then the terms N_dnn and Y_t (time)
+    neutral = np.tile(np.concatenate([e.neutral() for e in effects[:-1]]), (5, 1))
+    rows = np.concatenate([_perturbed(rng, 5), neutral, rng.normal(0.0, 1e-3, (5, 2))], axis=1)
     x = np.repeat(x0, 30, axis=0) + rng.normal(0.0, 0.01, (30, 6))
     t = np.linspace(0.0, 90.0, 30)
-    got = derivatives_rows(x, u[0], w[0], rows, (eff,), t=t)
+    got = derivatives_rows(x, u[0], w[0], rows, effects, t=t)
     ref = derivatives(
         np.broadcast_to(x, (5, 30, 6)),
         np.broadcast_to(u[0], (5, 30, 2)),
         np.broadcast_to(w[0], (5, 30, 2)),
         np.broadcast_to(rows[:, None, :], (5, 30, rows.shape[1])),
-        (eff,),
+        effects,
         t=np.broadcast_to(t, (5, 30)),
     )
     assert got.shape == (5, 30, 6)
     assert np.array_equal(got, ref)
     assert not np.array_equal(got[0], got[1])  # the rows differ
     with pytest.raises(ValueError, match="rows must have shape"):
-        derivatives_rows(x, u[0], w[0], rows[:, :10], (eff,))
+        derivatives_rows(x, u[0], w[0], rows[:, :10], effects)
 
 
 def test_diverging_candidate_is_flagged_and_does_not_spoil_the_batch():
@@ -245,6 +248,7 @@ def test_states_written_into_a_given_array_equal_a_fresh_one_and_a_wrong_one_is_
     bool(getattr(numba.config, "DISABLE_JIT", 0)), reason="inspects the compiled kernel"
 )
 @pytest.mark.parametrize("step", ["rk4_step", "rk4_step_fused"])
+@pytest.mark.integration  # compiles the step on its own, never cached
 def test_the_rk4_stage_loop_compiles_to_vector_instructions(step):
     """Lanes are innermost so that LLVM vectorises the right-hand side across trajectories
     (README, "How it is fast"): the square roots and divisions of the stage loop must be vector

@@ -8,6 +8,9 @@ import pytest
 from mmg import all_forces, derivatives, efd_parameters, simulate
 from mmg.hull import cross_flow_integrals
 from mmg.propeller import propeller_forces
+from tests.conftest import kernels
+
+pytestmark = pytest.mark.kernels(*kernels((), "simulate", "derivatives"))
 
 
 def test_zero_force_at_rest_in_still_air():

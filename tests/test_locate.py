@@ -3,11 +3,18 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from mmg import efd_parameters, simulate
 from sweep.data.datasets import load_split
 from sweep.data.recordings import Recording
 from sweep.diagnose.locate import CHANNELS, locate, rank_windows, residual_frame
+from tests.conftest import SHARED_EFFECTS, kernels, shared_effects
+
+#: the planted walk in the shared effects' kernel
+pytestmark = pytest.mark.kernels(
+    *kernels((), "simulate", "derivatives"), *kernels(SHARED_EFFECTS, "simulate", "derivatives")
+)
 
 
 def _synthetic(rec: Recording, p) -> Recording:
@@ -34,10 +41,10 @@ def test_the_true_model_leaves_no_residual_and_a_wrong_one_is_located(data_dir):
 
 def test_equation_residuals_locate_a_planted_propeller_walk(data_dir):
     """Side force of the propeller going ahead, planted and hidden in noise: located at n_p > 0."""
-    from mmg import Parameters, get_effect
+    from mmg import Parameters
     from sweep.diagnose.locate import equation_residuals, locate_bias
 
-    walk = get_effect("propeller_walk")
+    walk = shared_effects()  # propeller_walk, the others neutral
     planted = Parameters(
         efd_parameters().theta, effects=(("propeller_walk", (("C_Yw", 4e-4), ("C_Nw", -2e-4))),)
     )
@@ -47,9 +54,7 @@ def test_equation_residuals_locate_a_planted_propeller_walk(data_dir):
     recs = []
     for label in ("Test-B-S", "Test-B-P", "Test-Z", "Test-R"):
         rec = test[label]
-        traj = simulate(
-            rec.x[None, 0], rec.u[None, :-1], rec.w[None, :-1], planted, effects=(walk,)
-        )
+        traj = simulate(rec.x[None, 0], rec.u[None, :-1], rec.w[None, :-1], planted, effects=walk)
         x = traj[0] + rng.normal(size=traj[0].shape) * noise
         recs.append(Recording(label, None, rec.t, x, rec.u, rec.w))
     scores = locate_bias(equation_residuals(efd_parameters(), recs))
@@ -59,7 +64,7 @@ def test_equation_residuals_locate_a_planted_propeller_walk(data_dir):
     assert abs(top.t) > 4
     # without the planted effect, no bin stands out as strongly
     clean = [Recording(r.name, None, r.t, r.x, r.u, r.w) for r in recs]
-    honest = locate_bias(equation_residuals(planted, clean, effects=(walk,)))
+    honest = locate_bias(equation_residuals(planted, clean, effects=walk))
     assert abs(honest[0].t) < abs(top.t) / 2
 
 

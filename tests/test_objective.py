@@ -16,6 +16,9 @@ from sweep.data.objective import (
     split_recording,
 )
 from sweep.data.recordings import Recording
+from tests.conftest import kernels
+
+pytestmark = pytest.mark.kernels(*kernels((), "simulate", "moments"))
 
 
 @pytest.fixture(scope="module")

@@ -21,6 +21,9 @@ from sweep.identification.polish import (
     residual_vectors,
     totals,
 )
+from tests.conftest import kernels
+
+pytestmark = pytest.mark.kernels(*kernels((), "simulate", "moments"))
 
 
 @pytest.fixture(scope="module")

@@ -8,6 +8,9 @@ from pathlib import Path
 import pytest
 
 from sweep.evaluate import main
+from tests.conftest import kernels
+
+pytestmark = pytest.mark.kernels(*kernels((), "moments"))
 
 SHIPPED = Path(__file__).resolve().parents[1] / "results" / "best_params.json"
 

@@ -25,7 +25,12 @@ from sweep.service.orchestration import (
 )
 from sweep.service.outcome import SUBSETS
 from sweep.service.tracking import ConfigChangedError
+from tests.conftest import SHARED_EFFECTS, kernels
 from tests.memory_tracker import NullTracker
+
+pytestmark = pytest.mark.kernels(
+    *kernels((), "simulate", "moments"), *kernels(SHARED_EFFECTS, "moments")
+)
 
 
 def _cfg(objective: str, seed: int, budget: int, train: str = "R") -> dict:
@@ -287,16 +292,17 @@ def test_a_data_warning_is_said_once_by_the_driver(tmp_path, data_dir):
 
 
 def test_a_job_identifies_extra_effects_with_the_57_parameters(tmp_path, data_dir, efd):
-    """effects=["discovered:N_s3b", "rudder_offset"]: the job searches the effects' parameters
-    with the 57 (from neutral, over their boxes), reports them in its parameters, and scores
-    the test set with them; a plain job's config (and hash) has no effects entry."""
+    """effects = the shared kernel's (the catalog's and the generated terms N_dnn + Y_t): the job
+    searches the effects' parameters with the 57 (from neutral, over their boxes), reports them
+    in its parameters, and scores the test set with them; a plain job's config (and hash) has no
+    effects entry."""
     cfg = _cfg("J2", 0, 60)
     cfg["data"]["root"] = str(data_dir)
     plain = spec_from_config(cfg, tmp_path / "plain")
     assert "effects" not in plain.config
-    cfg["effects"] = ["discovered:N_s3b", "rudder_offset"]
+    cfg["effects"] = list(SHARED_EFFECTS)
     spec = spec_from_config(cfg, tmp_path / "effects")
-    assert spec.config["effects"] == ["discovered:N_s3b", "rudder_offset"]
+    assert spec.config["effects"] == list(SHARED_EFFECTS)
     assert spec.config_hash != plain.config_hash
     tracker = NullTracker()
     summary = run_sweep("with-effects", [spec], LocalExecutor(plots=False), tracker, efd,
@@ -305,11 +311,11 @@ def test_a_job_identifies_extra_effects_with_the_57_parameters(tmp_path, data_di
     (record,) = tracker.job_outcomes(summary.parent_id)
     child = tracker.runs[record["run_id"]]
     params = json.loads(child.artifacts["best_params.json"])
-    assert set(params["effects"]) == {"discovered:N_s3b", "rudder_offset"}
-    c = params["effects"]["discovered:N_s3b"]["C_N_s3b"]
+    assert set(params["effects"]) == set(SHARED_EFFECTS)
+    c = params["effects"]["discovered:N_dnn+Y_t"]["C_N_dnn"]
     assert c != 0.0 and -1.0 <= c <= 1.0  # moved from neutral, inside its box
     assert np.isfinite(record["metrics"]["test/J2/total"])
-    assert child.params["effects"] == '["discovered:N_s3b", "rudder_offset"]'
+    assert child.params["effects"] == json.dumps(list(SHARED_EFFECTS))
 
 
 def test_cmaes_polish_refines_the_result_and_reports_it_as_its_own_row(tmp_path, data_dir, efd):

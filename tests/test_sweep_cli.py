@@ -16,6 +16,8 @@ import pytest
 from sweep.service.outcome import SUBSETS
 from tests.conftest import run_smoke as _run
 
+pytestmark = pytest.mark.integration  # sweeps on real Ray nodes, through Hydra and MLflow
+
 
 def test_mlflow_holds_parent_children_metrics_and_tables(smoke):
     import mlflow

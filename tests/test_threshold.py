@@ -21,6 +21,14 @@ from sweep.diagnose.threshold import CEILING, acceptance_null
 from sweep.diagnose.windows import cut_windows
 from sweep.identification.polish import PolishSettings
 from sweep.identification.vector import with_effects
+from tests.conftest import kernels
+
+pytestmark = [
+    pytest.mark.integration,  # planted cases; the library's kernels
+    pytest.mark.kernels(
+        *kernels((), "simulate", "moments"), *kernels(("discovered:Y_one",), "simulate", "moments")
+    ),
+]
 
 KINDS = ("random", "turning", "zigzag")
 

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.integration  # a real browser
+
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts" / "ui"
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 #: flags for a closed network and a root user (see the machine notes)

@@ -234,7 +234,7 @@ class Floor:
 
 
 def run_of(window: Recording) -> str:
-    """The run a window was cut from (``run@t0`` names: :func:`sweep.diagnose.windows.cut_windows`)."""
+    """The run a window was cut from (``run@t0``: :func:`~sweep.diagnose.windows.cut_windows`)."""
     return window.name.rsplit("@", 1)[0]
 
 

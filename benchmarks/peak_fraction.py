@@ -41,7 +41,7 @@ from mmg import efd_parameters, simulate_batch
 from mmg.integrate import Segments, segment_moments
 
 #: useful floating-point operations per RK4 step of one trajectory (four right-hand sides of
-#: the paper's equations, about 950-1,000 in an operation count; issue 15)
+#: the paper's equations, about 950-1,000 in an operation count)
 FLOPS_PER_STEP = 1000.0
 #: candidates per population in the moments workload
 CANDIDATES = 20

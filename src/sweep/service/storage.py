@@ -93,6 +93,14 @@ def write_bytes(location: str | os.PathLike[str], data: bytes) -> None:
         raise
 
 
+def move(source: str | os.PathLike[str], target: str | os.PathLike[str]) -> None:
+    """Move the file ``source`` to ``target`` (same file system; replaces ``target``): a rename
+    on a local or mounted file system, a copy and delete on an object store."""
+    filesystem, path = _resolve(source)
+    _, target_path = _resolve(target)
+    filesystem.move(path, target_path)
+
+
 def check(location: str) -> None:
     """Raise ValueError if ``location`` is not a path or a URI of a known scheme (no network)."""
     if "://" not in location:
@@ -126,3 +134,13 @@ class Location:
     def write_bytes(self, data: bytes) -> None:
         """Replace the stored bytes by ``data`` atomically (:func:`write_bytes`)."""
         write_bytes(self.uri, data)
+
+    def sibling(self, suffix: str) -> Location:
+        """The location ``<uri><suffix>`` (the same directory)."""
+        return Location(self.uri + suffix)
+
+    def rename(self, suffix: str) -> Location:
+        """Move the stored bytes to ``<uri><suffix>`` (:func:`move`); returns that location."""
+        target = self.sibling(suffix)
+        move(self.uri, target.uri)
+        return target

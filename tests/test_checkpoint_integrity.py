@@ -18,7 +18,6 @@ import pytest
 from sweep.identification import checkpoint as envelope
 from sweep.identification.checkpoint import CheckpointError, checkpoint_key, seal
 from sweep.identification.cmaes import Box, Settings, load_checkpoint, optimise
-from sweep.identification.store import LocalFile
 from sweep.identification.workers import InProcess
 from sweep.service.storage import Location
 from sweep.service.tracking import outcome_metrics, outcome_tags
@@ -101,13 +100,11 @@ def test_a_bad_checkpoint_is_set_aside_and_the_run_resumes_from_the_previous_one
     kind, tmp_path, full, capsys
 ):
     ck = interrupted(tmp_path)
-    previous_evaluations = load_checkpoint(
-        envelope.Checkpoint(LocalFile(tmp_path / "ck.pkl.prev"), KEY, JOB)
-    ).evaluations
+    previous_evaluations = load_checkpoint(tmp_path / "ck.pkl.prev", KEY, JOB).evaluations
     bad = damage(kind, ck, tmp_path)
     capsys.readouterr()
     with pytest.raises(CheckpointError, match=REASONS[kind]):
-        load_checkpoint(envelope.Checkpoint(LocalFile(ck), KEY, JOB))
+        load_checkpoint(ck, KEY, JOB)
     seen: list[int] = []
     resumed = run(ck, progress=lambda state, row: seen.append(state.evaluations))
     assert seen[0] == previous_evaluations + 20  # the first generation after the previous one

@@ -142,9 +142,10 @@ def seal(payload: bytes, key: bytes, job: str = "") -> bytes:
     return prefix + checksum + mac + payload
 
 
-def open_sealed(data: bytes, key: bytes, job: str = "", name: str = "checkpoint") -> bytes:
-    """The payload of an envelope that this job wrote with ``key``; raises
-    :class:`CheckpointError` (naming ``name``) otherwise. Nothing of the payload is interpreted."""
+def open_sealed(data: bytes, key: bytes, job: str | None = "", name: str = "checkpoint") -> bytes:
+    """The payload of an envelope written with ``key`` for the job ``job`` (None: any job, to
+    inspect one); raises :class:`CheckpointError` (naming ``name``) otherwise. Nothing of the
+    payload is interpreted."""
     if not data.startswith(MAGIC):
         raise CheckpointError(name, "truncated" if MAGIC.startswith(data) else "other format")
     if len(data) < HEADER_SIZE:
@@ -164,7 +165,7 @@ def open_sealed(data: bytes, key: bytes, job: str = "", name: str = "checkpoint"
         raise CheckpointError(name, "checksum mismatch")
     if not hmac.compare_digest(mac, hmac.new(key, prefix + payload, hashlib.sha256).digest()):
         raise CheckpointError(name, "not authenticated")
-    if not hmac.compare_digest(digest, job_digest(job)):
+    if job is not None and not hmac.compare_digest(digest, job_digest(job)):
         raise CheckpointError(name, "written for another job")
     return payload
 

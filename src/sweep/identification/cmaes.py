@@ -290,13 +290,16 @@ def _state_of(payload: bytes, name: str) -> State:
     return state
 
 
-def load_checkpoint(path: CheckpointLike) -> State:
-    """The state the current checkpoint holds (a local file, a store or a checkpoint with its key
-    and job); raises :class:`~sweep.identification.checkpoint.CheckpointError` (a ValueError) if
-    it is damaged, forged, another job's or holds something else. Nothing is set aside."""
-    ck = _checkpoint(path)
-    name = str(ck.store)
-    return _state_of(open_sealed(ck.store.read_bytes(), ck.key, ck.job, name), name)
+def load_checkpoint(
+    path: str | Path | Store, key: bytes | None = None, job: str | None = None
+) -> State:
+    """The state the checkpoint at ``path`` (a local file or a store) holds, verified with ``key``
+    (None: the user's) and written for the job ``job`` (None: any job); raises
+    :class:`~sweep.identification.checkpoint.CheckpointError` (a ValueError) if it is damaged,
+    forged, another job's or holds something else. Nothing is set aside."""
+    store = as_store(path)
+    key = default_checkpoint_key() if key is None else key
+    return _state_of(open_sealed(store.read_bytes(), key, job, str(store)), str(store))
 
 
 Evaluate = Callable[[FloatArray], FloatArray]

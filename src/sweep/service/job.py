@@ -73,7 +73,7 @@ class JobSpec:
     @property
     def checkpoint_location(self) -> Location | Path:
         """Where the optimiser keeps the checkpoint: the storage location of ``checkpoint``, or
-        ``job_dir/checkpoint.pkl``."""
+        ``job_dir/checkpoint.pkl`` (the previous one beside it, ``checkpoint.pkl.prev``)."""
         if self.checkpoint:
             return Location(self.checkpoint)
         return self.job_dir / "checkpoint.pkl"

@@ -10,8 +10,13 @@ node after its node was lost resumes from there.
 
 Writes are atomic: a temporary object is written and then moved over the old one (a rename on a
 local or mounted file system; an object store replaces the object whole), so a crash mid-write
-leaves the previous checkpoint readable. The file system of a URI is made once per scheme and
-authority (for ``s3://`` that asks the bucket's region over the network) and reused.
+leaves the previous checkpoint readable. Beside the checkpoint, the optimiser keeps the previous
+one (``checkpoint.pkl.prev``) and sets a rejected one aside (``checkpoint.pkl.bad-<n>``): both
+are signed and verified (:mod:`sweep.identification.checkpoint`), since anyone who can write
+to the storage could otherwise plant code there.
+
+The file system of a URI is made once per scheme and authority (for ``s3://`` that asks the
+bucket's region over the network) and reused.
 """
 
 from __future__ import annotations

@@ -113,7 +113,7 @@ def test_a_bad_checkpoint_is_set_aside_and_the_run_resumes_from_the_previous_one
     assert (tmp_path / "ck.pkl.bad-1").read_bytes() == bad  # set aside, not deleted
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and str(ck) in err and REASONS[kind] in err
-    assert "resuming from the previous checkpoint" in err
+    assert "set aside as ck.pkl.bad-1" in err and "resuming from the previous checkpoint" in err
     assert not (tmp_path / "planted").exists()
     assert resumed.f == full.f and np.array_equal(resumed.theta, full.theta)
     assert resumed.evaluations == full.evaluations

@@ -189,7 +189,10 @@ class Recovery:
 
     def line(self) -> str:
         """One line for the console: which files, why, and where the job goes on from."""
-        files = "; ".join(f"{r.name}: {r.reason}, set aside as {r.moved_to}" for r in self.rejected)
+        files = "; ".join(
+            f"{r.name}: {r.reason}, set aside as {r.moved_to.rsplit('/', 1)[-1]}"
+            for r in self.rejected
+        )
         then = (
             "resuming from the previous checkpoint"
             if self.resumed == "previous"

@@ -15,7 +15,6 @@ from __future__ import annotations
 import contextlib
 import io
 import os
-import pickle
 import shutil
 import signal
 import socket
@@ -30,6 +29,7 @@ import pytest
 import yaml
 
 from sweep.data.datasets import CONF_DIR
+from sweep.identification.cmaes import load_checkpoint
 from sweep.service.orchestration import (
     LocalExecutor,
     Progress,
@@ -161,7 +161,7 @@ def _evaluations(storage: Path, name: str) -> dict[str, int]:
     out = {}
     for path in (storage / name).glob("*/checkpoint.pkl"):
         try:
-            out[path.parent.name] = int(pickle.loads(path.read_bytes()).evaluations)
+            out[path.parent.name] = int(load_checkpoint(path).evaluations)
         except Exception:  # being replaced right now
             continue
     return out

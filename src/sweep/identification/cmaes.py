@@ -35,7 +35,9 @@ restart index, the evaluations used, the best so far and the history, so that a 
 exactly where an uninterrupted one would, whichever generation it resumes from. It is written
 after the first generation, then at most every ``checkpoint_seconds`` (default
 :data:`CHECKPOINT_SECONDS`; a lost job repeats at most that much work) and at the end of every
-restart.
+restart. It is written signed (:mod:`sweep.identification.checkpoint`) with the previous one kept
+beside it; a checkpoint that is damaged, forged or another job's is set aside unread and the run
+resumes from the previous one, or afresh.
 """
 
 from __future__ import annotations
@@ -53,6 +55,8 @@ import numpy as np
 from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
+from sweep.identification.checkpoint import Checkpoint, CheckpointError, Recovery, open_sealed
+from sweep.identification.checkpoint import checkpoint_key as default_checkpoint_key
 from sweep.identification.store import Store, as_store
 
 FloatArray = NDArray[np.float64]
@@ -142,6 +146,8 @@ class Result:
     mean_outside: bool  # the final mean fails the same test (information only)
     seconds: float
     stop_reason: str
+    #: how this call got its starting checkpoint when the newest one was rejected (else None)
+    recovery: Recovery | None = None
 
 
 class Box:
@@ -224,34 +230,76 @@ def _new_strategy(state: State, y0: FloatArray) -> cma.CMAEvolutionStrategy:
     return cma.CMAEvolutionStrategy(y0, s.sigma0, opts)
 
 
-def save_checkpoint(state: State, path: str | Path | Store) -> None:
-    """Write atomically (a crash mid-write leaves the previous checkpoint intact); ``path`` is
-    a local file or a :class:`~sweep.identification.store.Store` (e.g. a storage URI's)."""
-    as_store(path).write_bytes(pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
+#: where a checkpoint is: a local path, a store, or a store with its key and job
+CheckpointLike = str | Path | Store | Checkpoint
 
 
-#: where checkpoint classes lived before ``sweep`` was grouped into subpackages
-_MOVED_MODULES = {"sweep.cmaes": __name__}
+def _checkpoint(path: CheckpointLike, key: bytes | None = None, job: str = "") -> Checkpoint:
+    """``path`` as a signed :class:`Checkpoint` (the user's key unless ``key`` is given)."""
+    if isinstance(path, Checkpoint):
+        return path
+    return Checkpoint(as_store(path), default_checkpoint_key() if key is None else key, job)
+
+
+def save_checkpoint(state: State, path: CheckpointLike) -> None:
+    """Write signed and atomically, keeping the previous checkpoint beside it; ``path`` is a
+    local file, a :class:`~sweep.identification.store.Store` (e.g. a storage URI's) or a
+    :class:`~sweep.identification.checkpoint.Checkpoint` (a store with its key and job)."""
+    _checkpoint(path).save(pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+#: the only globals a checkpoint's state may name (its dataclasses and numpy's arrays); the
+#: strategy inside is pycma's own pickle, read only from an authenticated checkpoint
+_ALLOWED = {
+    (__name__, "State"),
+    (__name__, "Settings"),
+    (__name__, "RestartRecord"),
+    ("numpy", "dtype"),
+    ("numpy", "ndarray"),
+    ("numpy._core.numeric", "_frombuffer"),
+    ("numpy.core.numeric", "_frombuffer"),
+    ("numpy._core.multiarray", "_reconstruct"),
+    ("numpy.core.multiarray", "_reconstruct"),
+    ("numpy._core.multiarray", "scalar"),
+    ("numpy.core.multiarray", "scalar"),
+}
 
 
 class _Unpickler(pickle.Unpickler):
-    """Reads checkpoints written before the move of this module (sweep.cmaes), so that a sweep
-    interrupted under the old layout resumes under the new one."""
+    """Reads a checkpoint's state and refuses any other global (defence in depth: the envelope
+    has already authenticated the bytes)."""
 
     def find_class(self, module: str, name: str) -> Any:
-        """The class ``name`` of ``module``, looked up under the module's current name."""
-        return super().find_class(_MOVED_MODULES.get(module, module), name)
+        """The class ``name`` of ``module`` if the state may hold it."""
+        if (module, name) not in _ALLOWED:
+            raise pickle.UnpicklingError(f"{module}.{name} is not part of a checkpoint")
+        return super().find_class(module, name)
 
 
-def load_checkpoint(path: str | Path | Store) -> State:
-    """The state a checkpoint holds (a local file or a store); raises ValueError if it holds
-    something else."""
+def _state_of(payload: bytes, name: str) -> State:
+    """The state an authenticated payload holds; :class:`CheckpointError` ("other format") if it
+    holds something else (e.g. written by another version of this module)."""
     import io
 
-    state = _Unpickler(io.BytesIO(as_store(path).read_bytes())).load()
+    try:
+        state = _Unpickler(io.BytesIO(payload)).load()
+    except Exception:  # any failure to read it: not a state this code can continue
+        raise CheckpointError(name, "other format") from None
     if not isinstance(state, State):
-        raise ValueError(f"{path}: not a checkpoint of sweep.identification.cmaes")
+        raise CheckpointError(name, "other format")
     return state
+
+
+def load_checkpoint(
+    path: str | Path | Store, key: bytes | None = None, job: str | None = None
+) -> State:
+    """The state the checkpoint at ``path`` (a local file or a store) holds, verified with ``key``
+    (None: the user's) and written for the job ``job`` (None: any job); raises
+    :class:`~sweep.identification.checkpoint.CheckpointError` (a ValueError) if it is damaged,
+    forged, another job's or holds something else. Nothing is set aside."""
+    store = as_store(path)
+    key = default_checkpoint_key() if key is None else key
+    return _state_of(open_sealed(store.read_bytes(), key, job, str(store)), str(store))
 
 
 Evaluate = Callable[[FloatArray], FloatArray]
@@ -263,27 +311,39 @@ def optimise(
     box: Box,
     x0: FloatArray,
     settings: Settings,
-    checkpoint: str | Path | Store | None = None,
+    checkpoint: CheckpointLike | None = None,
     progress: Progress | None = None,
     stop_after_generations: int | None = None,
     checkpoint_seconds: float = CHECKPOINT_SECONDS,
+    checkpoint_key: bytes | None = None,
+    checkpoint_job: str = "",
 ) -> Result:
     """Run (or resume from ``checkpoint``) a restart CMA-ES job.
 
     ``evaluate(thetas (C, n)) -> (C,)`` objective values (finite; penalties for failures).
     ``x0`` (n,) the initial mean in parameter space. ``checkpoint``: a local file or a
-    :class:`~sweep.identification.store.Store` the caller provides (None: no checkpoint).
+    :class:`~sweep.identification.store.Store` the caller provides (None: no checkpoint); the
+    previous checkpoint is kept beside it (``<name>.prev``).
     ``stop_after_generations`` interrupts the run
     after that many generations of this call (for tests of resume), leaving a checkpoint.
     ``checkpoint_seconds``: the longest time between two checkpoints within a restart (0: after
     every generation); the first generation of a call and the end of a restart always write one.
+    ``checkpoint_key``: the key that signs and verifies the checkpoint (None: the user's,
+    :func:`~sweep.identification.checkpoint.checkpoint_key`); ``checkpoint_job``: the job's
+    identity it is written for (a sweep's config hash). A checkpoint that is damaged, forged or
+    another job's is set aside (one line on stderr, ``Result.recovery``) and the run resumes from
+    the previous one, or afresh; one of this job written with other settings is refused
+    (ValueError).
     """
     if not checkpoint_seconds >= 0.0:
         raise ValueError(f"checkpoint_seconds must be >= 0, not {checkpoint_seconds}")
     state: State | None = None
-    if checkpoint is not None and as_store(checkpoint).exists():
-        state = load_checkpoint(checkpoint)
-        if state.settings != settings or state.n != box.n:
+    recovery: Recovery | None = None
+    ck: Checkpoint | None = None
+    if checkpoint is not None:
+        ck = _checkpoint(checkpoint, checkpoint_key, checkpoint_job)
+        state, recovery = ck.load(_state_of)
+        if state is not None and (state.settings != settings or state.n != box.n):
             raise ValueError(
                 f"{checkpoint}: checkpoint was written with other settings "
                 f"({state.settings}); remove it or use the same settings"
@@ -301,10 +361,11 @@ def optimise(
             y0,
             settings,
             state,
-            checkpoint,
+            ck,
             progress,
             stop_after_generations,
             checkpoint_seconds,
+            recovery,
         )
 
 
@@ -314,10 +375,11 @@ def _optimise(
     y0: FloatArray,
     settings: Settings,
     state: State,
-    checkpoint: str | Path | Store | None,
+    checkpoint: Checkpoint | None,
     progress: Progress | None,
     stop_after_generations: int | None,
     checkpoint_seconds: float,
+    recovery: Recovery | None,
 ) -> Result:
     t_start = time.perf_counter() - state.seconds
     generations_here = 0
@@ -388,7 +450,7 @@ def _optimise(
             if progress is not None:
                 progress(state, row)
             if interrupt:
-                return _result(state, box)
+                return _result(state, box, recovery)
         record.stop = {k: _plain(v) for k, v in stop.items()}
         state.es_pickle = None
         if "budget" in stop or "wall_clock" in stop:
@@ -399,7 +461,7 @@ def _optimise(
         state.seconds = time.perf_counter() - t_start
         if checkpoint is not None:
             save_checkpoint(state, checkpoint)
-    return _result(state, box)
+    return _result(state, box, recovery)
 
 
 def _plain(v: Any) -> Any:
@@ -410,7 +472,7 @@ def _plain(v: Any) -> Any:
     return v
 
 
-def _result(state: State, box: Box) -> Result:
+def _result(state: State, box: Box, recovery: Recovery | None = None) -> Result:
     if state.best_y is None:
         raise RuntimeError("no generation was evaluated")
     theta = box.to_theta(state.best_y)
@@ -426,6 +488,7 @@ def _result(state: State, box: Box) -> Result:
         mean_outside=box.rejected(mean),
         seconds=state.seconds,
         stop_reason=state.stop_reason,
+        recovery=recovery,
     )
 
 

@@ -1,8 +1,9 @@
 """Where a checkpoint is kept: a local file, or a store the caller injects.
 
 :func:`sweep.identification.cmaes.optimise` reads and writes its checkpoint through a
-:class:`Store`, one place that says whether it holds anything, returns its bytes and replaces
-them atomically. A local path is a :class:`LocalFile`; the sweep service injects its own store
+:class:`Store`, one place that says whether it holds anything, returns its bytes, replaces them
+atomically, names the places beside it (the previous checkpoint, one set aside) and moves its
+bytes there. A local path is a :class:`LocalFile`; the sweep service injects its own store
 for checkpoints that outlive a node (:class:`sweep.service.storage.Location`, a path or a
 storage URI), so that this layer knows nothing of storage URIs.
 """
@@ -31,6 +32,14 @@ class Store(Protocol):
     def write_bytes(self, data: bytes) -> None:
         """Replace the checkpoint by ``data`` atomically: a crash mid-write leaves the previous
         one readable."""
+        ...
+
+    def sibling(self, suffix: str) -> Store:
+        """The place beside this one whose name is this one's with ``suffix`` appended."""
+        ...
+
+    def rename(self, suffix: str) -> Store:
+        """Move the bytes to :meth:`sibling` ``(suffix)`` (replacing what it held); returns it."""
         ...
 
 
@@ -63,6 +72,16 @@ class LocalFile:
             with contextlib.suppress(OSError):
                 tmp.unlink()
             raise
+
+    def sibling(self, suffix: str) -> LocalFile:
+        """The file ``<path><suffix>`` in the same directory."""
+        return LocalFile(self.path.with_name(self.path.name + suffix))
+
+    def rename(self, suffix: str) -> LocalFile:
+        """Move the file to ``<path><suffix>`` (an atomic rename); returns that file."""
+        target = self.sibling(suffix)
+        os.replace(self.path, target.path)
+        return target
 
 
 def as_store(location: str | os.PathLike[str] | Store) -> Store:

@@ -22,6 +22,7 @@ from mmg import Effect, Parameters, efd_parameters, get_effect, simulate_batch
 from sweep.data.datasets import split_from_mapping
 from sweep.data.objective import OBJECTIVES, Objective, split_recording
 from sweep.data.recordings import Recording, RecordingWarning
+from sweep.identification.checkpoint import checkpoint_key
 from sweep.identification.cmaes import (
     CHECKPOINT_SECONDS,
     Settings,
@@ -50,6 +51,9 @@ class JobSpec:
 
     ``config``: the job-relevant configuration (objective, train and test splits, budget, cmaes
     settings, seed); its hash identifies the job's result. ``job_dir`` holds the checkpoint.
+    ``checkpoint_key`` signs and verifies the checkpoint: the key of the process that made the
+    spec (the driver's, :func:`~sweep.identification.checkpoint.checkpoint_key`), so that a job
+    verifies its checkpoints on any node; it travels with the spec, never to the storage.
     """
 
     key: str
@@ -64,11 +68,12 @@ class JobSpec:
     checkpoint: str | None = None
     #: the longest time between two checkpoints (``sweep.checkpoint_seconds``)
     checkpoint_seconds: float = CHECKPOINT_SECONDS
+    checkpoint_key: bytes = field(default_factory=checkpoint_key, repr=False, compare=False)
 
     @property
     def checkpoint_location(self) -> Location | Path:
         """Where the optimiser keeps the checkpoint: the storage location of ``checkpoint``, or
-        ``job_dir/checkpoint.pkl``."""
+        ``job_dir/checkpoint.pkl`` (the previous one beside it, ``checkpoint.pkl.prev``)."""
         if self.checkpoint:
             return Location(self.checkpoint)
         return self.job_dir / "checkpoint.pkl"
@@ -182,7 +187,9 @@ def run_job(
     plots: bool = True,
 ) -> tuple[JobOutcome, dict[str, bytes]]:
     """Identify, evaluate on the test set, plot. Resumes from the spec's checkpoint (in its
-    job directory, or in the sweep's storage), written after every generation."""
+    job directory, or in the sweep's storage), written after every generation; a checkpoint that
+    is damaged, forged or another job's is set aside and the job resumes from the previous one,
+    or afresh (the outcome's ``checkpoint_recovery`` and ``checkpoint_rejected`` say so)."""
     cfg = spec.config
     with warnings.catch_warnings():
         # data warnings (dropped trailing rows, ...) are said once, by the driver
@@ -229,6 +236,8 @@ def run_job(
             checkpoint=spec.checkpoint_location,
             progress=progress,
             checkpoint_seconds=spec.checkpoint_seconds,
+            checkpoint_key=spec.checkpoint_key,
+            checkpoint_job=spec.config_hash,
         )
     finally:
         evaluator.close()
@@ -278,6 +287,8 @@ def run_job(
         test=test_metrics(best, test, effects),
         sim_seconds=sim_seconds,
         polished=polished,
+        checkpoint_recovery=result.recovery.tag() if result.recovery else "",
+        checkpoint_rejected=len(result.recovery.rejected) if result.recovery else 0,
     )
     files = draw_plots(result.history, best, test, spec.key) if plots else {}
     return outcome, files

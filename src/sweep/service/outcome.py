@@ -83,6 +83,10 @@ class JobOutcome:
     #: ``test`` above stay the CMA-ES result): f_start, f, evaluations, iterations, seconds,
     #: params (:meth:`Parameters.to_dict`), test {J: {subset: value}}; None without it
     polished: dict[str, Any] | None = None
+    #: how the job started when its checkpoint was rejected: "previous: truncated" (resumed from
+    #: the previous checkpoint), "fresh: not authenticated, ..." (no good one left); "" if not
+    checkpoint_recovery: str = ""
+    checkpoint_rejected: int = 0  # checkpoints set aside (damaged, forged, another job's)
 
 
 def _plain(value: Any) -> Any:

@@ -10,8 +10,13 @@ node after its node was lost resumes from there.
 
 Writes are atomic: a temporary object is written and then moved over the old one (a rename on a
 local or mounted file system; an object store replaces the object whole), so a crash mid-write
-leaves the previous checkpoint readable. The file system of a URI is made once per scheme and
-authority (for ``s3://`` that asks the bucket's region over the network) and reused.
+leaves the previous checkpoint readable. Beside the checkpoint, the optimiser keeps the previous
+one (``checkpoint.pkl.prev``) and sets a rejected one aside (``checkpoint.pkl.bad-<n>``): both
+are signed and verified (:mod:`sweep.identification.checkpoint`), since anyone who can write
+to the storage could otherwise plant code there.
+
+The file system of a URI is made once per scheme and authority (for ``s3://`` that asks the
+bucket's region over the network) and reused.
 """
 
 from __future__ import annotations
@@ -93,6 +98,14 @@ def write_bytes(location: str | os.PathLike[str], data: bytes) -> None:
         raise
 
 
+def move(source: str | os.PathLike[str], target: str | os.PathLike[str]) -> None:
+    """Move the file ``source`` to ``target`` (same file system; replaces ``target``): a rename
+    on a local or mounted file system, a copy and delete on an object store."""
+    filesystem, path = _resolve(source)
+    _, target_path = _resolve(target)
+    filesystem.move(path, target_path)
+
+
 def check(location: str) -> None:
     """Raise ValueError if ``location`` is not a path or a URI of a known scheme (no network)."""
     if "://" not in location:
@@ -126,3 +139,13 @@ class Location:
     def write_bytes(self, data: bytes) -> None:
         """Replace the stored bytes by ``data`` atomically (:func:`write_bytes`)."""
         write_bytes(self.uri, data)
+
+    def sibling(self, suffix: str) -> Location:
+        """The location ``<uri><suffix>`` (the same directory)."""
+        return Location(self.uri + suffix)
+
+    def rename(self, suffix: str) -> Location:
+        """Move the stored bytes to ``<uri><suffix>`` (:func:`move`); returns that location."""
+        target = self.sibling(suffix)
+        move(self.uri, target.uri)
+        return target

@@ -257,8 +257,8 @@ def scores_from_metrics(metrics: Mapping[str, float], kind: str) -> ScoreTable:
 
 
 def outcome_tags(outcome: JobOutcome, parent_id: str) -> dict[str, str]:
-    """The child run's tags."""
-    return {
+    """The child run's tags (``checkpoint.recovery`` only when a checkpoint was rejected)."""
+    tags = {
         "objective": outcome.objective,
         "train": outcome.train,
         "seed": str(outcome.seed),
@@ -271,6 +271,9 @@ def outcome_tags(outcome: JobOutcome, parent_id: str) -> dict[str, str]:
         "git_commit": source_version()["commit"],
         PARENT_TAG: parent_id,
     }
+    if outcome.checkpoint_recovery:
+        tags["checkpoint.recovery"] = outcome.checkpoint_recovery
+    return tags
 
 
 def outcome_metrics(outcome: JobOutcome) -> dict[str, float]:
@@ -292,6 +295,7 @@ def outcome_metrics(outcome: JobOutcome) -> dict[str, float]:
         restarts=float(len(outcome.restarts)),
         sim_seconds=float(outcome.sim_seconds),
         retries=float(outcome.retries),
+        checkpoint_rejected=float(outcome.checkpoint_rejected),
     )
     return metrics
 

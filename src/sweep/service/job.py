@@ -32,6 +32,7 @@ from sweep.identification.cmaes import (
 )
 from sweep.identification.polish import LAMBDA_TRIALS, PolishSettings, polish
 from sweep.identification.vector import from_full_vector, full_vector, joint_box
+from sweep.service.lease import LEASE_SECONDS
 from sweep.service.outcome import SUBSETS, JobOutcome, complete_subsets, config_hash, make_job_key
 from sweep.service.storage import Location
 
@@ -69,6 +70,8 @@ class JobSpec:
     #: the longest time between two checkpoints (``sweep.checkpoint_seconds``)
     checkpoint_seconds: float = CHECKPOINT_SECONDS
     checkpoint_key: bytes = field(default_factory=checkpoint_key, repr=False, compare=False)
+    #: how long a driver's claim on the job lasts without a heartbeat (``sweep.lease_seconds``)
+    lease_seconds: float = LEASE_SECONDS
 
     @property
     def checkpoint_location(self) -> Location | Path:
@@ -77,6 +80,14 @@ class JobSpec:
         if self.checkpoint:
             return Location(self.checkpoint)
         return self.job_dir / "checkpoint.pkl"
+
+    @property
+    def lease_directory(self) -> str:
+        """Where drivers claim the job (:mod:`sweep.service.lease`): ``lease/`` beside the
+        checkpoint, in the sweep's storage or the job directory."""
+        if self.checkpoint:
+            return self.checkpoint.rsplit("/", 1)[0] + "/lease"
+        return str(self.job_dir / "lease")
 
     @property
     def config_hash(self) -> str:

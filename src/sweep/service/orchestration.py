@@ -9,6 +9,13 @@ or an in-memory one for tests).
 - Before anything runs, each job is looked up by its key: a finished job with the same config
   hash is skipped; one whose config changed is refused (``ConfigChangedError``) unless allowed.
 - Jobs resume from their checkpoints (the job directory is stable: ``multirun/<sweep>/<job>``).
+- One driver per job at a time: a job is claimed by a lease (:mod:`sweep.service.lease`) before
+  it runs; a job another live driver holds is waited for (and counted as skipped when that
+  driver logged it), the job of a driver whose lease expired is taken over and resumes from its
+  checkpoint. Before a job is logged, a finished run of it in the tracker is looked for: a job
+  is never logged twice.
+- A job's outcome is kept in its directory (:mod:`sweep.service.pending`) from its end until it
+  is logged: a driver killed in between leaves it, and the next run logs it from there.
 - A failing job is recorded with its error and the others go on; the summary counts it.
 - Progress: jobs done / running / failed / pending, an ETA from the evaluations done so far, and
   per running job its restart, population size, evaluations and best f.
@@ -17,6 +24,7 @@ or an in-memory one for tests).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
 import time
@@ -32,8 +40,9 @@ from sweep.data.datasets import split_from_mapping
 from sweep.data.recordings import RecordingWarning
 from sweep.identification.cmaes import CHECKPOINT_SECONDS
 from sweep.identification.workers import InProcess
-from sweep.service import storage
+from sweep.service import pending, storage
 from sweep.service.job import JobSpec, job_key, run_job, test_metrics
+from sweep.service.lease import LEASE_SECONDS, Driver, Heartbeat, Holder, Lease
 from sweep.service.outcome import JobOutcome
 
 
@@ -127,6 +136,7 @@ class SweepSummary:
     files: dict[str, Path] = field(default_factory=dict)
     retries: dict[str, int] = field(default_factory=dict)  # resubmissions per job key
     tables: dict[str, Any] = field(default_factory=dict)  # {J: summary table} (service.tables)
+    notes: list[str] = field(default_factory=list)  # said under the tables (duplicates ignored)
     seconds: float = 0.0
 
     @property
@@ -177,6 +187,7 @@ def spec_from_config(cfg: Mapping[str, Any], job_dir: Path) -> JobSpec:
         data_root=str(root) if root else None,
         checkpoint=checkpoint,
         checkpoint_seconds=float(sweep_cfg.get("checkpoint_seconds", CHECKPOINT_SECONDS)),
+        lease_seconds=float(sweep_cfg.get("lease_seconds", LEASE_SECONDS)),
     )
 
 
@@ -274,6 +285,92 @@ def balanced_concurrency(n_jobs: int, slots: int, max_factor: float = 1.5) -> in
     return best_k
 
 
+class _Claims:
+    """The leases of one driver's jobs (:mod:`sweep.service.lease`): claimed before a job runs,
+    kept alive by a heartbeat, released at its end; the jobs other live drivers hold."""
+
+    def __init__(self, specs: Sequence[JobSpec], progress: Progress) -> None:
+        self.driver = Driver.this()
+        self.specs = list(specs)
+        self.progress = progress
+        self.seconds = min((s.lease_seconds for s in specs), default=LEASE_SECONDS)
+        self.heartbeat = Heartbeat(self.seconds / 3.0)
+        self.leases: dict[str, Lease] = {}
+        self.held: dict[str, tuple[JobSpec, Holder]] = {}  # waiting for another driver
+        self._looked = time.monotonic()
+
+    def claim(self, spec: JobSpec) -> bool:
+        """Whether this driver now holds ``spec``'s job (else it waits in ``held``)."""
+        lease = Lease(spec.lease_directory, self.driver, spec.lease_seconds)
+        holder = lease.acquire()
+        if holder is not None:
+            if spec.key not in self.held:
+                self.progress.note(
+                    f"{spec.key}: held by driver {holder.driver}; waiting for it to end"
+                )
+            self.held[spec.key] = (spec, holder)
+            return False
+        self.held.pop(spec.key, None)
+        self.leases[spec.key] = lease
+        self.heartbeat.add(lease)
+        return True
+
+    def freed(self) -> list[JobSpec]:
+        """The held jobs whose lease is no longer live (released, expired, its driver gone),
+        looked at every few seconds: to be claimed again."""
+        now = time.monotonic()
+        if not self.held or now - self._looked < min(2.0, self.seconds / 3.0):
+            return []
+        self._looked = now
+        out = []
+        for key, (spec, _) in list(self.held.items()):
+            current = Lease(spec.lease_directory, self.driver).holder()
+            if current is None or not current.live():
+                out.append(spec)
+            else:
+                self.held[key] = (spec, current)
+        return out
+
+    def release(self, spec: JobSpec) -> None:
+        """Give ``spec``'s job up (said if its lease had been taken over meanwhile)."""
+        lease = self.leases.pop(spec.key, None)
+        if lease is None:
+            return
+        self.heartbeat.remove(lease)
+        if lease.directory in self.heartbeat.lost:
+            self.progress.note(
+                f"{spec.key}: its lease expired while it ran (this driver stalled for over "
+                f"{lease.seconds:g} s) and another driver may have taken the job over"
+            )
+        lease.release()
+
+    def start_sweep(
+        self, tracker: Any, name: str, config: dict[str, Any], efd: dict[str, dict[str, float]]
+    ) -> str:
+        """``tracker.start_sweep`` under a lease of the sweep (``parent-lease`` beside the jobs'
+        directories), so that two drivers started at once make one parent run, not two."""
+        if not self.specs:
+            return str(tracker.start_sweep(name, config, efd))
+        jobs = self.specs[0].lease_directory.rsplit("/", 2)[0]
+        lease = Lease(storage.join(jobs, "parent-lease"), self.driver, self.seconds)
+        while lease.acquire() is not None:
+            time.sleep(0.2)  # another driver is making or resuming the parent run
+        self.heartbeat.add(lease)
+        try:
+            return str(tracker.start_sweep(name, config, efd))
+        finally:
+            self.heartbeat.remove(lease)
+            lease.release()
+
+    def close(self) -> None:
+        """Release every lease still held and stop the heartbeat."""
+        for lease in list(self.leases.values()):
+            with contextlib.suppress(OSError):
+                lease.release()
+        self.leases.clear()
+        self.heartbeat.stop()
+
+
 def run_sweep(
     name: str,
     specs: Sequence[JobSpec],
@@ -291,27 +388,40 @@ def run_sweep(
 
     A job lost to the infrastructure (``executor.lost``) is resubmitted, up to ``max_retries``
     times, and resumes from its last checkpoint wherever it lands; an error of the job's own
-    code fails the job at once."""
+    code fails the job at once. Each job is claimed by a lease first: jobs another live driver
+    holds are waited for, so that the summary covers every job once."""
     t0 = time.perf_counter()
     efd_table = {k: dict(v) for k, v in efd.items()}
-    parent = tracker.start_sweep(name, dict(sweep_config or {}), efd_table)
-    summary = SweepSummary(parent_id=parent)
-    todo: list[JobSpec] = []
-    for spec in specs:  # refuse changed configs before anything runs
-        if tracker.find_finished(spec.key, spec.config_hash, parent):
-            summary.skipped.append(spec.key)
-        else:
-            todo.append(spec)
+    progress = progress or Progress()
+    claims = _Claims(specs, progress)
+    try:
+        parent = claims.start_sweep(tracker, name, dict(sweep_config or {}), efd_table)
+        summary = SweepSummary(parent_id=parent)
+        todo: list[JobSpec] = []
+        for spec in specs:  # refuse changed configs before anything runs
+            if tracker.find_finished(spec.key, spec.config_hash, parent):
+                summary.skipped.append(spec.key)
+            else:
+                todo.append(spec)
+    except BaseException:
+        claims.close()
+        raise
     budget = {s.key: float(s.config["budget"]["max_evaluations"]) for s in specs}
     total_evals = sum(budget[s.key] for s in todo)
     done_evals = 0.0
     limit = max(1, max_concurrent or executor.capacity())
     running: dict[Any, JobSpec] = {}
-    progress = progress or Progress()
     try:
-        while todo or running:
+        while todo or running or claims.held:
+            todo[:0] = claims.freed()
             while todo and len(running) < limit:
                 spec = todo.pop(0)
+                if not claims.claim(spec):
+                    continue
+                if _settled(spec, tracker, parent, summary, progress, on_outcome):
+                    claims.release(spec)
+                    done_evals += budget[spec.key]
+                    continue
                 running[executor.submit(spec)] = spec
             for handle, result in executor.wait(list(running), timeout=0.5):
                 spec = running.pop(handle)
@@ -329,17 +439,48 @@ def run_sweep(
                     todo.insert(0, spec)
                     continue
                 done_evals += budget[spec.key]
-                _record_result(spec, result, tracker, parent, summary, on_outcome)
+                _record_result(spec, result, tracker, parent, summary, progress, on_outcome)
+                claims.release(spec)
             live = sum(float((executor.status(h) or {}).get("evaluations", 0.0)) for h in running)
             eta = _eta(done_evals + live, total_evals, time.perf_counter() - t0)
-            lines = _status_lines(executor, running, len(todo), summary, budget, eta)
-            progress.show("\n".join(lines), force=not running and not todo)
+            lines = _status_lines(executor, running, len(todo), summary, budget, eta, claims.held)
+            progress.show("\n".join(lines), force=not running and not todo and not claims.held)
+            if claims.held and not running and not todo:
+                time.sleep(0.5)  # only other drivers' jobs are left: wait for them
     except KeyboardInterrupt:
         executor.cancel(list(running))
         raise
+    finally:
+        claims.close()
     _write_summary(tracker, parent, efd_table, out_dir, summary, progress)
     summary.seconds = time.perf_counter() - t0
     return summary
+
+
+def _settled(
+    spec: JobSpec,
+    tracker: Any,
+    parent: str,
+    summary: SweepSummary,
+    progress: Progress,
+    on_outcome: Callable[[JobOutcome], None] | None,
+) -> bool:
+    """Whether a job just claimed needs no run: another driver logged it meanwhile (skipped),
+    or it ended before its driver could log it (logged now from the outcome it left)."""
+    if tracker.find_finished(spec.key, spec.config_hash, parent):
+        summary.skipped.append(spec.key)
+        progress.note(f"{spec.key}: finished by another driver")
+        pending.forget(spec.job_dir)
+        return True
+    outcome = pending.kept(spec.job_dir, spec.config_hash)
+    if outcome is None:
+        return False
+    progress.note(
+        f"{spec.key}: ended before its driver logged it; logged now from "
+        f"{spec.job_dir / pending.OUTCOME_FILE} (not run again)"
+    )
+    _log_outcome(spec, outcome, tracker, parent, summary, progress, on_outcome)
+    return True
 
 
 def _record_result(
@@ -348,6 +489,7 @@ def _record_result(
     tracker: Any,
     parent: str,
     summary: SweepSummary,
+    progress: Progress,
     on_outcome: Callable[[JobOutcome], None] | None,
 ) -> None:
     """Log a job that ended: its error as a failed run, or its outcome with its plot files
@@ -369,9 +511,30 @@ def _record_result(
     plots.mkdir(parents=True, exist_ok=True)
     for fname, data in files.items():
         (plots / fname).write_bytes(data)
-    tracker.log_job(parent, outcome, plots)
-    summary.finished.append(spec.key)
-    if on_outcome is not None:
+    pending.keep(spec.job_dir, outcome)  # durable before it is logged
+    _log_outcome(spec, outcome, tracker, parent, summary, progress, on_outcome)
+
+
+def _log_outcome(
+    spec: JobSpec,
+    outcome: JobOutcome,
+    tracker: Any,
+    parent: str,
+    summary: SweepSummary,
+    progress: Progress,
+    on_outcome: Callable[[JobOutcome], None] | None,
+) -> None:
+    """Log a finished job (its plots from ``job_dir/plots``) unless the tracker already has a
+    finished run of it; then drop the outcome kept for the logging."""
+    existing = tracker.find_finished(spec.key, spec.config_hash, parent)
+    if existing:
+        progress.note(f"{spec.key}: already logged (run {existing}); not logged again")
+        summary.skipped.append(spec.key)
+    else:
+        tracker.log_job(parent, outcome, spec.job_dir / "plots")
+        summary.finished.append(spec.key)
+    pending.forget(spec.job_dir)
+    if on_outcome is not None and not existing:
         on_outcome(outcome)
 
 
@@ -382,13 +545,18 @@ def _status_lines(
     summary: SweepSummary,
     budget: Mapping[str, float],
     eta: str,
+    held: Mapping[str, tuple[JobSpec, Holder]] | None = None,
 ) -> list[str]:
     """The progress display: the jobs' counts and the ETA, then one line per running job (its
-    restart, population, evaluations of its budget and best f, or its refinement's iteration)."""
+    restart, population, evaluations of its budget and best f, or its refinement's iteration)
+    and one per job another driver holds."""
+    held = held or {}
     lines = [
         f"jobs: {len(summary.finished)} done, {len(running)} running, "
         f"{len(summary.failed)} failed, {pending} pending, "
-        f"{len(summary.skipped)} skipped | {eta}"
+        f"{len(summary.skipped)} skipped"
+        + (f", {len(held)} held by other drivers" if held else "")
+        + f" | {eta}"
     ]
     for h, spec in running.items():
         st = executor.status(h) or {}
@@ -409,6 +577,8 @@ def _status_lines(
             )
         else:
             lines.append(f"  {spec.key}: starting")
+    for key, (_, holder) in held.items():
+        lines.append(f"  {key}: held by driver {holder.driver}")
     return lines
 
 
@@ -428,8 +598,16 @@ def _write_summary(
     outcomes = tracker.job_outcomes(parent)
     if not outcomes:
         return
+    for record in outcomes:  # several finished runs of one job (older versions, two drivers)
+        if record.get("duplicates"):
+            n = int(record["duplicates"])
+            summary.notes.append(
+                f"{n} duplicate run{'s' if n > 1 else ''} of job {record['job_key']} ignored "
+                f"(the tables use the earliest finished, run {record['run_id']})"
+            )
+            progress.note(summary.notes[-1])
     tables = summary_tables(outcomes, efd_table)
-    summary.files = write_tables(tables, out_dir / "summary")
+    summary.files = write_tables(tables, out_dir / "summary", summary.notes)
     try:
         figure = plot_sweep(
             tables, tracker.job_histories(parent), out_dir / "summary" / "sweep.png"

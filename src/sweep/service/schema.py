@@ -180,6 +180,13 @@ RULES: tuple[Rule, ...] = (
         required=False,
     ),
     Rule(
+        "sweep.lease_seconds",
+        lambda v: _is_number(v) and v >= 1,
+        "a number of seconds >= 1: how long a driver's claim on a job lasts without its "
+        "heartbeat (renewed every third of it)",
+        required=False,
+    ),
+    Rule(
         "effects",
         _effects,
         f"a list of distinct effect names: the catalog's ({', '.join(catalog())}) or "

@@ -149,3 +149,57 @@ class Location:
         target = self.sibling(suffix)
         move(self.uri, target.uri)
         return target
+
+
+def create_exclusive(location: str | os.PathLike[str], data: bytes) -> bool:
+    """Create the file ``location`` holding ``data`` unless it exists; whether this call made it.
+
+    On a local or mounted file system this is atomic between processes and machines: the bytes
+    go to a temporary file that is then hard-linked to the name, which fails if the name exists
+    (so a reader never sees a half-written file). An object store has no create-if-absent:
+    there the object is written when absent and read back, and the call has made it if the
+    bytes read are its own; two writers within the store's propagation delay can both see
+    their own bytes (strongly consistent stores such as S3 shrink that window to the few
+    milliseconds between one writer's check and its write)."""
+    filesystem, path = _resolve(location)
+    parent = path.rsplit("/", 1)[0]
+    if parent:
+        filesystem.create_dir(parent, recursive=True)
+    if isinstance(filesystem, pafs.LocalFileSystem):
+        tmp = f"{path}.{uuid.uuid4().hex[:8]}.tmp"
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        try:
+            os.link(tmp, path)
+        except FileExistsError:
+            return False
+        finally:
+            os.unlink(tmp)
+        return True
+    if filesystem.get_file_info(path).type != pafs.FileType.NotFound:
+        return False
+    write_bytes(location, data)
+    try:
+        return read_bytes(location) == data
+    except FileNotFoundError:
+        return False
+
+
+def list_names(location: str | os.PathLike[str]) -> list[str]:
+    """The names of the files directly in the directory ``location`` (none if it is absent)."""
+    filesystem, path = _resolve(location)
+    selector = pafs.FileSelector(path, allow_not_found=True)
+    return sorted(
+        info.base_name
+        for info in filesystem.get_file_info(selector)
+        if info.type == pafs.FileType.File
+    )
+
+
+def delete(location: str | os.PathLike[str]) -> None:
+    """Delete the file ``location`` (nothing if it is already gone)."""
+    filesystem, path = _resolve(location)
+    with contextlib.suppress(FileNotFoundError):
+        filesystem.delete_file(path)

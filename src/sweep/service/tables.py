@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
+from html import escape
 from pathlib import Path
 from typing import Any
 
@@ -241,8 +242,12 @@ def format_table(table: pd.DataFrame, title: str = "") -> str:
     return f"{title}\n{body}" if title else body
 
 
-def write_tables(tables: Mapping[str, pd.DataFrame], out_dir: str | Path) -> dict[str, Path]:
-    """{J}.csv, {J}.parquet, {J}.md and {J}.html per table; returns {file name: path}."""
+def write_tables(
+    tables: Mapping[str, pd.DataFrame], out_dir: str | Path, notes: Sequence[str] = ()
+) -> dict[str, Path]:
+    """{J}.csv, {J}.parquet, {J}.md and {J}.html per table; returns {file name: path}.
+
+    ``notes``: lines said under the .md and .html tables (e.g. duplicate runs ignored)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, Path] = {}
@@ -255,12 +260,15 @@ def write_tables(tables: Mapping[str, pd.DataFrame], out_dir: str | Path) -> dic
         caption = (
             f"{J} on the test set: mean (standard deviation) over seeds; **best**, <u>second</u>."
         )
-        paths["md"].write_text(f"{caption}\n\n{md.to_markdown(colalign=align)}\n")
+        below = "".join(f"\n- {note}" for note in notes) + ("\n" if notes else "")
+        paths["md"].write_text(f"{caption}\n\n{md.to_markdown(colalign=align)}\n{below}")
         html = display_table(table, "html").to_html(escape=False, border=0)
         paths["html"].write_text(
             f"<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>{J}</title></head>\n"
             f"<body>\n<p>{J} on the test set: mean (standard deviation) over seeds; "
-            f"<b>best</b>, <u>second</u>.</p>\n{html}\n</body></html>\n"
+            f"<b>best</b>, <u>second</u>.</p>\n{html}\n"
+            + "".join(f"<p>{escape(note)}</p>\n" for note in notes)
+            + "</body></html>\n"
         )
         files.update({p.name: p for p in paths.values()})
     return files

@@ -12,7 +12,8 @@ Resume: :meth:`Tracker.start_sweep` reuses a non-deleted parent run of the same 
 :meth:`Tracker.find_finished` finds a job's FINISHED child run by its job_key. A finished run of
 the same job_key whose config_hash differs raises :class:`ConfigChangedError`, unless the tracker
 was created with ``allow_config_change=True``: then the job counts as not done and runs again;
-the report uses the newest finished run per job_key.
+the report uses the newest configuration's earliest finished run per job_key (more finished runs
+of it are duplicates: counted in ``duplicates`` and ignored, see :func:`newest_per_key`).
 
 :class:`MlflowTracker` meets the contract on any tracking URI (use SQLite,
 ``sqlite:///path/mlflow.db``, never the file store); the tests keep an in-memory double of it
@@ -397,13 +398,20 @@ def choose_finished(
 
 
 def newest_per_key(records: Sequence[tuple[int, dict[str, Any]]]) -> list[dict[str, Any]]:
-    """Keep the newest (start_time, record) per job_key; ordered by job_key."""
-    best: dict[str, tuple[int, dict[str, Any]]] = {}
+    """One (start_time, record) per job_key, ordered by job_key: of the newest run's config
+    (config_hash), the earliest run; the other runs of that config (duplicates of one job)
+    are counted in the record's ``duplicates`` (only present when there are some)."""
+    by_key: dict[str, list[tuple[int, dict[str, Any]]]] = {}
     for start, rec in records:
-        key = rec["job_key"]
-        if key not in best or start > best[key][0]:
-            best[key] = (start, rec)
-    return [best[k][1] for k in sorted(best)]
+        by_key.setdefault(rec["job_key"], []).append((start, rec))
+    out = []
+    for key in sorted(by_key):
+        runs = sorted(by_key[key], key=lambda r: r[0])
+        newest = runs[-1][1].get("config_hash")
+        same = [rec for _, rec in runs if rec.get("config_hash") == newest]
+        chosen = same[0] if len(same) == 1 else {**same[0], "duplicates": len(same) - 1}
+        out.append(chosen)
+    return out
 
 
 def _check_quote(kind: str, value: str) -> None:

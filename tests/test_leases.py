@@ -26,6 +26,7 @@ from sweep.service.job import JobSpec, settings_of
 from sweep.service.lease import Driver, Holder, Lease
 from sweep.service.orchestration import LocalExecutor, Progress, run_sweep, spec_from_config
 from sweep.service.outcome import OBJECTIVE_NAMES, SUBSETS, JobOutcome
+from sweep.service.schema import RULES
 from sweep.service.tables import column_name
 from tests.conftest import kernels
 from tests.memory_tracker import NullTracker
@@ -144,6 +145,16 @@ def test_of_drivers_claiming_one_job_at_once_exactly_one_gets_it(tmp_path, expir
     assert sorted(got) == [False] * 7 + [True]
 
 
+def test_sweep_lease_seconds_is_checked_and_reaches_the_job(tmp_path):
+    rule = next(r for r in RULES if r.key == "sweep.lease_seconds")
+    assert [rule.check(v) for v in (30, 1.0, 0.5, 0, -3, True, "30")] == [
+        True, True, False, False, False, False, False
+    ]  # fmt: skip
+    assert _specs(tmp_path, seeds=(0,))[0].lease_directory == str(
+        tmp_path / "objective=J2,seed=0" / "lease"
+    )
+
+
 # ---------------------------------------------------------------- drivers on one sweep
 
 
@@ -172,7 +183,7 @@ def test_two_drivers_at_once_run_each_job_once_and_log_it_once(tmp_path):
     assert sorted(a.skipped + b.skipped) == sorted(s.key for s in specs)
     tracker = MlflowTracker(uri)
     children = tracker.client.search_runs(
-        [tracker.experiment_id()], f"tags.mlflow.parentRunId = '{a.parent_id}'"
+        [str(tracker.experiment_id())], f"tags.mlflow.parentRunId = '{a.parent_id}'"
     )
     assert sorted(r.data.tags["job_key"] for r in children) == sorted(s.key for s in specs)
     assert {r.info.status for r in children} == {"FINISHED"}
@@ -197,6 +208,7 @@ def test_a_job_a_live_driver_holds_is_waited_for_and_not_run(tmp_path):
         other.renew()
     assert thread.is_alive() and runs_of(specs[0]) == 0
     parent = tracker.find_sweep("leased")
+    assert parent is not None
     tracker.log_job(parent, _outcome(specs[0]), None)  # the other driver logs its job
     other.release()
     thread.join(timeout=30)
@@ -252,7 +264,7 @@ def test_a_job_already_logged_when_it_ends_is_not_logged_again(tmp_path):
     class Overtaken(CannedExecutor):
         def submit(self, spec: JobSpec) -> int:
             handle = super().submit(spec)
-            tracker.log_job(tracker.find_sweep("leased"), _outcome(spec), None)
+            tracker.log_job(str(tracker.find_sweep("leased")), _outcome(spec), None)
             return handle
 
     stream = io.StringIO()
@@ -317,7 +329,7 @@ def test_a_driver_killed_between_a_jobs_end_and_its_logging_leaves_it_logged_onc
             if marker.exists() or proc.poll() is not None:
                 break
             time.sleep(0.1)
-        assert marker.exists(), proc.stderr.read() if proc.poll() is not None else "no marker"
+        assert marker.exists(), proc.communicate()[1] if proc.poll() is not None else "no marker"
         proc.send_signal(signal.SIGKILL)
     finally:
         proc.kill()
@@ -334,7 +346,7 @@ def test_a_driver_killed_between_a_jobs_end_and_its_logging_leaves_it_logged_onc
     assert not (specs[0].job_dir / pending.OUTCOME_FILE).exists()
     tracker = MlflowTracker(uri)
     runs = tracker.client.search_runs(
-        [tracker.experiment_id()], f"tags.mlflow.parentRunId = '{summary.parent_id}'"
+        [str(tracker.experiment_id())], f"tags.mlflow.parentRunId = '{summary.parent_id}'"
     )
     assert sorted(r.data.tags["job_key"] for r in runs if r.info.status == "FINISHED") == sorted(
         s.key for s in specs

@@ -10,6 +10,8 @@ command, ``python -m sweep -m ...`` through Hydra and Ray, one job at a time at 
 - The server is killed and does not come back within ``tracking.retry_seconds=5``: the command
   says so in one line and exits with status 2; the same command run once the server is back
   logs the missing job, and every job is one child run.
+
+The fast test checks the budget itself on a port where nothing listens.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.integration  # real mlflow server, Hydra, Ray
+from sweep.service.tracking import MlflowTracker, TrackingUnreachableError
 
 
 def free_port() -> int:
@@ -150,6 +152,21 @@ def assert_logged_once(uri: str, keys: list[str]) -> None:
 KEYS = [f"objective={J},seed=0,train=R" for J in ("J1", "J2", "J3")]
 
 
+def test_a_port_where_nothing_listens_is_retried_for_the_budget_then_named(capsys):
+    uri = f"http://127.0.0.1:{free_port()}"
+    tracker = MlflowTracker(uri, retry_seconds=2.0)
+    t0 = time.monotonic()
+    with pytest.raises(TrackingUnreachableError) as info:
+        tracker.experiment_id(create=True)
+    assert 2.0 <= time.monotonic() - t0 < 10.0  # the budget, not MLflow's own minutes of retries
+    assert str(info.value) == (
+        f"tracking server {uri} unreachable for 2 s; the jobs' results are kept in the sweep "
+        "directory; run the same command again when it is back"
+    )
+    assert f"warning: tracking server {uri} does not answer" in capsys.readouterr().err
+
+
+@pytest.mark.integration  # a real mlflow server, Hydra and Ray
 def test_sweep_survives_a_30_s_server_outage(server: Server, tmp_path: Path, data_dir: Path):
     proc = start_sweep(sweep_command(server.uri, "J1,J2,J3"), tmp_path / "cwd", data_dir)
     try:
@@ -175,6 +192,7 @@ def test_sweep_survives_a_30_s_server_outage(server: Server, tmp_path: Path, dat
     assert "summary/J2.json" in summary and "summary/J2.md" in summary
 
 
+@pytest.mark.integration
 def test_server_that_does_not_come_back_stops_the_command_in_one_line(
     server: Server, tmp_path: Path, data_dir: Path
 ):

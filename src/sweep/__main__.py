@@ -37,19 +37,24 @@ def single_job(cfg: DictConfig) -> Any:
         spec_from_config,
     )
     from sweep.service.schema import validate
-    from sweep.service.tracking import MlflowTracker
+    from sweep.service.tracking import RETRY_SECONDS, MlflowTracker
 
     plain = job_config(cfg)
     validate(plain)  # before an MLflow run is created
     job_dir = Path(HydraConfig.get().runtime.output_dir)
     spec = spec_from_config(plain, job_dir)
     check_recordings([spec])
+    progress = Progress()
     tracker = MlflowTracker(
-        str(cfg.tracking.uri), str(cfg.tracking.experiment), bool(cfg.sweep.allow_config_change)
+        str(cfg.tracking.uri),
+        str(cfg.tracking.experiment),
+        bool(cfg.sweep.allow_config_change),
+        retry_seconds=float(cfg.tracking.get("retry_seconds", RETRY_SECONDS)),
+        notify=progress.note,
     )
     efd = efd_reference(plain["test"], cfg.data.root)
     summary = run_sweep(
-        str(cfg.sweep.name), [spec], LocalExecutor(), tracker, efd, job_dir, progress=Progress()
+        str(cfg.sweep.name), [spec], LocalExecutor(), tracker, efd, job_dir, progress=progress
     )
     return summary
 

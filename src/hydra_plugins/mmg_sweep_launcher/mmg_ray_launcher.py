@@ -96,7 +96,7 @@ class MmgRayLauncher(Launcher):
         )
         from sweep.service.raycluster import RayExecutor
         from sweep.service.schema import validate
-        from sweep.service.tracking import MlflowTracker
+        from sweep.service.tracking import RETRY_SECONDS, MlflowTracker
 
         assert self.config is not None and self.hydra_context is not None
         specs: list[JobSpec] = []
@@ -116,10 +116,13 @@ class MmgRayLauncher(Launcher):
         first = job_cfgs[0]
         sweep_dir = Path(first.hydra.sweep.dir)
         sweep_dir.mkdir(parents=True, exist_ok=True)
+        progress = Progress(every=float(first.sweep.progress_seconds))
         tracker = MlflowTracker(
             str(first.tracking.uri),
             str(first.tracking.experiment),
             allow_config_change=bool(first.sweep.allow_config_change),
+            retry_seconds=float(first.tracking.get("retry_seconds", RETRY_SECONDS)),
+            notify=progress.note,
         )
         data_root = first.data.root
         efd = efd_reference(job_config(first)["test"], data_root)
@@ -143,7 +146,7 @@ class MmgRayLauncher(Launcher):
                     "jobs": len(specs),
                 },
                 max_concurrent=first.ray.max_concurrent_jobs,
-                progress=Progress(every=float(first.sweep.progress_seconds)),
+                progress=progress,
                 max_retries=int(first.sweep.get("max_retries", 3)),
             )
         finally:

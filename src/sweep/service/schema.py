@@ -222,6 +222,12 @@ RULES: tuple[Rule, ...] = (
     ),
     Rule("tracking.uri", _text, "a non-empty MLflow tracking URI", required=False),
     Rule("tracking.experiment", _text, "a non-empty experiment name", required=False),
+    Rule(
+        "tracking.retry_seconds",
+        lambda v: _is_number(v) and v >= 0,
+        "a number of seconds >= 0 (how long a tracking server that does not answer is retried)",
+        required=False,
+    ),
 )
 
 

@@ -16,9 +16,16 @@ the report uses the newest configuration's earliest finished run per job_key (mo
 of it are duplicates: counted in ``duplicates`` and ignored, see :func:`newest_per_key`).
 
 :class:`MlflowTracker` meets the contract on any tracking URI (use SQLite,
-``sqlite:///path/mlflow.db``, never the file store); the tests keep an in-memory double of it
-(``tests/memory_tracker.py``). :class:`MlflowTracker` pickles without its client, so it can be
-sent to Ray workers.
+``sqlite:///path/mlflow.db``, never the file store, or an ``mlflow server``: ``http://host:port``);
+the tests keep an in-memory double of it (``tests/memory_tracker.py``). :class:`MlflowTracker`
+pickles without its client, so it can be sent to Ray workers.
+
+A tracking server that does not answer (stopped, restarting, the network down) is retried with
+backoff for up to ``retry_seconds`` (``tracking.retry_seconds``, 300 s by default) per call, and
+every retried call is idempotent: a child run is looked up by its job_key before it is created,
+a metric step already in the run is not logged again, a table is rewritten rather than appended
+to. When the budget runs out the call raises :class:`TrackingUnreachableError`, a one-line user
+error: the jobs' checkpoints stay, and the same command run again logs what is missing.
 """
 
 from __future__ import annotations
@@ -27,14 +34,16 @@ import contextlib
 import csv
 import json
 import os
+import sys
 import tempfile
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Protocol, TypeVar, cast, runtime_checkable
 
 import pandas as pd
+import requests
 from mlflow import MlflowClient
 from mlflow.entities import Metric, Param, Run, ViewType
 from mlflow.exceptions import MlflowException
@@ -78,6 +87,56 @@ class ConfigChangedError(RuntimeError, UserError):
 
 class TrackingError(RuntimeError):
     """The tracking store cannot do what was asked (unknown run, deleted experiment, bad URI)."""
+
+
+#: how long a tracking server that does not answer is retried, per call (``tracking.retry_seconds``)
+RETRY_SECONDS = 300.0
+#: the longest pause between two tries of a call to a tracking server that does not answer (s)
+MAX_RETRY_PAUSE = 10.0
+
+
+class TrackingUnreachableError(TrackingError, UserError):
+    """The tracking server did not answer within the retry budget (a one-line error)."""
+
+    def __init__(self, uri: str, seconds: float) -> None:
+        super().__init__(
+            f"tracking server {uri} unreachable for {seconds:.0f} s; the jobs' results are kept "
+            f"in the sweep directory; run the same command again when it is back"
+        )
+        self.uri = uri
+        self.seconds = seconds
+
+
+#: errors that mean "no answer" (refused, reset, timed out, 5xx), never a refusal of the request
+_NO_ANSWER: tuple[type[BaseException], ...] = (
+    requests.exceptions.ConnectionError,
+    requests.exceptions.Timeout,
+    requests.exceptions.RetryError,
+    requests.exceptions.ChunkedEncodingError,
+    ConnectionError,
+    TimeoutError,
+)
+
+
+def no_answer(exc: BaseException) -> BaseException | None:
+    """The error in ``exc``'s chain (itself or one it was raised from) that says the tracking
+    server did not answer (connection refused or reset, a timeout, retries of 429/5xx spent),
+    or None: an answer refusing the request (an unknown run, a bad value) is no such error."""
+    seen: set[int] = set()
+    err: BaseException | None = exc
+    while err is not None and id(err) not in seen:
+        if isinstance(err, TrackingUnreachableError):
+            return None  # an inner call has already spent the budget
+        if isinstance(err, _NO_ANSWER):
+            return err
+        if isinstance(err, MlflowException) and err.error_code == "TEMPORARILY_UNAVAILABLE":
+            return err
+        seen.add(id(err))
+        err = err.__cause__ or (None if err.__suppress_context__ else err.__context__)
+    return None
+
+
+_T = TypeVar("_T")
 
 
 @runtime_checkable
@@ -441,14 +500,27 @@ class MlflowTracker:
 
     For a SQLite URI, a new experiment stores its artifacts in ``<db dir>/mlartifacts/<name>``.
     The client is made on first use; a pickled tracker carries only the URI and its settings.
+
+    Every call that gets no answer from the store is tried again with backoff (1, 2, 4, ...
+    up to 10 s apart) for up to ``retry_seconds``, then raises :class:`TrackingUnreachableError`;
+    ``notify`` (default: a line on stderr) hears when a server stops and starts answering.
+    With an ``http(s)://`` URI, MLflow's own retries (``MLFLOW_HTTP_REQUEST_MAX_RETRIES``) default
+    to 0, so that this budget is the one that counts; set the variable to keep MLflow's.
     """
 
     def __init__(
-        self, uri: str, experiment: str = "mmg-sweep", allow_config_change: bool = False
+        self,
+        uri: str,
+        experiment: str = "mmg-sweep",
+        allow_config_change: bool = False,
+        retry_seconds: float = RETRY_SECONDS,
+        notify: Callable[[str], None] | None = None,
     ) -> None:
         self.uri = uri
         self.experiment = experiment
         self.allow_config_change = allow_config_change
+        self.retry_seconds = float(retry_seconds)
+        self.notify = notify
         self._client: MlflowClient | None = None
         self._experiment_id: str | None = None
         self._sweep_id: str | None = None
@@ -457,11 +529,20 @@ class MlflowTracker:
         self._settings: dict[str, dict[str, Any]] = {}
 
     def __getstate__(self) -> dict[str, Any]:
-        keep = ("uri", "experiment", "allow_config_change", "_experiment_id", "_sweep_id")
+        keep = (
+            "uri",
+            "experiment",
+            "allow_config_change",
+            "retry_seconds",
+            "_experiment_id",
+            "_sweep_id",
+        )
         return {k: self.__dict__[k] for k in keep}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
+        self.__dict__.setdefault("retry_seconds", RETRY_SECONDS)
+        self.notify = None
         self._client = None
         self._run_experiments = {}
         self._efd = {}
@@ -472,13 +553,60 @@ class MlflowTracker:
 
     @property
     def client(self) -> MlflowClient:
-        """The MLflow client (made on first use)."""
+        """The MLflow client (made on first use), each of whose calls retries a store that does
+        not answer (see the class docstring): for idempotent calls only."""
+        return cast(MlflowClient, _RetryingClient(self))
+
+    @property
+    def raw_client(self) -> MlflowClient:
+        """The MLflow client without retries (for the steps of a call retried as a whole)."""
         if self._client is None:
+            if self.uri.startswith(("http://", "https://")):
+                os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
             try:
                 self._client = MlflowClient(tracking_uri=self.uri)
             except MlflowException as exc:
                 raise TrackingError(f"{self.uri}: {exc.message}") from exc
         return self._client
+
+    def retry(self, call: Callable[[], _T], what: str = "call") -> _T:
+        """``call()``, tried again with backoff while the store does not answer, for up to
+        ``retry_seconds`` (from the first failure); TrackingUnreachableError after that.
+        ``call`` must be idempotent: it may have taken effect before its answer was lost."""
+        first: float | None = None
+        pause = 1.0
+        while True:
+            try:
+                result = call()
+            except Exception as exc:
+                cause = no_answer(exc)
+                if cause is None:
+                    raise
+                now = time.monotonic()
+                if first is None:
+                    first = now
+                    self._say(
+                        f"warning: tracking server {self.uri} does not answer ({what}: "
+                        f"{type(cause).__name__}); retrying for up to {self.retry_seconds:.0f} s"
+                    )
+                left = first + self.retry_seconds - now
+                if left <= 0:
+                    raise TrackingUnreachableError(self.uri, self.retry_seconds) from None
+                time.sleep(min(pause, left))
+                pause = min(2.0 * pause, MAX_RETRY_PAUSE)
+                continue
+            if first is not None:
+                self._say(
+                    f"tracking server {self.uri} answers again after "
+                    f"{time.monotonic() - first:.0f} s ({what})"
+                )
+            return result
+
+    def _say(self, text: str) -> None:
+        if self.notify is not None:
+            self.notify(text)
+        else:
+            print(text, file=sys.stderr, flush=True)
 
     @contextlib.contextmanager
     def _mlflow_errors(self) -> Iterator[None]:
@@ -544,12 +672,15 @@ class MlflowTracker:
             self._run_experiments[run_id] = str(self._run(run_id).info.experiment_id)
         return self._run_experiments[run_id]
 
-    def _search(self, experiment_id: str, filter_string: str, order: str = "") -> list[Run]:
+    def _search(
+        self, experiment_id: str, filter_string: str, order: str = "", retry: bool = True
+    ) -> list[Run]:
+        client = self.client if retry else self.raw_client
         runs: list[Run] = []
         token: str | None = None
         with self._mlflow_errors():
             while True:
-                page = self.client.search_runs(
+                page = client.search_runs(
                     [experiment_id],
                     filter_string,
                     run_view_type=ViewType.ACTIVE_ONLY,
@@ -595,10 +726,11 @@ class MlflowTracker:
         params = flatten_config(config)
         metrics = efd_metrics(efd)
         run_id = self.find_sweep(name)
+        created = run_id is None
+        if run_id is None:  # looked up again before each try: a lost answer makes no second run
+            run_id = self.retry(lambda: self._sweep_run(exp, name, h), "create the sweep run")
         with self._mlflow_errors():
-            if run_id is None:
-                tags = {"sweep": "true", "sweep_name": name, "config_hash": h}
-                run_id = self.client.create_run(exp, tags=tags, run_name=name).info.run_id
+            if created:
                 known_params: dict[str, str] = {}
                 known_metrics: dict[str, float] = {}
             else:
@@ -627,6 +759,46 @@ class MlflowTracker:
         self._settings[run_id] = dict(config)
         return run_id
 
+    def _sweep_run(self, exp: str, name: str, h: str) -> str:
+        """The sweep run called ``name``, made if absent (one step, without retries)."""
+        query = f"tags.sweep = 'true' and tags.sweep_name = '{name}'"
+        found = self._search(exp, query, "attributes.start_time DESC", retry=False)
+        if found:
+            return str(found[0].info.run_id)
+        tags = {"sweep": "true", "sweep_name": name, "config_hash": h}
+        with self._mlflow_errors():
+            return str(self.raw_client.create_run(exp, tags=tags, run_name=name).info.run_id)
+
+    def _child_run(
+        self, exp: str, parent_id: str, tags: Mapping[str, str], name: str
+    ) -> tuple[str, bool]:
+        """(id, reused) of the RUNNING child of ``parent_id`` with the job_key and config_hash
+        of ``tags`` (left by a call whose answer was lost, or by a command stopped while it
+        logged), else of a child made now (one step, without retries)."""
+        query = (
+            f"tags.job_key = '{tags['job_key']}' and tags.config_hash = '{tags['config_hash']}' "
+            f"and tags.{PARENT_TAG} = '{parent_id}' and attributes.status = 'RUNNING'"
+        )
+        found = self._search(exp, query, "attributes.start_time DESC", retry=False)
+        if found:
+            return str(found[0].info.run_id), True
+        with self._mlflow_errors():
+            run = self.raw_client.create_run(exp, tags=dict(tags), run_name=name)
+        return str(run.info.run_id), False
+
+    def _not_logged(
+        self, run_id: str, metrics: list[Metric], history: list[Metric]
+    ) -> tuple[list[Metric], list[Metric]]:
+        """The metrics (step 0) and history steps that run ``run_id`` does not hold yet."""
+        run = self.client.get_run(run_id)
+        metrics = [m for m in metrics if m.key not in run.data.metrics]
+        steps = {
+            key: {m.step for m in self.client.get_metric_history(run_id, key)}
+            for key in {m.key for m in history}
+            if key in run.data.metrics
+        }
+        return metrics, [m for m in history if m.step not in steps.get(m.key, ())]
+
     def find_finished(
         self, job_key: str, config_hash: str, parent_id: str | None = None
     ) -> str | None:
@@ -653,24 +825,28 @@ class MlflowTracker:
         if efd is None:
             efd = self._efd[parent_id] = self.efd_reference(parent_id)
         tags = {**outcome_tags(outcome, parent_id), NOTE_TAG: job_note(outcome, efd)}
-        with self._mlflow_errors():
-            run_id = self.client.create_run(exp, tags=tags, run_name=name).info.run_id
+        run_id, reused = self.retry(
+            lambda: self._child_run(exp, parent_id, tags, name), f"log {outcome.job_key}"
+        )
         try:
-            now = _now_ms()
+            now = _now_ms()  # the same in every try: a batch logged twice is stored once
+            metrics = [Metric(k, v, now, 0) for k, v in outcome_metrics(outcome).items()]
+            history = [Metric(k, v, now, s) for k, v, s in history_metrics(outcome.history)]
+            if reused:
+                metrics, history = self._not_logged(run_id, metrics, history)
             self.client.log_batch(
                 run_id,
-                metrics=[Metric(k, v, now, 0) for k, v in outcome_metrics(outcome).items()],
+                metrics=metrics,
                 params=[Param(k, v) for k, v in job_params(outcome).items()],
             )
-            self.client.log_batch(
-                run_id,
-                metrics=[Metric(k, v, now, s) for k, v, s in history_metrics(outcome.history)],
-            )
+            self.client.log_batch(run_id, metrics=history)
             with tempfile.TemporaryDirectory() as tmp:
                 write_job_artifacts(outcome, Path(tmp))
                 self.client.log_artifacts(run_id, tmp)
             if artifacts_dir is not None and Path(artifacts_dir).is_dir():
                 self.client.log_artifacts(run_id, str(artifacts_dir), artifact_path="plots")
+        except TrackingUnreachableError:
+            raise  # left RUNNING: the same command run again finds it and logs what is missing
         except BaseException:
             self.client.set_terminated(run_id, "FAILED")
             raise
@@ -694,9 +870,13 @@ class MlflowTracker:
             error=error[:MAX_ERROR_TAG],
             **{PARENT_TAG: parent_id},
         )
+        run_id, reused = self.retry(
+            lambda: self._child_run(exp, parent_id, all_tags, job_key), f"log {job_key}"
+        )
         with self._mlflow_errors():
-            run_id = self.client.create_run(exp, tags=all_tags, run_name=job_key).info.run_id
             try:
+                if reused:
+                    self.client.set_tag(run_id, "error", all_tags["error"])
                 self.client.log_batch(
                     run_id, params=[Param(k, v) for k, v in flatten_config(config).items()]
                 )
@@ -706,8 +886,12 @@ class MlflowTracker:
                         json.dumps(config, indent=2, sort_keys=True, default=str) + "\n"
                     )
                     self.client.log_artifacts(run_id, tmp)
-            finally:
+            except TrackingUnreachableError:
+                raise  # left RUNNING: the same command run again finds it
+            except BaseException:
                 self.client.set_terminated(run_id, "FAILED")
+                raise
+            self.client.set_terminated(run_id, "FAILED")
         return run_id
 
     def finish_sweep(
@@ -732,16 +916,21 @@ class MlflowTracker:
                 self.client.set_terminated(parent_id, "FINISHED")
 
     def _log_table(self, run_id: str, frame: pd.DataFrame, artifact_file: str) -> None:
+        # one retried step: a try after a lost answer finds the table and replaces it
+        self.retry(lambda: self._log_table_once(run_id, frame, artifact_file), artifact_file)
+
+    def _log_table_once(self, run_id: str, frame: pd.DataFrame, artifact_file: str) -> None:
         folder, name = artifact_file.rsplit("/", 1)
-        present = {a.path for a in self.client.list_artifacts(run_id, folder)}
+        client = self.raw_client
+        present = {a.path for a in client.list_artifacts(run_id, folder)}
         if artifact_file not in present:
-            self.client.log_table(run_id, frame, artifact_file)
+            client.log_table(run_id, frame, artifact_file)
             return
         # log_table would append to the existing table: write it in the same format instead
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / name
             frame.to_json(path, orient="split", index=False, date_format="iso")
-            self.client.log_artifact(run_id, str(path), artifact_path=folder)
+            client.log_artifact(run_id, str(path), artifact_path=folder)
 
     def job_outcomes(self, parent_id: str) -> list[dict[str, Any]]:
         """FINISHED child runs of ``parent_id`` (newest per job_key) as outcome records."""
@@ -797,6 +986,23 @@ class MlflowTracker:
             self.client.log_artifacts(rid, str(artifacts_dir))
             self.client.set_terminated(rid, "FINISHED")
         return str(rid)
+
+
+class _RetryingClient:
+    """An MLflow client whose every call is :meth:`MlflowTracker.retry`-ed (idempotent calls)."""
+
+    def __init__(self, tracker: MlflowTracker) -> None:
+        self._tracker = tracker
+
+    def __getattr__(self, name: str) -> Any:
+        attr = getattr(self._tracker.raw_client, name)
+        if not callable(attr):
+            return attr
+
+        def call(*args: Any, **kwargs: Any) -> Any:
+            return self._tracker.retry(lambda: attr(*args, **kwargs), name)
+
+        return call
 
 
 def source_tags() -> dict[str, str]:

@@ -157,7 +157,8 @@ class LosingExecutor(LocalExecutor):
             optimise(
                 InProcess(obj), Box(lo, hi), efd_parameters().vector(),
                 settings_of(spec.config, spec.seed), checkpoint=spec.checkpoint_location,
-                stop_after_generations=2,
+                stop_after_generations=2, checkpoint_key=spec.checkpoint_key,
+                checkpoint_job=spec.config_hash,
             )  # fmt: skip
             handle = self._next
             self._next += 1
@@ -197,6 +198,8 @@ def test_a_lost_job_is_resubmitted_resumes_and_ends_as_an_uninterrupted_one(
         assert got[key]["metrics"]["best_f"] == ref[key]["metrics"]["best_f"]
         assert got[key]["metrics"]["test/J2/total"] == ref[key]["metrics"]["test/J2/total"]
     assert got[lost_spec.key]["metrics"]["retries"] == 2.0
+    # it resumed from the lost attempts' checkpoints (signed with the job's key), not afresh
+    assert got[lost_spec.key]["metrics"]["checkpoint_rejected"] == 0.0
     child = next(r for r in tracker.runs.values() if r.tags.get("job_key") == lost_spec.key)
     assert child.tags["retries"] == "2"
     assert got[other.key]["metrics"]["retries"] == 0.0

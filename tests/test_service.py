@@ -123,6 +123,7 @@ def test_an_interrupted_job_resumes_from_its_checkpoint(tmp_path, data_dir, efd)
     optimise(
         InProcess(obj), Box(lo, hi), efd_parameters().vector(), settings_of(spec.config, 0),
         checkpoint=spec.job_dir / "checkpoint.pkl", stop_after_generations=2,
+        checkpoint_key=spec.checkpoint_key, checkpoint_job=spec.config_hash,
     )  # fmt: skip
     t_resumed, t_fresh = NullTracker(), NullTracker()
     _run([spec], t_resumed, efd, tmp_path)
@@ -132,6 +133,7 @@ def test_an_interrupted_job_resumes_from_its_checkpoint(tmp_path, data_dir, efd)
     assert a[0]["metrics"]["best_f"] == b[0]["metrics"]["best_f"]
     assert a[0]["metrics"]["test/J2/total"] == pytest.approx(b[0]["metrics"]["test/J2/total"])
     assert np.isfinite(a[0]["metrics"]["test/J2/total"])
+    assert a[0]["metrics"]["checkpoint_rejected"] == 0.0  # resumed, not started afresh
 
 
 class _LostError(RuntimeError):

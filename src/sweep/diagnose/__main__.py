@@ -67,6 +67,7 @@ def _split_names(group: str) -> list[str]:
 
 
 def parse(argv: Sequence[str] | None) -> argparse.Namespace:
+    """The command line's options (``argv`` None: ``sys.argv[1:]``)."""
     ap = argparse.ArgumentParser(
         prog="python -m sweep.diagnose", description=(__doc__ or "").splitlines()[0]
     )
@@ -145,6 +146,8 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
 
 
 def run(argv: Sequence[str] | None = None) -> dict[str, object]:
+    """Read the recordings and parameters the command line names, diagnose, write the report;
+    returns the report's JSON object. User mistakes raise :class:`~sweep.errors.UserError`."""
     args = parse(argv)
     known = catalog()
     names = tuple(n.strip() for n in args.candidates.split(",") if n.strip())
@@ -242,6 +245,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """The command: exit status 0, or 2 with one line on stderr for a user mistake."""
     warnings.simplefilter("default")
     with exit_on_user_error():
         try:

@@ -341,6 +341,9 @@ def plot_candidates(d: Diagnosis, path: Path) -> None:
 def plot_regimes(
     before: pd.DataFrame, after: pd.DataFrame, variables: Sequence[str], path: Path
 ) -> None:
+    """The mean squared standardised residual of (u, v_m, r) of the model before and after (the
+    residual tables ``before``/``after``) by bin of each regime variable in ``variables``, one
+    panel each, saved as PNG at ``path``."""
     fig, axes = plt.subplots(1, len(variables), figsize=(5.5 * len(variables), 3.4), squeeze=False)
     for ax, var in zip(axes[0], variables, strict=True):
         b = _binned_energy(before, var)
@@ -372,6 +375,8 @@ def _simulate(p: Parameters, rec: Recording) -> np.ndarray:
 
 
 def plot_trajectories(d: Diagnosis, test: Sequence[Recording], path: Path, limit: int = 6) -> None:
+    """The tracks (x0, y0 [m]) of up to ``limit`` test recordings beside the model's simulations
+    before and after the diagnosis, saved as PNG at ``path``."""
     recs = list(test)[:limit]
     if not recs:
         return

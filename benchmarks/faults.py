@@ -663,6 +663,9 @@ def main() -> int:
     root = args.workdir or Path(tempfile.mkdtemp(prefix="mmg-sweep-faults-"))
     root.mkdir(parents=True, exist_ok=True)
     setup = Setup(root.resolve(), env)
+    # Ctrl-C and SIGTERM stop every process started (a shell without job control starts
+    # background commands with SIGINT ignored; it is honoured all the same)
+    signal.signal(signal.SIGINT, _interrupt)
     signal.signal(signal.SIGTERM, _interrupt)
     say(f"working directory {setup.root}; {machine()}")
     rows: list[dict[str, Any]] = []

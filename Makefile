@@ -1,7 +1,7 @@
 # Common commands; see README.md.
 PY ?= python
 
-.PHONY: install test test-integration test-all lint format typecheck check bench bench-peak bench-parts bench-lm bench-grid bench-grid-fit bench-diagnose data sweep \
+.PHONY: install test test-integration test-all lint format typecheck check bench bench-peak bench-parts bench-lm bench-grid bench-grid-fit bench-faults bench-diagnose data sweep \
 	smoke ui diagnose
 
 install:  ## install the project and its development tools
@@ -47,6 +47,9 @@ bench-grid:  ## the paper's 27-job grid at 3,000 evaluations per job: wall time,
 
 bench-grid-fit:  ## the grid at 3,000 and 30,000 evaluations per job, a fixed + per-evaluation line to 100,000 (25 min on 2 cores)
 	$(PY) benchmarks/sweep_grid.py --evaluations 3000,30000
+
+bench-faults:  ## what each fault the sweep survives costs: jobs lost or run twice, results, wall time (6 min)
+	$(PY) benchmarks/faults.py --out benchmarks/out/faults.json
 
 bench-diagnose:  ## planted-effect benchmark of the diagnosis (34 cases: catalog, unlisted forms, none; 1-2 h on 2 cores)
 	PYTHONPATH=. $(PY) benchmarks/diagnose_planted.py --out benchmarks/out/diagnose

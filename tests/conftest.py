@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from mmg.catalog import EFFECTS as CATALOG_EFFECTS
 from mmg.effect import Effect
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
@@ -21,16 +22,7 @@ SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 #: with the effects it does not study at their neutral values (which add exactly nothing), rather
 #: than a kernel of its own: each kernel entry point costs 20-60 s of compilation from a cold
 #: cache, and a session used to compile some fifty
-SHARED_EFFECTS = (
-    "a_h_drift",
-    "actuator_lag",
-    "current",
-    "heading_bias",
-    "propeller_walk",
-    "rudder_offset",
-    "rudder_stall",
-    "discovered:N_dnn+Y_t",
-)
+SHARED_EFFECTS = (*(e.name for e in CATALOG_EFFECTS), "discovered:N_dnn+Y_t")
 #: every kernel entry point that mmg.precompile compiles
 ENTRIES = ("simulate", "moments", "derivatives")
 

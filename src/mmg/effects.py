@@ -8,7 +8,7 @@ process. What an effect is and its hooks: :mod:`mmg.effect`.
 
 from __future__ import annotations
 
-from mmg import discovered
+from mmg import discovered, domain
 from mmg.catalog import EFFECTS as _CATALOG_EFFECTS
 from mmg.effect import DISCOVERED_PREFIX, Effect
 
@@ -27,10 +27,16 @@ def get_effect(name: str) -> Effect:
 
     A name ``discovered:<term>+<term>...`` is a generated effect (:mod:`mmg.discovered`): it is
     built from the term library on first use, in any process, so that parameter files carrying
-    it load everywhere.
+    it load everywhere. A name ``<effect>@held(<box>)`` or ``<effect>@off(<box>)`` is that effect
+    restricted to a box of states (:mod:`mmg.domain`), built alike.
     """
     if name in _REGISTRY:
         return _REGISTRY[name]
+    if domain.split_name(name)[1] is not None:  # <effect>@held(...): mmg.domain
+        try:
+            return domain.by_name(name)
+        except (ValueError, KeyError) as exc:
+            raise KeyError(f"effect {name!r}: {exc.args[0]}") from None
     if name.startswith(DISCOVERED_PREFIX):
         try:
             return discovered.by_name(name)

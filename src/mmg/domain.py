@@ -1,0 +1,310 @@
+"""Where an effect holds: an effect restricted to the box of states it was fitted on.
+
+A force found on some manoeuvres is known only over the states those manoeuvres reached. Outside
+them it may be anything: a yaw moment fitted on random runs at up to 10 rps and 20 deg of drift
+says nothing about a berthing run astern at -20 rps. :func:`within` wraps an effect so that its
+force and moment hooks see the state only inside a box of
+
+- u, v_m [m/s]: the velocity through the water at midship (surge, sway),
+- r [rad/s]: the yaw rate,
+- delta [rad]: the acting rudder angle,
+- n_p [rev/s]: the acting propeller revolution rate,
+
+(:data:`VARIABLES`) and, outside it, either
+
+- ``held`` (the default): the force is the effect's force at the nearest state of the box (each
+  variable clamped to its interval: the force stays at its boundary value), or
+- ``off``: no force.
+
+The wrapped effect keeps the name of the effect it wraps followed by its box, e.g.
+``propeller_walk@held(u=0.2:1.3,v_m=-0.2:0.2,r=-0.04:0.04,delta=-0.61:0.61,n_p=3:10)``; its
+parameters are the inner effect's, so a parameter file written with the plain effect's values
+reads the same values. Like a ``discovered:`` effect it is generated at run time (a small module
+in ``<kernel dir>/effects``, named by a hash of its text) and rebuilt from its name in any process
+(:func:`by_name`, used by :func:`mmg.get_effect`). Hooks that are not forces (a current, the
+controls, the measurement) pass through unchanged.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import math
+import os
+import re
+import sys
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+from mmg.effect import Effect, EffectParam
+
+#: the variables of the box, in the order of a name's box
+VARIABLES = ("u", "v_m", "r", "delta", "n_p")
+#: units of :data:`VARIABLES`
+UNITS = {"u": "m/s", "v_m": "m/s", "r": "rad/s", "delta": "rad", "n_p": "rev/s"}
+#: what an effect does outside its box
+MODES = ("held", "off")
+#: separates an effect's name from its box
+SEPARATOR = "@"
+
+_NAME = re.compile(r"^(?P<inner>.+)@(?P<mode>held|off)\((?P<box>[^()]*)\)$")
+_INTERVAL = re.compile(r"^(?P<var>[a-z_]+)=(?P<lo>[^:]+):(?P<hi>.+)$")
+
+_lock = threading.Lock()
+#: the wrapped effects of this process by name
+_made: dict[str, Effect] = {}
+
+
+@dataclass(frozen=True)
+class Domain:
+    """The box of states an effect acts in and what it does outside (``held`` or ``off``).
+
+    ``lower``, ``upper``: {variable: bound} in the units of :data:`UNITS`; a variable missing
+    from the maps is not bounded."""
+
+    lower: dict[str, float]
+    upper: dict[str, float]
+    mode: str = "held"
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"domain mode {self.mode!r}: use one of {', '.join(MODES)}")
+        for var in {*self.lower, *self.upper}:
+            if var not in VARIABLES:
+                raise ValueError(f"domain variable {var!r}: use {', '.join(VARIABLES)}")
+            lo = self.lower.get(var, -math.inf)
+            hi = self.upper.get(var, math.inf)
+            if not lo <= hi:
+                raise ValueError(f"domain of {var}: lower {lo} above upper {hi}")
+
+    @property
+    def spec(self) -> str:
+        """``mode(var=lo:hi,...)``, the bounds in 4 significant digits (widened outward so that
+        the rounded box still holds the states it was measured on)."""
+        parts = []
+        for var in VARIABLES:
+            if var in self.lower or var in self.upper:
+                lo = _round(self.lower.get(var, -math.inf), math.floor)
+                hi = _round(self.upper.get(var, math.inf), math.ceil)
+                parts.append(f"{var}={lo}:{hi}")
+        return f"{self.mode}({','.join(parts)})"
+
+    def rounded(self) -> Domain:
+        """The domain as its :attr:`spec` states it (what a wrapped effect acts on)."""
+        return parse_spec(self.spec)
+
+    def with_mode(self, mode: str) -> Domain:
+        """The same box, another mode."""
+        return replace(self, mode=mode)
+
+    def contains(self, var: str, value: float) -> bool:
+        """Whether ``value`` of ``var`` lies in its interval."""
+        return self.lower.get(var, -math.inf) <= value <= self.upper.get(var, math.inf)
+
+
+def _round(x: float, direction: Any) -> str:
+    """``x`` in 4 significant digits, rounded in ``direction`` (math.floor or math.ceil)."""
+    if not math.isfinite(x):
+        return "inf" if x > 0 else "-inf"
+    if x == 0.0:
+        return "0"
+    scale = 10.0 ** (math.floor(math.log10(abs(x))) - 3)
+    return f"{direction(x / scale) * scale:.4g}"
+
+
+def parse_spec(spec: str) -> Domain:
+    """The :class:`Domain` of a spec ``mode(var=lo:hi,...)``; raises ValueError."""
+    m = re.match(r"^(?P<mode>\w+)\((?P<box>[^()]*)\)$", spec.strip())
+    if m is None:
+        raise ValueError(f"domain {spec!r}: expected mode(var=lo:hi,...)")
+    lower: dict[str, float] = {}
+    upper: dict[str, float] = {}
+    for part in filter(None, m["box"].split(",")):
+        iv = _INTERVAL.match(part.strip())
+        if iv is None:
+            raise ValueError(f"domain {spec!r}: cannot read {part!r} (expected var=lo:hi)")
+        try:
+            lower[iv["var"]] = float(iv["lo"])
+            upper[iv["var"]] = float(iv["hi"])
+        except ValueError:
+            msg = f"domain {spec!r}: {part!r} has a bound that is not a number"
+            raise ValueError(msg) from None
+    return Domain(lower, upper, m["mode"])
+
+
+def split_name(name: str) -> tuple[str, Domain | None]:
+    """(the inner effect's name, its domain) of an effect name (None: not a wrapped effect)."""
+    m = _NAME.match(name)
+    if m is None:
+        return name, None
+    return m["inner"], parse_spec(f"{m['mode']}({m['box']})")
+
+
+_TEMPLATE = '''\
+"""Generated by mmg.domain: {name}. Do not edit."""
+from mmg._jit import subfunction
+{imports}
+
+
+@subfunction
+def {func}({args}):
+    """The forces of {inner} {where}."""
+{body}
+'''
+
+
+def _clamp(var: str, arg: str, d: Domain) -> str:
+    lo, hi = d.lower.get(var, -math.inf), d.upper.get(var, math.inf)
+    expr = arg
+    if math.isfinite(hi):
+        expr = f"min({expr}, {hi!r})"
+    if math.isfinite(lo):
+        expr = f"max({expr}, {lo!r})"
+    return expr
+
+
+def _hook_source(hook: Any, position: bool, d: Domain, func: str, inner: str) -> str:
+    """The wrapped force hook ``func`` around ``hook`` (``position``: a ``force_at`` hook)."""
+    state = ["u", "v_m", "r", "psi", "delta", "n_p", "U_T", "gamma_T"]
+    args = (["t", "x0", "y0"] if position else []) + state + ["e", "th", "sh"]
+    lines = []
+    clamped = {v: f"{v}_c" for v in VARIABLES}
+    for v in VARIABLES:
+        lines.append(f"    {v}_c = {_clamp(v, v, d)}")
+    call_args = [clamped.get(a, a) if d.mode == "held" else a for a in args]
+    lines.append(f"    dX, dY, dN = _inner({', '.join(call_args)})")
+    if d.mode == "held":
+        lines.append("    return dX, dY, dN")
+    else:
+        inside = " and ".join(f"{v}_c == {v}" for v in VARIABLES)
+        lines.append(f"    w = 1.0 if {inside} else 0.0")
+        lines.append("    return w * dX, w * dY, w * dN")
+    where = "held at the boundary of" if d.mode == "held" else "switched off outside"
+    return _TEMPLATE.format(
+        name="{name}",
+        imports=f"from {hook.__module__} import {hook.__name__} as _inner",
+        func=func,
+        args=", ".join(args),
+        inner=inner,
+        where=f"{where} {d.spec}",
+        body="\n".join(lines),
+    )
+
+
+def _load(name: str, text: str, key: str) -> Any:
+    from mmg.kernel import kernel_dir  # the generated kernels' directory, shared by workers
+
+    module_name = f"mmg_domain_{key}"
+    with _lock:
+        module = sys.modules.get(module_name)
+        if module is not None:
+            return module
+        directory = kernel_dir() / "effects"
+        directory.mkdir(parents=True, exist_ok=True)
+        path = directory / f"{module_name}.py"
+        if not path.exists() or path.read_text() != text:
+            tmp = path.with_suffix(f".{os.getpid()}.tmp")
+            tmp.write_text(text)
+            os.replace(tmp, path)  # atomic for concurrent workers
+        spec = importlib.util.spec_from_file_location(module_name, path)
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[module_name] = module
+        spec.loader.exec_module(module)
+        return module
+
+
+class DomainEffect(Effect):
+    """A wrapped effect. It pickles by its name and parameter table (its module lives in the
+    kernel directory, not on the import path): :func:`rebuild`."""
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (rebuild, (self.name, tuple(tuple(p) for p in self.params)))
+
+
+def within(effect: Effect, domain: Domain) -> Effect:
+    """``effect`` acting only inside ``domain`` (rounded as its name states it); an effect
+    already wrapped is re-wrapped around the effect inside."""
+    inner_name, old = split_name(effect.name)
+    if old is not None:
+        from mmg.effects import get_effect
+
+        effect = replace(get_effect(inner_name), params=effect.params)
+    d = domain.rounded()
+    name = f"{effect.name}{SEPARATOR}{d.spec}"
+    made = _made.get(name)
+    if made is not None and made.params == effect.params:
+        return made
+    hooks: dict[str, Any] = {}
+    for field, position in (("force", False), ("force_at", True)):
+        hook = getattr(effect, field)
+        if hook is None:
+            continue
+        probe = _hook_source(hook, position, d, "HOOK", effect.name)
+        key = hashlib.sha256((name + probe).encode()).hexdigest()[:16]
+        func = f"{field}_{key}"
+        text = _hook_source(hook, position, d, func, effect.name).replace("{name}", name)
+        hooks[field] = getattr(_load(name, text, key), func)
+    where = "held at the boundary of" if d.mode == "held" else "switched off outside"
+    wrapped = DomainEffect(
+        name=name,
+        description=f"{effect.description} ({where} the states it was fitted on: {d.spec})",
+        regime=effect.regime,
+        params=effect.params,
+        param_type=effect.param_type,
+        force=hooks.get("force"),
+        force_at=hooks.get("force_at"),
+        current=effect.current,
+        inputs=effect.inputs,
+        observe=effect.observe,
+        delay=effect.delay,
+    )
+    _made[name] = wrapped
+    return wrapped
+
+
+def by_name(name: str) -> Effect:
+    """The wrapped effect ``name`` (``<effect>@<mode>(<box>)``); raises ValueError for a name
+    that is not one, KeyError for an unknown inner effect."""
+    made = _made.get(name)
+    if made is not None:
+        return made
+    inner, d = split_name(name)
+    if d is None:
+        raise ValueError(f"{name!r} is not an effect with a domain (<effect>@held(...))")
+    from mmg.effects import get_effect
+
+    return within(get_effect(inner), d)
+
+
+def rebuild(name: str, params: Sequence[Sequence[object]]) -> Effect:
+    """The wrapped effect ``name`` with the parameter table ``params`` (how a pickled one is
+    restored in another process)."""
+    inner, d = split_name(name)
+    if d is None:
+        raise ValueError(f"{name!r} is not an effect with a domain")
+    from mmg.effects import get_effect
+
+    table = tuple(EffectParam(*p) for p in params)  # type: ignore[arg-type]
+    return within(replace(get_effect(inner), params=table), d)
+
+
+def inner_name(name: str) -> str:
+    """The name of the effect inside a wrapped one (the name itself otherwise)."""
+    return split_name(name)[0]
+
+
+__all__ = [
+    "MODES",
+    "UNITS",
+    "VARIABLES",
+    "Domain",
+    "DomainEffect",
+    "by_name",
+    "inner_name",
+    "parse_spec",
+    "split_name",
+    "within",
+]

@@ -1,0 +1,114 @@
+"""Where a finding holds: the box of states an effect acts in (mmg.domain) and the ranges
+recordings cover (sweep.data.ranges)."""
+
+from __future__ import annotations
+
+import math
+import pickle
+import re
+
+import numpy as np
+import pytest
+
+from mmg import efd_parameters, get_effect
+from mmg.domain import Domain, parse_spec, split_name, within
+from sweep.data.ranges import departures, ranges_of
+from sweep.data.recordings import Recording
+
+BOX = Domain({"u": 0.2, "n_p": 3.0}, {"u": 1.3, "n_p": 5.0})
+
+
+def _walk_force(effect, u, n_p):
+    p = efd_parameters()
+    e = effect.param_type(C_Yw=0.01, C_Nw=-0.004)
+    return np.array(effect.force(u, 0.05, 0.01, 0.0, 0.1, n_p, 0.0, 0.0, e, p.theta, p.ship))
+
+
+def test_a_domain_reads_back_from_its_spec_and_bad_specs_are_clear():
+    d = Domain({"u": 0.21234567, "r": -0.03}, {"u": 1.30001, "r": 0.0412}, "off")
+    spec = d.spec
+    assert spec == "off(u=0.2123:1.301,r=-0.03:0.0412)"  # rounded outward: the box still holds
+    back = parse_spec(spec)
+    assert back.mode == "off" and back.lower["u"] <= 0.21234567 and back.upper["u"] >= 1.30001
+    assert parse_spec(back.spec) == back
+    for bad, message in (
+        ("held(u=1:0)", "lower 1.0 above upper 0.0"),
+        ("held(w=0:1)", "domain variable 'w'"),
+        ("maybe(u=0:1)", "domain mode 'maybe'"),
+        ("held(u=a:1)", "not a number"),
+        ("held u=0:1", "expected mode(var=lo:hi,...)"),
+    ):
+        with pytest.raises(ValueError, match=re.escape(message)):
+            parse_spec(bad)
+
+
+def test_a_wrapped_effect_is_rebuilt_by_name_and_pickles_by_name():
+    walk = get_effect("propeller_walk")
+    held = within(walk, BOX)
+    assert held.name == "propeller_walk@held(u=0.2:1.3,n_p=3:5)"
+    assert split_name(held.name) == ("propeller_walk", BOX.rounded())
+    assert get_effect(held.name) is held
+    assert pickle.loads(pickle.dumps(held)).name == held.name
+    assert held.params == walk.params and held.param_type is walk.param_type
+    # wrapping a wrapped effect replaces its box
+    off = within(held, BOX.with_mode("off"))
+    assert off.name == "propeller_walk@off(u=0.2:1.3,n_p=3:5)"
+    with pytest.raises(KeyError, match=r"effect 'warp@held.*unknown effect 'warp'"):
+        get_effect("warp@held(u=0:1)")
+
+
+def test_inside_its_box_the_effect_is_unchanged_outside_it_is_held_or_off():
+    walk = get_effect("propeller_walk")
+    held, off = within(walk, BOX), within(walk, BOX.with_mode("off"))
+    inside = _walk_force(walk, 0.8, 4.0)
+    assert np.abs(inside).max() > 0
+    np.testing.assert_array_equal(_walk_force(held, 0.8, 4.0), inside)
+    np.testing.assert_array_equal(_walk_force(off, 0.8, 4.0), inside)
+    # beyond the box in n_p (and u): held at the boundary's force, or nothing
+    np.testing.assert_array_equal(_walk_force(held, 0.8, 9.0), _walk_force(walk, 0.8, 5.0))
+    np.testing.assert_array_equal(_walk_force(held, 2.0, 1.0), _walk_force(walk, 1.3, 3.0))
+    np.testing.assert_array_equal(_walk_force(off, 0.8, 9.0), np.zeros(3))
+    assert np.abs(_walk_force(walk, 0.8, 9.0)).max() > np.abs(inside).max()
+
+
+def _recording(name: str, u: np.ndarray, n_p: np.ndarray, r: float = 0.0) -> Recording:
+    k = len(u)
+    x = np.zeros((k, 6))
+    x[:, 1] = u
+    x[:, 5] = r
+    c = np.zeros((k, 2))
+    c[:, 1] = n_p
+    return Recording(name=name, path=None, t=0.1 * np.arange(k), x=x, u=c, w=np.zeros((k, 2)))
+
+
+def test_ranges_and_the_recordings_that_leave_them():
+    train = [
+        _recording("a", np.linspace(0.3, 1.0, 100), np.full(100, 8.0)),
+        _recording("b", np.linspace(0.5, 1.2, 100), np.linspace(6.0, 10.0, 100)),
+    ]
+    rng = ranges_of(train)
+    assert rng.intervals["u"] == (0.3, 1.2)
+    assert rng.intervals["n_p"] == (6.0, 10.0)
+    assert rng.quadrants["Q1"] == 1.0 and rng.quadrants["Q3"] == 0.0
+    assert math.isclose(rng.intervals["beta"][1], 0.0, abs_tol=1e-12)
+    box = rng.domain()
+    assert box.mode == "held" and box.upper["n_p"] == 10.0
+    assert box.lower["r"] == 0.0 == box.upper["r"]
+    # a berthing-like recording: slower, propeller reversed half the time
+    berth = _recording(
+        "berth",
+        np.concatenate([np.linspace(0.4, 0.0, 50), np.linspace(0.0, -0.2, 50)]),
+        np.concatenate([np.full(50, 7.0), np.full(50, -12.0)]),
+    )
+    inside = _recording("inside", np.linspace(0.4, 1.1, 100), np.full(100, 9.0))
+    found = departures(rng, [berth, inside], ["Test-B-S", "Test-R"])
+    assert {d.recording for d in found} == {"Test-B-S"}
+    by_var = {d.variable: d for d in found}
+    assert by_var["n_p"].extreme == -12.0 and by_var["n_p"].beyond == 18.0
+    assert by_var["n_p"].time_share == 0.5
+    assert "n_p to -12 rev/s, 18 rev/s beyond 6" in by_var["n_p"].text()
+    assert by_var["quadrant"].quadrant == "Q3"
+    assert "never in the fitted runs" in by_var["quadrant"].text()
+    # a short excursion (at most 1 % of the samples) is not named
+    blip = _recording("blip", np.full(200, 0.8), np.r_[np.full(198, 8.0), 11.0, 11.0])
+    assert departures(rng, [blip]) == []

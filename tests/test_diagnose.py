@@ -204,6 +204,57 @@ def test_an_effect_only_the_test_recordings_excite_is_flagged_unexplained(runs, 
     assert "does the model carry over" in (out / "report.md").read_text()
 
 
+@pytest.mark.integration  # a planted case, end to end
+@pytest.mark.kernels(
+    *kernels(("propeller_walk",), "simulate", "moments"),
+    *kernels(("current",), "simulate", "moments"),
+)
+def test_a_finding_fitted_in_one_regime_is_held_beyond_it_and_the_test_run_is_named(
+    data_dir, tmp_path
+):
+    """A propeller walk planted in turning runs at a constant 10 rev/s: the finding is fitted in
+    that regime only, so it is held at its 10-rev/s force beyond it, and the berthing test
+    run, whose propeller turns at up to 17.5 rev/s and astern, is named as leaving the ranges."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        turns = [r for r in read_recordings(data_dir / "data" / "turning") if "cut" in r.name]
+        berthing = read_recordings(data_dir / "data" / "berthing")
+    rng = np.random.default_rng(5)
+    wins = pick_windows({"turning": turns, "berthing": berthing}, {"turning": 4}, rng)
+    wins += pick_windows({"berthing": berthing[:1]}, {"berthing": 1}, rng)
+    spec = PlantedSpec("propeller_walk", {"C_Yw": 4e-4, "C_Nw": -2e-4})
+    noise = noise_levels([*turns, *berthing])
+    recs, diverged = generate(wins, efd_parameters(), spec, noise, rng)
+    assert not diverged
+    case, out = tmp_path / "case", tmp_path / "out"
+    write_case(case, recs[:4], recs[4:], spec, efd_parameters())
+    args = ("--no-tracking", "--no-discovery", "--candidates", "propeller_walk,current")
+    assert _diagnose(case, out, *args) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["verdict"] == "propeller_walk"
+    found = report["finding"]
+    assert found.startswith("propeller_walk@held(") and ",n_p=10:10)" in found
+    assert report["ranges"]["intervals"]["n_p"]["max"] == 10.0
+    # held: beyond the fitted n_p the force is the one at 10 rev/s
+    from mmg import get_effect
+
+    held = get_effect(found)
+    e = held.param_type(**report["fitted_effect_params"])
+    p = efd_parameters()
+    at = [held.force(0.3, 0.0, 0.0, 0.0, 0.0, n, 0.0, 0.0, e, p.theta, p.ship) for n in (10, 17)]
+    assert at[0] == at[1] and abs(at[0][2]) > 0
+    # the berthing run leaves the ranges: named with the variable and by how much
+    named = {(d["recording"], d["variable"]) for d in report["departures"]}
+    test_name = sorted((case / "test").iterdir())[0].stem
+    assert (test_name, "n_p") in named
+    md = (out / "report.md").read_text()
+    assert "## Where the finding holds" in md and f"{test_name}: n_p to" in md
+    assert report["J_after_unbounded"]["J2"]["Total"] > 0
+    # the parameters after carry the bounded finding and evaluate through the command
+    after = json.loads((out / "params_after.json").read_text())
+    assert found in after["effects"]
+
+
 def test_user_mistakes_are_one_line_errors(runs, tmp_path, capsys):
     case = tmp_path / "case"
     _case(runs, PlantedSpec("none"), case)

@@ -39,11 +39,20 @@ def _context(tmp_path: Path, lines: list[str], **settings: object) -> Context:
     )
 
 
-def _null(threshold: float) -> AcceptanceNull:
-    return AcceptanceNull(alpha=0.05, draws=3, threshold=threshold, quantile=threshold, best=[])
+def _null(threshold: float, heldout: float = 0.0) -> AcceptanceNull:
+    return AcceptanceNull(
+        alpha=0.05,
+        draws=3,
+        threshold=threshold,
+        quantile=threshold,
+        best=[],
+        heldout_quantile=heldout,
+    )
 
 
-def _score(effect: str, dbic: float, improvement: float, refined: bool = True) -> CandidateScore:
+def _score(
+    effect: str, dbic: float, improvement: float, refined: bool = True, gain: float = 1.0
+) -> CandidateScore:
     return CandidateScore(
         effect=effect,
         description="",
@@ -54,6 +63,7 @@ def _score(effect: str, dbic: float, improvement: float, refined: bool = True) -
         improvement=improvement,
         delta_bic=dbic,
         refined=refined,
+        heldout_gain=gain,
     )
 
 
@@ -82,7 +92,35 @@ def test_the_verdict_stage_accepts_ranks_and_names_the_verdict(tmp_path: Path) -
     assert [c.accepted for c in v.scores] == [True, True, False, False]
     assert (v.verdict, v.effect) == ("current", "current")
     assert lines[0].startswith("acceptance: dBIC <= -10.0 (the 5% quantile")
-    assert lines[1].endswith("-> verdict: current")
+    assert lines[1].startswith("carrying over: a held-out gain above 0 ")
+    assert lines[2].endswith("-> verdict: current")
+
+
+def test_a_candidate_that_does_not_carry_over_to_held_out_runs_is_not_accepted(
+    tmp_path: Path,
+) -> None:
+    """Passing dBIC is not enough: the fits must gain on the held-out runs more than the best
+    candidate's fits gain on noise alone (here 0.5), and a loss there never passes."""
+    lines: list[str] = []
+    ctx = _context(tmp_path, lines)
+    scores = [
+        _score("rudder_offset", -200.0, 0.05, gain=0.4),  # gains, but less than noise would
+        _score("current", -190.0, -0.02, gain=-3.0),  # worse on the held-out runs
+        _score("propeller_walk", -30.0, 0.02, gain=0.6),
+    ]
+    leaders = ["rudder_offset", "current", "propeller_walk"]
+    v = decide(ctx, scores, leaders, _null(-10.0, heldout=0.5), significant=True)
+    assert {c.effect: c.carries_over for c in v.scores} == {
+        "rudder_offset": False,
+        "current": False,
+        "propeller_walk": True,
+    }
+    # the better fits do not carry over: the first accepted candidate in rank order is chosen
+    assert (v.verdict, v.effect) == ("propeller_walk", "propeller_walk")
+    assert "does not carry over" in lines[2]
+    # a negative null quantile does not let a held-out loss through
+    v = decide(ctx, scores[1:2], ["current"], _null(-10.0, heldout=-5.0), significant=False)
+    assert (v.verdict, v.effect) == ("none", "")
 
 
 def test_the_verdict_stage_without_an_accepted_candidate(tmp_path: Path) -> None:

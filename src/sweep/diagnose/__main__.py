@@ -4,7 +4,7 @@
                              --out DIR [--budget N] [--base-descent N] [--candidate-budget N]
                              [--final-budget N]
                              [--seed S] [--objective J2] [--candidates a,b,...]
-                             [--prior-weight MU]
+                             [--prior-weight MU] [--outside held|off]
                              [--tracking-uri URI | --no-tracking] [--experiment NAME]
 
 PATHs are CSV/Parquet recordings or directories of them, or one split name: ``--train R`` (or
@@ -12,6 +12,8 @@ TR, TZR) and ``--test paper`` read the paper's split below ``--data-dir`` / ``MM
 ``--params`` is the starting point of the base identification (``--budget`` CMA-ES evaluations
 then Levenberg-Marquardt, against up to ``--base-descent`` Levenberg-Marquardt iterations alone) and
 the centre of the weak prior of every refinement (``--prior-weight``, 0 to switch it off).
+A finding acts only in the box of states the training recordings reached: beyond it, it is held
+at its boundary value (``--outside held``, the default) or switched off (``--outside off``).
 Writes ``DIR/report.json``, ``DIR/report.md`` with its plots, ``DIR/params_before.json`` and
 ``DIR/params_after.json`` (loadable by ``python -m sweep.evaluate --params``), and one MLflow run
 (default store: ./mlflow.db, experiment ``mmg-diagnose``). Stages are kept in ``DIR/stages``:
@@ -110,6 +112,13 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--candidates", default="", help="comma-separated effect names (default all)")
     ap.add_argument("--min-improvement", type=float, default=d.min_improvement)
     ap.add_argument(
+        "--outside",
+        choices=("held", "off"),
+        default=d.outside,
+        help="what a finding does beyond the states of the training recordings: held at its "
+        "value on the boundary of their box (default) or switched off",
+    )
+    ap.add_argument(
         "--prior-weight",
         type=float,
         default=d.prior_weight,
@@ -191,6 +200,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
         seed=args.seed,
         candidates=names,
         min_improvement=args.min_improvement,
+        outside=args.outside,
         max_delta_bic=args.max_delta_bic,
         prior_weight=args.prior_weight,
         final_prior_weight=args.final_prior_weight,

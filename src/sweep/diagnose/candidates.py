@@ -118,6 +118,7 @@ def score(
         J_heldout=float(J_ho.sum()),
         improvement=typical_change(J_ho, J_ho_control),
         improvement_total=float(1.0 - J_ho.sum() / max(J_ho_control.sum(), 1e-300)),
+        heldout_gain=float(J_ho_control.sum() - J_ho.sum()),
         delta_bic=delta_bic(J_fit, sum(f.f for f in control.fits), len(eff.params), n_eff),
         evaluations=sum(f.evaluations for f in cand.fits),
     )

@@ -2,17 +2,25 @@
 carries over (:mod:`sweep.diagnose.generalise`): an effect the training manoeuvres do not excite
 leaves the training windows at the floor but the test recordings beyond it.
 
+A finding is known only over the states the training recordings reached: its ranges
+(:mod:`sweep.data.ranges`) are stated, the finding acts only in their box (:mod:`mmg.domain`,
+held at the boundary or switched off outside, as ``outside`` says), and the test recordings that
+leave the ranges are named.
+
 The procedure is described in the user guide (docs/guide/diagnosis.md).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
-from mmg import Parameters
+from mmg import Parameters, get_effect
+from mmg.domain import within
+from sweep.data.ranges import Departure, Ranges, departures, ranges_of
 from sweep.data.recordings import Recording
 from sweep.diagnose.context import Context
 from sweep.diagnose.final import Final
@@ -34,6 +42,47 @@ class CarryOver:
     generalisation: GeneralisationTest | None
     generalisation_after: GeneralisationTest | None
     final: Final
+    #: the ranges of the training recordings (where the finding was fitted; None without one)
+    ranges: Ranges | None = None
+    #: the test recordings' departures from them
+    departures: list[Departure] = field(default_factory=list)
+    #: {J: {label: value}} of the finding without its box (extrapolated; empty when the
+    #: finding has no force or there is no test)
+    test_unbounded: dict[str, dict[str, float]] = field(default_factory=dict)
+
+
+def bounded(ctx: Context, final: Final) -> tuple[Final, Ranges | None]:
+    """The final model with its finding restricted to the box of the training recordings'
+    states (``settings.outside``: held at its boundary or switched off outside; a finding
+    without a force or moment is unchanged), and the ranges of those recordings."""
+    name = final.verdict.effect
+    if not name:
+        return final, None
+    ranges = ranges_of(ctx.windows, final.after.params.ship)
+    effect = get_effect(name)
+    if effect.force is None and effect.force_at is None:
+        return final, ranges
+    wrapped = within(effect, ranges.domain(ctx.settings.outside))
+    p = final.after.params
+    effects = tuple((wrapped.name if n == name else n, v) for n, v in p.effects)
+    params = Parameters(p.theta, p.ship, effects)
+    fit_effects = tuple(wrapped if e.name == name else e for e in final.after.effects)
+    after = replace(final.after, params=params, effects=fit_effects)
+    ctx.log(f"the finding acts in the box of the training states: {wrapped.name}")
+    return replace(final, after=after), ranges
+
+
+def _test_departures(ctx: Context, ranges: Ranges | None) -> list[Departure]:
+    if ranges is None or not ctx.test:
+        return []
+    labels = [
+        r.name if lab == r.name else f"{lab}/{r.name}"
+        for lab, r in zip(ctx.test_labels, ctx.test, strict=True)
+    ]
+    found = departures(ranges, ctx.test, labels)
+    for d in found:
+        ctx.log(f"beyond the fitted ranges: {d.text()}")
+    return found
 
 
 def test_tables(
@@ -79,13 +128,25 @@ def _log_generalisation(ctx: Context, label: str, g: GeneralisationTest) -> None
 
 
 def carry_over(ctx: Context, final: Final, noise: NoiseModel) -> CarryOver:
-    """The test tables and the generalisation tests of the final models."""
+    """The finding bounded to its ranges, the test tables and the generalisation tests of the
+    final models."""
+    unbounded = final.after.params
+    final, ranges = bounded(ctx, final)
+    found = _test_departures(ctx, ranges)
     test_before, test_after = test_tables(ctx, final)
+    test_unbounded: dict[str, dict[str, float]] = {}
+    if ctx.test and unbounded is not final.after.params:
+        test_unbounded = test_table(unbounded, ctx.test, ctx.test_labels)
+    extra: dict[str, Any] = {
+        "ranges": ranges,
+        "departures": found,
+        "test_unbounded": test_unbounded,
+    }
     # (every window the test J sums over, the short last one of each recording too)
     draws = ctx.settings.generalisation_draws
     test_w = cut_windows(ctx.test, min_window=0.0) if ctx.test and draws > 0 else []
     if not test_w:
-        return CarryOver(test_before, test_after, None, None, final)
+        return CarryOver(test_before, test_after, None, None, final, **extra)
     gen = generalisation(ctx, final.before.params, test_w, noise)
     after = final.after.params
     gen_after = generalisation(ctx, after, test_w, noise) if final.verdict.effect else None
@@ -96,4 +157,4 @@ def carry_over(ctx: Context, final: Final, noise: NoiseModel) -> CarryOver:
     if not v.effect and gen.significant and v.verdict == "none":
         final = replace(final, verdict=replace(v, verdict="unexplained"))
         ctx.log("verdict: unexplained (the model does not carry over to the test recordings)")
-    return CarryOver(test_before, test_after, gen, gen_after, final)
+    return CarryOver(test_before, test_after, gen, gen_after, final, **extra)

@@ -82,7 +82,7 @@ def discovered_entry(d: Diagnosis) -> dict[str, Any]:
         return {}
     from mmg.library import term
 
-    values = dict(next(v for n, v in d.after.params.effects if n == d.verdict_effect))
+    values = d.finding_values()
     terms = d.verdict_effect.split(":", 1)[1].split("+")
     c = d.chosen
     return {
@@ -174,7 +174,7 @@ def _none_statement(d: Diagnosis) -> str:
 def _found_statement(d: Diagnosis) -> str:
     c = d.chosen
     assert c is not None
-    after = dict(next(v for n, v in d.after.params.effects if n == d.verdict_effect))
+    after = d.finding_values()
     eff = get_effect(d.verdict_effect)
     units = {q.name: q.unit for q in eff.params}
     values = ", ".join(f"{k} = {v:.4g} {units[k]}" for k, v in after.items())
@@ -211,13 +211,68 @@ def _found_statement(d: Diagnosis) -> str:
     return text
 
 
+#: what each subset of the paper's test set holds (the harm statement names the manoeuvre)
+SUBSET_KIND = {
+    "Test-B-S": "berthing (starboard)",
+    "Test-B-P": "berthing (port)",
+    "Test-R": "random manoeuvres",
+    "Test-T": "turning",
+    "Test-Z": "zigzags",
+}
+#: a test subset this much worse with the finding is harmed (and the total at any worsening)
+HARM_SUBSET = 0.10
+
+
+def harm(d: Diagnosis) -> dict[str, Any] | None:
+    """How the finding changes J on the test recordings: the total's and each subset's ratio
+    after / before, the harmed subsets (worse by more than :data:`HARM_SUBSET`) and whether
+    the finding does harm (total worse, or a subset harmed); None without a finding or
+    without test recordings."""
+    if not d.verdict_effect or not d.test_before:
+        return None
+    J = d.settings.objective
+    before, after = d.test_before[J], d.test_after[J]
+    ratio = {k: after[k] / before[k] if before[k] > 0 else float("inf") for k in before}
+    harmed = [k for k, r in ratio.items() if k != "Total" and r > 1.0 + HARM_SUBSET]
+    return {
+        "objective": J,
+        "ratio": ratio,
+        "total_change": ratio["Total"] - 1.0,
+        "harmed_subsets": sorted(harmed, key=lambda k: -ratio[k]),
+        "harmful": bool(ratio["Total"] > 1.0 or harmed),
+    }
+
+
+def harm_text(d: Diagnosis) -> str:
+    """The harm the finding does on the test recordings, said first in the verdict
+    ("" when it does none)."""
+    h = harm(d)
+    if h is None or not h["harmful"]:
+        return ""
+    r = h["ratio"]
+    change = h["total_change"]
+    parts = [
+        f"the test recordings are {100 * change:.0f} % worse with it"
+        if change > 0
+        else f"the test recordings are {100 * -change:.0f} % better in total with it"
+    ]
+    parts += [f"{k} x {r[k]:.2f}" for k in h["harmed_subsets"]]
+    kinds = [SUBSET_KIND.get(k, k) for k in h["harmed_subsets"]]
+    tail = f": it does not carry over to {', '.join(kinds)}" if kinds else ""
+    return (
+        f"HARM: {d.verdict_effect} (accepted on the training runs; {', '.join(parts)}{tail}). "
+        "Use the model before, or add training recordings of those manoeuvres."
+    )
+
+
 def statement(d: Diagnosis) -> str:
-    """The verdict in plain words."""
+    """The verdict in plain words (the harm a finding does on the test recordings first)."""
     if d.verdict == "unexplained":
         return _unexplained_statement(d)
     if d.verdict == "none":
         return _none_statement(d)
-    return _found_statement(d)
+    warning = harm_text(d)
+    return (warning + " " if warning else "") + _found_statement(d)
 
 
 def _generalisation_dict(g: GeneralisationTest | None) -> dict[str, Any] | None:
@@ -234,7 +289,7 @@ def _generalisation_dict(g: GeneralisationTest | None) -> dict[str, Any] | None:
 def report_dict(d: Diagnosis) -> dict[str, Any]:
     """Everything of ``report.json``."""
     chosen = d.chosen
-    fitted = {n: dict(v) for n, v in d.after.params.effects} if d.verdict_effect else {}
+    fitted = d.finding_values()
     prop = d.proposal
     return {
         "verdict": d.verdict,
@@ -275,7 +330,13 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
         "confirmation": d.extra.get("confirmation"),
         "base_retry": d.extra.get("base_retry"),
         "candidates": [asdict(c) for c in d.candidates],
-        "fitted_effect_params": fitted.get(d.verdict_effect, {}),
+        "fitted_effect_params": fitted,
+        "finding": d.finding_name,
+        "harm": harm(d),
+        "ranges": d.ranges.as_dict() if d.ranges is not None else None,
+        "outside": d.settings.outside,
+        "departures": [x.as_dict() for x in d.departures],
+        "J_after_unbounded": d.test_unbounded,
         "candidate_fit_params": chosen.params if chosen else {},
         "J_before": d.test_before,
         "J_after": d.test_after,
@@ -643,17 +704,29 @@ def _candidates_md(d: Diagnosis) -> list[str]:
     md = [
         "## Candidates (fitted jointly with the 57 base parameters)",
         "",
-        "| effect | dBIC | held-out improvement (typical) | (summed J) | accepted "
-        "| fitted parameters |",
-        "|---|---:|---:|---:|:-:|---|",
+        "| effect | dBIC | held-out improvement (typical) | (summed J) | held-out gain "
+        "| carries over | accepted | fitted parameters |",
+        "|---|---:|---:|---:|---:|:-:|:-:|---|",
     ]
     for c in d.candidates:
         vals = ", ".join(f"{k} = {v:.4g}" for k, v in c.params.items())
         md.append(
             f"| {c.effect}{' *' if c.refined else ''} | {c.delta_bic:.1f} | "
             f"{100 * c.improvement:+.1f} % | {100 * c.improvement_total:+.1f} % | "
+            f"{c.heldout_gain:.4g} | {'yes' if c.carries_over else 'no'} | "
             f"{'yes' if c.accepted else 'no'} | {vals} |"
         )
+    held = (d.extra.get("acceptance") or {}).get("heldout")
+    if held:
+        md += [
+            "",
+            f"Carrying over: a candidate's fits on one half must take more than "
+            f"{held['threshold']:.4g} off the control's {d.settings.objective} on the other "
+            f"half's whole runs (held-out gain, both ways round): the {100 * held['q']:.0f} % "
+            f"quantile of the best candidate's held-out gain on noise-only copies of the "
+            f"training windows ({held['quantile']:.4g}; median {held['median']:.4g}), and at "
+            "least 0.",
+        ]
     return [*md, "", "![candidates](candidates.png)", ""]
 
 
@@ -670,6 +743,60 @@ def _test_md(d: Diagnosis, test: Sequence[Recording]) -> list[str]:
             "![trajectories](trajectories.png)",
             "",
         ]
+    return md
+
+
+def _ranges_md(d: Diagnosis) -> list[str]:
+    """Where the finding holds: the training ranges, its box, the test recordings beyond them
+    and the test subsets with the finding held and extrapolated."""
+    if d.ranges is None:
+        return []
+    from sweep.data.ranges import QUADRANTS, VARIABLES
+
+    how = {
+        "held": "held at its value on the boundary of that box",
+        "off": "switched off",
+    }[d.settings.outside]
+    md = [
+        "## Where the finding holds",
+        "",
+        f"`{d.verdict_effect}` was fitted on training recordings that cover the ranges below. "
+        f"Beyond the box of their states it is {how} (`--outside {d.settings.outside}`): "
+        f"`{d.finding_name}`.",
+        "",
+        "| variable | lowest | highest | unit |",
+        "|---|---:|---:|---|",
+        *(
+            f"| {k} | {lo:.4g} | {hi:.4g} | {VARIABLES[k]} |"
+            for k, (lo, hi) in d.ranges.intervals.items()
+        ),
+        "",
+        "Quadrants: "
+        + ", ".join(f"{q} ({QUADRANTS[q]}) {100 * v:.0f} %" for q, v in d.ranges.quadrants.items())
+        + ".",
+        "",
+    ]
+    if d.departures:
+        md += ["Test recordings beyond the fitted ranges:", ""]
+        md += [f"- {x.text()}" for x in d.departures]
+        md.append("")
+    elif d.test_before:
+        md += ["No test recording leaves the fitted ranges.", ""]
+    J = d.settings.objective
+    if d.test_before:
+        md += [
+            f"{J} per test subset: the model before, with the finding as used (bounded), and "
+            "with it extrapolated beyond the ranges:",
+            "",
+            "| subset | before | with the finding | change | extrapolated |",
+            "|---|---:|---:|---:|---:|",
+        ]
+        unb = d.test_unbounded.get(J, {})
+        for k, b in d.test_before[J].items():
+            a = d.test_after[J][k]
+            e = unb.get(k, a)
+            md.append(f"| {k} | {b:.4g} | {a:.4g} | {100 * (a / b - 1):+.1f} % | {e:.4g} |")
+        md.append("")
     return md
 
 
@@ -691,7 +818,8 @@ def _procedure_md(d: Diagnosis) -> list[str]:
         "dBIC from both fits. Re-identification on all training windows (up to "
         f"{s.final_polish_iterations} iterations); objective {s.objective}, "
         f"seed {s.seed}; {d.seconds:.0f} s in all. Ranking: lowest dBIC; accepted if "
-        f"dBIC <= {d.threshold:.1f} ({_threshold_origin(d)}) and held-out improvement >= "
+        f"dBIC <= {d.threshold:.1f} ({_threshold_origin(d)}), a held-out gain above the "
+        "null's (carries over) and held-out improvement >= "
         f"{100 * s.min_improvement:.0f} % (typical window: 1 - the geometric mean "
         "of the per-window ratios of J).",
         "",
@@ -722,6 +850,7 @@ def report_md(
         "",
         *_candidates_md(d),
         *_test_md(d, test),
+        *_ranges_md(d),
         *_procedure_md(d),
     ]
     return "\n".join(md)

@@ -24,7 +24,9 @@ from typing import Any
 from threadpoolctl import threadpool_limits
 
 from mmg import Parameters
+from mmg.domain import inner_name
 from mmg.precompile import precompile, tasks
+from sweep.data.ranges import Departure, Ranges
 from sweep.data.recordings import Recording
 from sweep.diagnose.base import identify_base, second_start
 from sweep.diagnose.calibration import Calibration, calibrate
@@ -72,6 +74,12 @@ class Diagnosis:
     #: the chosen candidate's effect name (the verdict is ``discovered`` for a generated one)
     verdict_effect: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    #: the ranges of the training recordings' states (where the finding was fitted)
+    ranges: Ranges | None = None
+    #: the test recordings' departures from those ranges
+    departures: list[Departure] = field(default_factory=list)
+    #: the test table of the finding without its box (extrapolated beyond the ranges)
+    test_unbounded: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @property
     def threshold(self) -> float:
@@ -79,6 +87,21 @@ class Diagnosis:
         acc = self.extra.get("acceptance", {})
         used = acc.get("used", self.settings.max_delta_bic)
         return float(used) if used is not None else float("nan")
+
+    @property
+    def finding_name(self) -> str:
+        """The name the finding carries in the model after (its box appended,
+        :mod:`mmg.domain`); "" without a finding."""
+        if not self.verdict_effect:
+            return ""
+        return next(
+            (n for n, _ in self.after.params.effects if inner_name(n) == self.verdict_effect), ""
+        )
+
+    def finding_values(self) -> dict[str, float]:
+        """The finding's parameter values in the model after (empty without one)."""
+        name = self.finding_name
+        return dict(next((v for n, v in self.after.params.effects if n == name), ()))
 
     @property
     def chosen(self) -> CandidateScore | None:
@@ -171,6 +194,9 @@ def report(
         generalisation=tested.generalisation,
         generalisation_after=tested.generalisation_after,
         verdict_effect=final.verdict.effect,
+        ranges=tested.ranges,
+        departures=tested.departures,
+        test_unbounded=tested.test_unbounded,
         extra={
             "J_heldout_control": float(J_ho_control.sum()),
             "J_heldout_control_per_window": [float(v) for v in J_ho_control],

@@ -48,6 +48,10 @@ class CandidateScore:
     seconds: float = 0.0
     refined: bool = False  # scores after the refinement of the leading candidates
     improvement_total: float = 0.0  # relative change of the summed held-out J
+    #: what the fits take off the control's summed J on the held-out runs [J] (positive: better)
+    heldout_gain: float = 0.0
+    #: whether the held-out gain exceeds the null's (:mod:`sweep.diagnose.threshold`)
+    carries_over: bool = False
 
 
 def rank(scores: Sequence[CandidateScore], tie_margin: float = TIE_MARGIN) -> list[CandidateScore]:

@@ -91,6 +91,9 @@ class DiagnoseSettings:
     #: landscape led CMA-ES and the descent alone to one point (the planted case the second
     #: start was made for had ended at 1.52 and 2.77)
     base_retry_agreement: float = 0.01
+    #: what a finding does beyond the states of the training recordings (:mod:`mmg.domain`):
+    #: ``held`` at its value on the boundary of their box, or switched ``off``
+    outside: str = "held"
 
     def candidate_effects(self) -> tuple[Effect, ...]:
         """The catalog effects to try (``candidates``, or every catalog effect)."""
@@ -113,6 +116,7 @@ class DiagnoseSettings:
             "generalisation_draws",
             "generalisation_alpha",
             "generalisation_margin",
+            "outside",  # (the test stage only)
         )
         data = {k: v for k, v in asdict(self).items() if k not in skip}
         data["procedure"] = PROCEDURE_VERSION  # stages of an older procedure are not reused

@@ -4,6 +4,11 @@ A candidate is accepted when its dBIC over the two folds is below a threshold: t
 quantile of the null distribution of the *best* candidate's dBIC, from a parametric bootstrap
 (noise-only copies of the training windows simulated by the base model) with the fold fits
 linearised (:class:`sweep.diagnose.linearised.Linearised`), never above :data:`CEILING`.
+
+It must also carry over: its fits on one fold must take more off the control's J on the other
+fold's whole runs than the best candidate's fits do on the same noise-only copies in all but a
+share ``alpha`` of them (the held-out gain's null, :attr:`AcceptanceNull.heldout_threshold`,
+never below zero).
 The procedure is described in the user guide (docs/guide/diagnosis.md).
 """
 
@@ -37,6 +42,15 @@ class AcceptanceNull:
     #: J of the base refitted on all windows over J before refitting, on the noise-only copies:
     #: what fitting the 57 parameters (with the prior) takes out of pure noise
     refit_factor: float = 1.0
+    #: held-out gain [J] of each draw's best candidate (by dBIC), and its 1 - alpha quantile
+    #: (never below 0): the gain on held-out runs a candidate must exceed
+    heldout_best: list[float] = field(default_factory=list)
+    heldout_quantile: float = 0.0
+
+    @property
+    def heldout_threshold(self) -> float:
+        """The held-out gain [J] a candidate must exceed: the null's quantile, at least 0."""
+        return max(self.heldout_quantile, 0.0)
 
     def as_dict(self) -> dict[str, Any]:
         """The null as ``report.json`` shows it (``acceptance``), with a summary of ``best``."""
@@ -57,6 +71,12 @@ class AcceptanceNull:
             },
             "per_candidate": self.per_candidate,
             "seconds": self.seconds,
+            "heldout": {
+                "threshold": self.heldout_threshold,
+                "quantile": self.heldout_quantile,
+                "median": float(np.median(self.heldout_best)) if self.heldout_best else 0.0,
+                "q": 1.0 - self.alpha,
+            },
         }
 
 
@@ -78,7 +98,7 @@ def acceptance_null(
     # null residual vectors of the base model on noisy copies of the windows
     cols = [lin.residuals(recs) for recs in null_sets(params, windows, noise, rng, draws)]
     R = np.stack(cols, axis=-1)
-    per = lin.dbic(R, n_eff)
+    per, held = lin.heldout(R, n_eff)
     best = np.min(np.stack(list(per.values())), axis=0)
     q = float(np.quantile(best, alpha))
     return AcceptanceNull(
@@ -93,4 +113,6 @@ def acceptance_null(
         },
         seconds=time.perf_counter() - t0,
         refit_factor=lin.refit_factor(R),
+        heldout_best=[float(h) for h in held],
+        heldout_quantile=float(np.quantile(held, 1.0 - alpha)),
     )

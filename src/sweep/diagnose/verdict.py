@@ -51,6 +51,11 @@ def _log_threshold(ctx: Context, null: AcceptanceNull, threshold: float) -> None
         )
         + ")"
     )
+    ctx.log(
+        f"carrying over: a held-out gain above {null.heldout_threshold:.4g} (the "
+        f"{1 - s.alpha:.0%} quantile of the best candidate's held-out gain over {null.draws} "
+        f"noise-only copies, {null.heldout_quantile:.4g}, at least 0)"
+    )
 
 
 def decide(
@@ -60,25 +65,33 @@ def decide(
     null: AcceptanceNull,
     significant: bool,
 ) -> Verdict:
-    """Mark the accepted candidates (refined when the refinement ran, held-out improvement at
-    least ``min_improvement``, dBIC at most the threshold), rank the leaders (:func:`rank`)
-    before the others (by dBIC), and name the verdict; logged."""
+    """Mark the accepted candidates (refined when the refinement ran, dBIC at most the
+    threshold, a held-out gain above the null's, typical held-out window at least
+    ``min_improvement``), rank the leaders (:func:`rank`) before the others (by dBIC), and name
+    the verdict after the first accepted candidate in that order; logged."""
     s = ctx.settings
     threshold = acceptance_threshold(s, null)
     _log_threshold(ctx, null, threshold)
     refined = s.refine_top > 0 and s.refine_iterations > 0
     for c in scores:
+        c.carries_over = c.heldout_gain > null.heldout_threshold
         c.accepted = (
-            c.refined == refined and c.improvement >= s.min_improvement and c.delta_bic <= threshold
+            c.refined == refined
+            and c.improvement >= s.min_improvement
+            and c.delta_bic <= threshold
+            and c.carries_over
         )
     top = rank([c for c in scores if c.effect in leaders], s.tie_margin)
     ranked = top + sorted([c for c in scores if c.effect not in leaders], key=lambda c: c.delta_bic)
-    effect = ranked[0].effect if ranked and ranked[0].accepted else ""
+    # the first accepted in that order: a better fit that does not carry over to the held-out
+    # runs does not hide one that does
+    effect = next((c.effect for c in ranked if c.accepted), "")
     verdict = verdict_name(effect, significant)
     ctx.log(
         "ranking: "
         + ", ".join(
-            f"{c.effect} dBIC {c.delta_bic:.0f} ({100 * c.improvement:+.1f}% held out)"
+            f"{c.effect} dBIC {c.delta_bic:.0f} ({100 * c.improvement:+.1f}% held out, gain "
+            f"{c.heldout_gain:.3g}{'' if c.carries_over else ': does not carry over'})"
             for c in ranked
         )
         + f" -> verdict: {verdict}"

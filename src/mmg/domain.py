@@ -21,8 +21,8 @@ The wrapped effect keeps the name of the effect it wraps followed by its box, e.
 parameters are the inner effect's, so a parameter file written with the plain effect's values
 reads the same values. Like a ``discovered:`` effect it is generated at run time (a small module
 in ``<kernel dir>/effects``, named by a hash of its text) and rebuilt from its name in any process
-(:func:`by_name`, used by :func:`mmg.get_effect`). Hooks that are not forces (a current, the
-controls, the measurement) pass through unchanged.
+(:func:`mmg.get_effect` splits the name, :func:`split_name`, and wraps the inner effect). Hooks
+that are not forces (a current, the controls, the measurement) pass through unchanged.
 """
 
 from __future__ import annotations
@@ -34,11 +34,10 @@ import os
 import re
 import sys
 import threading
-from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-from mmg.effect import Effect, EffectParam
+from mmg.effect import Effect
 
 #: the variables of the box, in the order of a name's box
 VARIABLES = ("u", "v_m", "r", "delta", "n_p")
@@ -216,22 +215,23 @@ def _load(name: str, text: str, key: str) -> Any:
         return module
 
 
+@dataclass(frozen=True)
 class DomainEffect(Effect):
-    """A wrapped effect. It pickles by its name and parameter table (its module lives in the
-    kernel directory, not on the import path): :func:`rebuild`."""
+    """A wrapped effect: ``inner`` acting in ``domain``. It pickles as the two (its module lives
+    in the kernel directory, not on the import path, and is written again where it is loaded)."""
+
+    inner: Effect | None = None
+    domain: Domain | None = None
 
     def __reduce__(self) -> tuple[Any, ...]:
-        return (rebuild, (self.name, tuple(tuple(p) for p in self.params)))
+        return (within, (self.inner, self.domain))
 
 
 def within(effect: Effect, domain: Domain) -> Effect:
     """``effect`` acting only inside ``domain`` (rounded as its name states it); an effect
     already wrapped is re-wrapped around the effect inside."""
-    inner_name, old = split_name(effect.name)
-    if old is not None:
-        from mmg.effects import get_effect
-
-        effect = replace(get_effect(inner_name), params=effect.params)
+    if isinstance(effect, DomainEffect) and effect.inner is not None:
+        effect = replace(effect.inner, params=effect.params)
     d = domain.rounded()
     name = f"{effect.name}{SEPARATOR}{d.spec}"
     made = _made.get(name)
@@ -260,35 +260,11 @@ def within(effect: Effect, domain: Domain) -> Effect:
         inputs=effect.inputs,
         observe=effect.observe,
         delay=effect.delay,
+        inner=effect,
+        domain=d,
     )
     _made[name] = wrapped
     return wrapped
-
-
-def by_name(name: str) -> Effect:
-    """The wrapped effect ``name`` (``<effect>@<mode>(<box>)``); raises ValueError for a name
-    that is not one, KeyError for an unknown inner effect."""
-    made = _made.get(name)
-    if made is not None:
-        return made
-    inner, d = split_name(name)
-    if d is None:
-        raise ValueError(f"{name!r} is not an effect with a domain (<effect>@held(...))")
-    from mmg.effects import get_effect
-
-    return within(get_effect(inner), d)
-
-
-def rebuild(name: str, params: Sequence[Sequence[object]]) -> Effect:
-    """The wrapped effect ``name`` with the parameter table ``params`` (how a pickled one is
-    restored in another process)."""
-    inner, d = split_name(name)
-    if d is None:
-        raise ValueError(f"{name!r} is not an effect with a domain")
-    from mmg.effects import get_effect
-
-    table = tuple(EffectParam(*p) for p in params)  # type: ignore[arg-type]
-    return within(replace(get_effect(inner), params=table), d)
 
 
 def inner_name(name: str) -> str:
@@ -302,7 +278,6 @@ __all__ = [
     "VARIABLES",
     "Domain",
     "DomainEffect",
-    "by_name",
     "inner_name",
     "parse_spec",
     "split_name",

@@ -32,11 +32,12 @@ def get_effect(name: str) -> Effect:
     """
     if name in _REGISTRY:
         return _REGISTRY[name]
-    if domain.split_name(name)[1] is not None:  # <effect>@held(...): mmg.domain
-        try:
-            return domain.by_name(name)
-        except (ValueError, KeyError) as exc:
-            raise KeyError(f"effect {name!r}: {exc.args[0]}") from None
+    try:
+        inner, box = domain.split_name(name)  # <effect>@held(...): mmg.domain
+        if box is not None:
+            return domain.within(get_effect(inner), box)
+    except (ValueError, KeyError) as exc:
+        raise KeyError(f"effect {name!r}: {exc.args[0]}") from None
     if name.startswith(DISCOVERED_PREFIX):
         try:
             return discovered.by_name(name)

@@ -234,6 +234,13 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
                 if c.delta_bic == c.delta_bic and abs(c.delta_bic) < float("inf")
             }
         )
+        metrics.update({f"heldout_gain/{key(c.effect)}": c.heldout_gain for c in result.candidates})
+        harm = report.get("harm")
+        if harm:
+            metrics["harm/harmful"] = float(harm["harmful"])
+            metrics["harm/harmed_subsets"] = float(len(harm["harmed_subsets"]))
+            metrics["harm/total_change"] = harm["total_change"]
+        metrics["departures"] = float(len({d.recording for d in result.departures}))
         if result.misfit is not None:
             metrics["misfit/ratio_to_floor"] = result.misfit.ratio
             metrics["misfit/z"] = result.misfit.z

@@ -93,6 +93,15 @@ QUANTITIES: tuple[Quantity, ...] = (
     Quantity("stopping.time", "crash stop", "time to stop", "time"),
 )
 QUANTITY = {q.key: q for q in QUANTITIES}
+#: the quantities each measurement returns, by kind of manoeuvre
+KEYS: dict[str, tuple[str, ...]] = {
+    "turning": (
+        "advance", "transfer", "tactical_diameter", "steady_diameter", "speed_loss", "time_90",
+        "time_180",
+    ),
+    "zigzag": ("initial_turning", "overshoot_1", "overshoot_2", "time_1", "time_2"),
+    "stopping": ("track_reach", "head_reach", "lateral_deviation", "time"),
+}  # fmt: skip
 
 
 def _crossing(values: FloatArray, level: float, start: int = 0) -> float:

@@ -78,7 +78,7 @@ QUANTITIES: tuple[Quantity, ...] = (
     Quantity("turning.speed_loss", "turning 35 deg", "speed loss", "ratio"),
     Quantity("turning.time_90", "turning 35 deg", "time to 90 deg", "time"),
     Quantity("turning.time_180", "turning 35 deg", "time to 180 deg", "time"),
-    Quantity("zigzag10.initial_turning", "zigzag 10/10", "track to 10 deg", "length"),
+    Quantity("zigzag10.initial_turning", "zigzag 10/10", "track to the check angle", "length"),
     Quantity("zigzag10.overshoot_1", "zigzag 10/10", "first overshoot", "angle"),
     Quantity("zigzag10.overshoot_2", "zigzag 10/10", "second overshoot", "angle"),
     Quantity("zigzag10.time_1", "zigzag 10/10", "time to first overshoot", "time"),

@@ -216,7 +216,7 @@ def simulate_zigzag(
     ship: Ship,
     first_side: float = 1.0,
     t0: float = 0.0,
-    max_executes: int = 6,
+    max_executes: int = 40,
     dt: float = DT,
 ) -> tuple[Runs, np.ndarray]:
     """A check/check zigzag (rudder angle = check angle ``check`` [rad], first to
@@ -466,16 +466,16 @@ def _replay_zigzag(
     """A zigzag run as the model steers it: from the recorded state at the first execute,
     under the recorded propeller and wind, the rudder reversed by the zigzag's rule at the
     model's own heading (check angle = rudder angle = the run's nominal angle), moving within
-    one sample as the recorded rudder does, as many executes as the recording has."""
+    one sample as the recorded rudder does."""
     R = rows.shape[0]
     rec = run.recording
     d = rec.u[run.k0 : run.end, 0]
-    executes, first_side = rudder_executes(d, 0)
+    _, first_side = rudder_executes(d, 0)
     check = math.radians(round(run.angle_deg))
     return simulate_zigzag(
         rows, np.tile(rec.x[run.k0], (R, 1)), np.tile(rec.u[run.k0 : run.end - 1, 1], (R, 1)),
         np.tile(rec.w[run.k0 : run.end - 1], (R, 1, 1)), check, 2.0 * check / DT, effects, ship,
-        first_side=first_side, t0=float(rec.t[run.k0]), max_executes=len(executes),
+        first_side=first_side, t0=float(rec.t[run.k0]),
     )  # fmt: skip
 
 

@@ -3,12 +3,18 @@ zigzag, a stop), the IMO criteria, the simulated manoeuvres and the command line
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
 import pytest
 
+from mmg import efd_parameters
+from mmg.integrate import derivatives
+from sweep.data.datasets import load_split
+from sweep.data.manoeuvre_tables import recorded_table, standard_table
 from sweep.data.manoeuvres import (
+    APPROACH_SPEED,
     SCALE,
     imo_criteria,
     measure_stopping,
@@ -18,6 +24,16 @@ from sweep.data.manoeuvres import (
     summarise,
     to_full_scale,
 )
+from sweep.data.standard_manoeuvres import (
+    RUDDER_RATE,
+    approach_revolutions,
+    compare_recorded,
+    find_manoeuvre,
+    parameter_rows,
+    predict_standard,
+)
+from sweep.evaluate import main
+from tests.conftest import kernels
 
 DT = 0.1
 
@@ -167,3 +183,104 @@ def test_froude_scaling_and_summaries():
     assert to_full_scale("zigzag20.overshoot_1", 7.0) == 7.0
     s = summarise([1.0, 2.0, np.nan, 3.0], (0.0, 1.0))
     assert (s["lo"], s["hi"], s["n"], s["missing"]) == (1.0, 3.0, 3.0, 1.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# the model's manoeuvres (compiled kernels: the base model's simulate and derivatives)
+
+kernel_marks = pytest.mark.kernels(*kernels((), "simulate", "derivatives"))
+
+
+def stand_in_samples(params, n, seed=0):
+    """A STAND-IN for the identification's parameter uncertainty, for these tests only: a
+    diagonal Gaussian of 3 % of each value around the estimate."""
+    v = params.vector()
+    return v + 0.03 * np.abs(v) * np.random.default_rng(seed).standard_normal((n, v.size))
+
+
+@kernel_marks
+def test_the_approach_revolution_holds_the_approach_speed():
+    p = efd_parameters()
+    rows = parameter_rows(p, stand_in_samples(p, 3))
+    n = approach_revolutions(rows, APPROACH_SPEED, (), p.ship)
+    assert np.all((n > 5.0) & (n < 15.0))
+    x = np.tile([0.0, APPROACH_SPEED, 0.0, 0.0, 0.0, 0.0], (4, 1))
+    u = np.stack([np.zeros(4), n], axis=1)
+    u_dot = derivatives(x, u, np.zeros((4, 2)), rows)[:, 1]
+    assert np.all(np.abs(u_dot) < 1e-9)
+
+
+@kernel_marks
+def test_standard_zigzag_reverses_at_the_first_sample_past_the_check_angle():
+    p = efd_parameters()
+    pred = predict_standard(p, stand_in_samples(p, 4))
+    for name, check in (("zigzag10", 10.0), ("zigzag20", 20.0)):
+        runs = pred.runs[name]
+        for lane in range(5):
+            ex, side = rudder_executes(runs.delta[lane], 0)
+            assert side == 1.0 and len(ex) >= 4
+            dev = np.degrees(runs.states[lane, :, 4])
+            for j, e in enumerate(ex[1:]):
+                s = 1.0 if j % 2 == 0 else -1.0  # the side the heading was turning to
+                assert s * dev[e] >= check > s * dev[e - 1]
+            # the rudder moves at the rate limit, never faster
+            rate = np.abs(np.diff(runs.delta[lane])) / DT
+            assert rate.max() <= RUDDER_RATE * (1 + 1e-9)
+    rows = standard_table(pred)
+    verdicts = {r["key"]: r["verdict"] for r in rows if "verdict" in r}
+    assert len(verdicts) == 7
+    for r in rows:
+        assert r["samples"] == 4 and r["lo"] <= r["hi"]
+
+
+@kernel_marks
+def test_recorded_turning_and_zigzag_runs(data_dir):
+    test = load_split("paper").load(data_dir)
+    runs = [find_manoeuvre(test[k], k) for k in ("Test-T", "Test-Z")]
+    assert [r.kind for r in runs] == ["turning", "zigzag"]
+    assert [round(r.angle_deg) for r in runs] == [35, 20]
+    assert test["Test-T"].t[runs[0].k0] == pytest.approx(159.9, abs=0.15)
+    assert find_manoeuvre(test["Test-R"]) is None and find_manoeuvre(test["Test-B-S"]) is None
+    p = efd_parameters()
+    # identical samples: the interval shrinks to the estimate's value
+    comparisons = compare_recorded(p, runs, [p, p])
+    turn = comparisons[0]
+    rec = test["Test-T"]
+    direct = measure_turning(rec.t[runs[0].k0 : runs[0].end], rec.x[runs[0].k0 : runs[0].end])
+    assert turn.measured == pytest.approx(direct, rel=1e-12)
+    for row in recorded_table(comparisons):
+        if not math.isnan(row["predicted"]):
+            assert row["lo"] == pytest.approx(row["predicted"], rel=1e-9)
+
+
+@kernel_marks
+def test_command_prints_the_manoeuvres_of_efd(data_dir, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("MMG_DATA_DIR", str(data_dir))
+    out = tmp_path / "m.json"
+    assert main(["--params", "efd", "--manoeuvres", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "Standard manoeuvres of efd" in printed and "tactical diameter" in printed
+    assert "intervals need parameter samples" in printed and "Test-Z" in printed
+    report = json.loads(out.read_text())["manoeuvres"]
+    assert {r["run"] for r in report["recorded"]} == {"Test-T", "Test-Z"}
+    advance = next(r for r in report["standard"] if r["key"] == "turning.advance")
+    assert advance["limit"] == 4.5 and advance["margin"] == pytest.approx(4.5 - advance["value"])
+    assert advance["value_m"] == pytest.approx(325.0 * advance["value"])
+    samples = tmp_path / "s.npy"
+    np.save(samples, stand_in_samples(efd_parameters(), 3))
+    fig = tmp_path / "m.png"
+    args = ["--params", "efd", "--manoeuvres", "--samples", str(samples), "--figure", str(fig)]
+    assert main(args) == 0
+    assert "over 3 parameter samples" in capsys.readouterr().out and fig.stat().st_size > 0
+
+
+def test_command_user_errors(tmp_path, capsys):
+    bad = tmp_path / "bad.npy"
+    np.save(bad, np.zeros((2, 5)))
+    assert main(["--params", "efd", "--manoeuvres", "--samples", str(bad)]) == 2
+    assert "shape (S, 57)" in capsys.readouterr().err
+    assert main(["--params", "efd", "--manoeuvres", "--samples", str(tmp_path / "no.npy")]) == 2
+    assert "no such samples file" in capsys.readouterr().err
+    (tmp_path / "text.npy").write_text("not an array")
+    assert main(["--params", "efd", "--manoeuvres", "--samples", str(tmp_path / "text.npy")]) == 2
+    assert "text.npy" in capsys.readouterr().err

@@ -12,7 +12,7 @@ import pytest
 from mmg import efd_parameters
 from mmg.integrate import derivatives
 from sweep.data.datasets import load_split
-from sweep.data.manoeuvre_tables import recorded_table, standard_table
+from sweep.data.manoeuvre_tables import manoeuvre_metrics, recorded_table, standard_table
 from sweep.data.manoeuvres import (
     APPROACH_SPEED,
     SCALE,
@@ -231,6 +231,11 @@ def test_standard_zigzag_reverses_at_the_first_sample_past_the_check_angle():
     assert len(verdicts) == 7
     for r in rows:
         assert r["samples"] == 4 and r["lo"] <= r["hi"]
+    metrics = manoeuvre_metrics(pred)
+    advance = next(r for r in rows if r["key"] == "turning.advance")
+    assert metrics["manoeuvre.turning.advance"] == advance["value"]
+    assert metrics["manoeuvre.turning.advance_hi"] == advance["hi"]
+    assert metrics["manoeuvre.turning.advance_margin"] == pytest.approx(4.5 - advance["value"])
 
 
 @kernel_marks

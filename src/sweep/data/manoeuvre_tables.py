@@ -177,15 +177,16 @@ def format_standard(rows: Sequence[Row], title: str = "") -> str:
 def format_recorded(rows: Sequence[Row], title: str = "") -> str:
     """The recorded-against-predicted table as fixed-width text."""
     lines = [title] if title else []
+    w = max([len(r["run"]) + 2 for r in rows] + [8])
     lines.append(
-        f"{'run':<30}{'manoeuvre':<15}{'quantity':<25}{'unit':>5}{'measured':>10}"
+        f"{'run':<{w}}{'manoeuvre':<15}{'quantity':<25}{'unit':>5}{'measured':>10}"
         f"{'model':>9}{'interval':>19}  inside"
     )
     for r in rows:
         interval = f"[{_cell(r['lo'])}, {_cell(r['hi'])}]" if r["samples"] else "-"
         inside = {True: "yes", False: "NO", None: "-"}[r["inside"]]
         lines.append(
-            f"{r['run']:<30}{r['manoeuvre']:<15}{r['quantity']:<25}{r['unit']:>5}"
+            f"{r['run']:<{w}}{r['manoeuvre']:<15}{r['quantity']:<25}{r['unit']:>5}"
             f"{_cell(r['measured']):>10}{_cell(r['predicted']):>9}{interval:>19}  {inside}"
         )
     return "\n".join(lines)

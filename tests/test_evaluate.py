@@ -97,3 +97,12 @@ def test_command_line_entry_point_has_no_traceback(tmp_path, data_dir):
     )
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr and "nonexistent.json" in proc.stderr
+
+
+def test_a_source_is_required_and_manoeuvre_flags_need_manoeuvres(capsys):
+    for argv in (["--params", "efd"], ["--params", "efd", "--set", "test", "--figure", "f.png"]):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "--manoeuvres is required" in err and "go with --manoeuvres" in err

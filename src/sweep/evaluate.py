@@ -3,7 +3,9 @@
 Usage::
 
     python -m sweep.evaluate --params {efd|PATH.json} (--set test | --recordings PATH [PATH ...])
+                             [--manoeuvres [--samples S.npy] [--figure PNG]]
                              [--json OUT] [--data-root DIR]
+    python -m sweep.evaluate --params {efd|PATH.json} --manoeuvres [--samples S.npy] ...
 
 ``--set test`` is the paper's test set under the data root (``--data-root``, else $MMG_DATA_DIR,
 else the user cache; see :func:`sweep.data.datasets.data_root`); ``--set R|TR|TZR`` a training set.
@@ -11,6 +13,14 @@ else the user cache; see :func:`sweep.data.datasets.data_root`); ``--set R|TR|TZ
 objective; for the test set the columns are those of the paper (Test-B-S, Test-B-P,
 Test-B-S + Test-B-P, Test-R, Test-T, Test-Z, Total), otherwise one column per recording file and
 Total. ``--json OUT`` writes ``{"J1": {column: value}, "J2": {...}, "J3": {...}}``.
+
+``--manoeuvres`` adds the standard manoeuvres (turning circle, 10/10 and 20/20 zigzags, crash
+stop) at full scale with the margins to the IMO criteria, and the turning and zigzag runs among
+the recordings (without ``--set`` and ``--recordings``: the test set's Test-T and Test-Z)
+against the model's prediction (:mod:`sweep.data.standard_manoeuvres`); in the JSON under
+``"manoeuvres"``. Intervals need parameter samples: ``--samples S.npy`` (an array (S, n) of
+flat parameter vectors, e.g. drawn from the identification's uncertainty); without them the
+tables hold point values. ``--figure PNG`` draws the predicted manoeuvres over the recorded runs.
 
 A user mistake (a bad recording, a bad parameter file, missing data) exits with status 2 and a
 message that names the file and the problem; never a traceback.
@@ -24,13 +34,30 @@ import sys
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 from mmg import Effect, get_effect
 from mmg.params import Parameters
 from sweep.data.datasets import load_split
+from sweep.data.manoeuvre_figures import plot_manoeuvres
+from sweep.data.manoeuvre_tables import (
+    format_recorded,
+    format_standard,
+    recorded_table,
+    settings_note,
+    standard_table,
+)
 from sweep.data.objective import OBJECTIVES, Objective
 from sweep.data.parameters import load_parameters
 from sweep.data.recordings import Recording, read_recordings
+from sweep.data.standard_manoeuvres import (
+    RecordedRun,
+    compare_recorded,
+    find_manoeuvre,
+    predict_standard,
+)
 from sweep.errors import USER_ERRORS, UserError
 
 #: the paper's column order (Tables 6-8)
@@ -101,24 +128,97 @@ def _recordings_from_set(name: str, root: str | None) -> tuple[list[Recording], 
     return recs, [Path(rel).name for rel in split.files], False
 
 
-def run(argv: Sequence[str] | None = None) -> Table:
-    """Parse arguments, evaluate, print; returns the table (raises UserError on bad input)."""
+def load_samples(path: str) -> np.ndarray:
+    """Parameter samples (S, n) from a .npy file (a UserError naming the file otherwise)."""
+    p = Path(path)
+    if not p.is_file():
+        raise UserError(f"{p}: no such samples file (a .npy array of parameter vectors)")
+    try:
+        samples = np.load(p, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise UserError(f"{p}: not a .npy array of parameter vectors ({exc})") from None
+    if samples.ndim != 2 or samples.dtype.kind not in "fi":
+        raise UserError(f"{p}: expected a numeric array (S, n) of parameter vectors")
+    return np.asarray(samples, dtype=np.float64)
+
+
+def manoeuvre_runs(recs: Sequence[Recording], labels: Sequence[str]) -> list[RecordedRun]:
+    """The turning and zigzag runs among ``recs`` (the others are left out)."""
+    found = (find_manoeuvre(rec, label) for rec, label in zip(recs, labels, strict=True))
+    return [r for r in found if r is not None]
+
+
+def manoeuvres(
+    params: Parameters,
+    runs: Sequence[RecordedRun],
+    samples: Any = None,
+    figure: str | None = None,
+    name: str = "",
+) -> dict[str, Any]:
+    """Print the standard manoeuvres and the recorded runs against the model; return both
+    tables as rows (``"standard"``, ``"recorded"``) with the settings (``"note"``).
+
+    ``samples``: None, or parameter vectors (S, n) / a sequence of Parameters for intervals
+    (e.g. drawn from the identification's uncertainty)."""
+    effects = effects_of(params)
+    pred = predict_standard(params, samples, effects)
+    comparisons = compare_recorded(params, runs, samples, effects)
+    standard, recorded = standard_table(pred), recorded_table(comparisons, L=params.ship.L_pp)
+    note = settings_note(pred)
+    if samples is None:
+        note += (
+            " Point values only: intervals need parameter samples (--samples, e.g. drawn from "
+            "the identification's uncertainty)."
+        )
+    else:
+        note += f" Intervals: 5-95 % over {pred.n_samples} parameter samples."
+    print(format_standard(standard, f"Standard manoeuvres of {name}"))
+    print(note)
+    if comparisons:
+        print(format_recorded(recorded, "\nRecorded runs against the model (model scale)"))
+    else:
+        print("\nNo turning or zigzag run among the recordings.")
+    if figure:
+        plot_manoeuvres(pred, comparisons, figure, title=f"Manoeuvres of {name}")
+    return {"note": note, "standard": _json_ready(standard), "recorded": _json_ready(recorded)}
+
+
+def _json_ready(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Rows with NaN (a quantity not reached) as None, which JSON can hold."""
+    return [
+        {k: None if isinstance(v, float) and v != v else v for k, v in row.items()} for row in rows
+    ]
+
+
+def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    """Parse arguments, evaluate, print; returns the table (J1-J3 and, with --manoeuvres,
+    ``"manoeuvres"``; raises UserError on bad input)."""
     ap = argparse.ArgumentParser(
         prog="python -m sweep.evaluate", description=__doc__.splitlines()[0]
     )
     ap.add_argument("--params", required=True, help="'efd' or a parameter JSON file")
-    src = ap.add_mutually_exclusive_group(required=True)
+    src = ap.add_mutually_exclusive_group()
     src.add_argument("--set", dest="set_name", help="'test' (the paper's test set), R, TR or TZR")
     src.add_argument("--recordings", nargs="+", help="CSV/Parquet files or directories")
     ap.add_argument("--json", dest="json_out", help="write the table as JSON to this file")
     ap.add_argument("--data-root", help="data directory (default: $MMG_DATA_DIR or user cache)")
+    ap.add_argument(
+        "--manoeuvres", action="store_true", help="standard manoeuvres and recorded runs"
+    )
+    ap.add_argument("--samples", help="with --manoeuvres: parameter samples (S, n) in a .npy")
+    ap.add_argument("--figure", help="with --manoeuvres: draw the manoeuvres to this PNG")
     args = ap.parse_args(argv)
+    if not (args.set_name or args.recordings or args.manoeuvres):
+        ap.error("one of the arguments --set --recordings --manoeuvres is required")
+    if (args.samples or args.figure) and not args.manoeuvres:
+        ap.error("--samples and --figure go with --manoeuvres")
 
     params = load_parameters(args.params)
+    samples = load_samples(args.samples) if args.samples else None
     if args.set_name:
         name = "paper" if args.set_name.lower() == "test" else args.set_name
         recs, labels, is_test = _recordings_from_set(name, args.data_root)
-    else:
+    elif args.recordings:
         missing = [p for p in args.recordings if not Path(p).exists()]
         if missing:
             raise UserError(f"{missing[0]}: no such file or directory")
@@ -127,14 +227,23 @@ def run(argv: Sequence[str] | None = None) -> Table:
             raise UserError(f"no CSV or Parquet recordings found in {' '.join(args.recordings)}")
         labels = [r.path.name if r.path else r.name for r in recs]
         is_test = False
-    table = evaluate_table(params, recs, labels)
-    if is_test:
-        table = paper_layout(table)
-    title = f"J1, J2, J3 of {args.params} on {args.set_name or 'the recordings'}"
-    print(format_table(table, title))
+    else:  # --manoeuvres alone: the test set's turning and zigzag runs
+        loaded = load_split("paper").load(args.data_root)
+        recs, labels, is_test = [loaded["Test-T"], loaded["Test-Z"]], ["Test-T", "Test-Z"], False
+    out: dict[str, Any] = {}
+    if args.set_name or args.recordings:
+        table = evaluate_table(params, recs, labels)
+        if is_test:
+            table = paper_layout(table)
+        title = f"J1, J2, J3 of {args.params} on {args.set_name or 'the recordings'}"
+        print(format_table(table, title))
+        out.update(table)
+    if args.manoeuvres:
+        runs = manoeuvre_runs(recs, labels)
+        out["manoeuvres"] = manoeuvres(params, runs, samples, args.figure, args.params)
     if args.json_out:
-        Path(args.json_out).write_text(json.dumps(table, indent=2) + "\n")
-    return table
+        Path(args.json_out).write_text(json.dumps(out, indent=2) + "\n")
+    return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -250,9 +250,17 @@ def test_a_finding_fitted_in_one_regime_is_held_beyond_it_and_the_test_run_is_na
     md = (out / "report.md").read_text()
     assert "## Where the finding holds" in md and f"{test_name}: n_p to" in md
     assert report["J_after_unbounded"]["J2"]["Total"] > 0
-    # the parameters after carry the bounded finding and evaluate through the command
+    # the parameters after carry the bounded finding; evaluated on a recording beyond its box,
+    # the command names the recording
     after = json.loads((out / "params_after.json").read_text())
     assert found in after["effects"]
+    from sweep.evaluate import run as evaluate_run
+
+    table = evaluate_run(
+        ["--params", str(out / "params_after.json"), "--recordings", str(case / "test")]
+    )
+    assert table["J2"]["Total"] == pytest.approx(report["J_after"]["J2"]["Total"], rel=1e-9)
+    assert {(d["effect"], d["variable"]) for d in table["departures"]} >= {(found, "n_p")}
 
 
 def test_user_mistakes_are_one_line_errors(runs, tmp_path, capsys):

@@ -13,6 +13,9 @@ else the user cache; see :func:`sweep.data.datasets.data_root`); ``--set R|TR|TZ
 objective; for the test set the columns are those of the paper (Test-B-S, Test-B-P,
 Test-B-S + Test-B-P, Test-R, Test-T, Test-Z, Total), otherwise one column per recording file and
 Total. ``--json OUT`` writes ``{"J1": {column: value}, "J2": {...}, "J3": {...}}``.
+A parameter set with a bounded effect (``<effect>@held(...)``, as the diagnosis writes it) also
+names every recording that leaves the box of states the effect was fitted on (``departures`` in
+the JSON).
 
 ``--manoeuvres`` adds the standard manoeuvres (turning circle, 10/10 and 20/20 zigzags, crash
 stop) at full scale with the margins to the IMO criteria, and the turning and zigzag runs among
@@ -39,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from mmg import Effect, get_effect
+from mmg.domain import split_name
 from mmg.params import Parameters
 from sweep.data.datasets import load_split
 from sweep.data.manoeuvre_figures import plot_manoeuvres
@@ -51,6 +55,7 @@ from sweep.data.manoeuvre_tables import (
 )
 from sweep.data.objective import OBJECTIVES, Objective
 from sweep.data.parameters import load_parameters
+from sweep.data.ranges import Ranges, departures
 from sweep.data.recordings import Recording, read_recordings
 from sweep.data.standard_manoeuvres import (
     RecordedRun,
@@ -190,6 +195,27 @@ def _json_ready(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     ]
 
 
+def domain_departures(
+    params: Parameters, recs: Sequence[Recording], labels: Sequence[str]
+) -> list[dict[str, Any]]:
+    """The recordings that leave the box of states a bounded effect of ``params`` was fitted
+    on (``<effect>@held(...)``, :mod:`mmg.domain`), printed: effect, recording, variable and by
+    how much."""
+    out: list[dict[str, Any]] = []
+    for name, _ in params.effects:
+        inner, box = split_name(name)
+        if box is None:
+            continue
+        found = departures(Ranges.of_domain(box), recs, labels, params.ship)
+        how = "held at its boundary value" if box.mode == "held" else "switched off"
+        if found:
+            print(f"\nBeyond the states {inner} was fitted on ({how} there):")
+        for d in found:
+            print(f"  {d.text()}")
+            out.append({"effect": name, **d.as_dict()})
+    return out
+
+
 def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """Parse arguments, evaluate, print; returns the table (J1-J3 and, with --manoeuvres,
     ``"manoeuvres"``; raises UserError on bad input)."""
@@ -238,6 +264,9 @@ def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
         title = f"J1, J2, J3 of {args.params} on {args.set_name or 'the recordings'}"
         print(format_table(table, title))
         out.update(table)
+        beyond = domain_departures(params, recs, labels)
+        if beyond:
+            out["departures"] = beyond
     if args.manoeuvres:
         runs = manoeuvre_runs(recs, labels)
         out["manoeuvres"] = manoeuvres(params, runs, samples, args.figure, args.params)

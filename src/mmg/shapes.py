@@ -251,6 +251,9 @@ class Group:
             raise ValueError(f"unknown scale {self.scale!r}; known: {', '.join(SCALES)}")
         if self.scale and m in FORCES:
             raise ValueError(f"a shape times the force {m} takes no scale")
+        default = VARIABLES[self.variable].scale if self.variable != "1" else "U2"
+        if self.scale == default:  # one spelling of each group: the default scale is implied
+            object.__setattr__(self, "scale", "")
 
     @property
     def text(self) -> str:

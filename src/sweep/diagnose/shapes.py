@@ -12,8 +12,9 @@ prior's rows) projected out, and the images of the columns held out.
 *held-out* gain: base and shapes fitted (linearised, each shape with its second-difference
 penalty lambda c' D'D c) on one fold's windows, the gain measured on the other fold's windows
 without refitting, both ways round; each added group must raise the held-out gain by
-``min_gain`` of what the groups before it reached. The smoothing of each group is chosen with
-it, on the same held-out gain, from a grid relative to the group's own column scale. The
+``min_gain`` of what the groups before it reached, and lower the in-sample dBIC. The smoothing
+of each group is chosen with it, on the same held-out gain, from a grid relative to the group's
+own column scale. The
 statistic compared with the null is the in-sample linearised dBIC with the effective degrees of
 freedom (the trace of the hat matrix) in place of the number of coefficients;
 :meth:`ShapeColumns.null_dbic` gives the same statistic for noise-only residual vectors.
@@ -66,7 +67,10 @@ N_BASIS = 8
 #: the knots span these quantiles of a variable over the training windows
 RANGE_QUANTILES = (0.005, 0.995)
 #: smoothing grid: lambda = kappa x the mean diagonal of the group's projected Gram matrix
-KAPPAS = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
+KAPPAS = (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)
+#: weight of the centring of a shape whose level another chosen group carries: the penalty
+#: CENTRE_WEIGHT x the group's column scale x (sum of its coefficients)^2 / n, for the joint fit
+CENTRE_WEIGHT = 1e3
 #: float64 residuals per simulation batch of the columns [bytes]
 BATCH_BYTES = 2**28
 
@@ -126,6 +130,31 @@ class Unit:
     def label(self) -> str:
         return self.group.text
 
+    @property
+    def kind(self) -> tuple[str, str, str]:
+        """(component, scaling, multiplier): units of one kind share the constant function."""
+        g = self.group
+        return g.components, g.scale_name, g.multiplier
+
+
+def _centred(n: int) -> FloatArray:
+    """(n, n - 1) orthonormal basis of the coefficient vectors that sum to 0 (for n = 1: no
+    column; a constant group of a kind already chosen adds nothing)."""
+    U = np.linalg.svd(np.ones((n, 1)))[0]
+    return np.asarray(U[:, 1:])
+
+
+def _block_diag(blocks: Sequence[FloatArray]) -> FloatArray:
+    rows = sum(b.shape[0] for b in blocks)
+    cols = sum(b.shape[1] for b in blocks)
+    out = np.zeros((rows, cols))
+    i = j = 0
+    for b in blocks:
+        out[i : i + b.shape[0], j : j + b.shape[1]] = b
+        i += b.shape[0]
+        j += b.shape[1]
+    return out
+
 
 @dataclass
 class ShapeSelection:
@@ -134,7 +163,7 @@ class ShapeSelection:
     ``coefficients``: per group its linearised coefficients (fit on all windows, with the
     penalty), ``penalties``: per group the matrix P = lambda D'D (coefficient units, added to
     J: J + c'Pc), ``heldout_gain``: the held-out gain with 1, 2, ... groups as a share of the
-    control fits' J, ``edf``: per group its effective degrees of freedom (trace of the hat
+    control fits' held-out J, ``edf``: per group its effective degrees of freedom (trace of the hat
     matrix, mean of the two folds' fits), ``dbic``: in-sample linearised dBIC with sum(edf) in
     the penalty, ``absorbed``: per group the share of its columns the base imitates."""
 
@@ -165,18 +194,31 @@ class ShapeSelection:
 
     def penalty(self) -> FloatArray:
         """(k, k) block-diagonal penalty of all chosen coefficients, parameter order."""
-        k = sum(p.shape[0] for p in self.penalties)
-        out = np.zeros((k, k))
-        i = 0
-        for p in self.penalties:
-            out[i : i + p.shape[0], i : i + p.shape[0]] = p
-            i += p.shape[0]
-        return out
+        return _block_diag(self.penalties)
 
 
-#: what the selection gives for one residual vector: ((unit, kappa) chosen, held-out gain path,
-#: J of the control fits, edf per chosen unit, dBIC)
-_Row = tuple[list[tuple[int, float]], list[float], float, list[float], float]
+#: what the selection gives for one residual vector: ((unit, kappa) chosen, held-out gain path
+#: as a share of the control fits' held-out J, edf per chosen unit, dBIC)
+_Row = tuple[list[tuple[int, float]], list[float], list[float], float]
+
+
+@dataclass(frozen=True)
+class _Options:
+    max_groups: int
+    min_gain: float
+    kappas: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class _Sides:
+    """The residual's side of the fits for D residual vectors: per fit fold L'Rf (T, D), per
+    (fit, held-out) pair E'ho0 (T, D), the control fits' J summed over the folds (D,) and
+    their held-out J summed over the pairs (D,)."""
+
+    c: list[FloatArray]
+    eh: list[FloatArray]
+    J0: FloatArray
+    Jho: FloatArray
 
 
 class _Part:
@@ -272,12 +314,12 @@ class ShapeColumns:
 
     # -- the residual's side of the fits ------------------------------------------------------
 
-    def _sides(self, R: FloatArray) -> tuple[list[FloatArray], list[FloatArray], FloatArray]:
-        """For residual vectors R (S, M, D): per fit fold c = L'Rf (T, D); per (fit j,
-        held-out k) pair E'ho0 (T, D); the control fits' J summed over the folds (D,)."""
+    def _sides(self, R: FloatArray) -> _Sides:
+        """The residual's side of the fits for residual vectors R (S, M, D)."""
         lin = self.lin
         cs, ehs = [], []
         J0 = np.zeros(R.shape[-1])
+        Jho = np.zeros(R.shape[-1])
         for p in self.parts:
             f = p.fold
             Rf = f.resid(f.stack(R))
@@ -288,8 +330,9 @@ class ShapeColumns:
             fk = pk.fold
             Ak = fk.rows(lin.A)
             ho0 = fk.rows(R) - Ak @ fj.base_coef(fj.stack(R))
+            Jho += (ho0 * ho0).sum(axis=0)
             ehs.append(_tmul(self.lib, fk.ix, ho0) - self.parts[j].B.T @ (Ak.T @ ho0))
-        return cs, ehs, J0
+        return _Sides(cs, ehs, J0, Jho)
 
     def _held(self, j: int, k: int) -> FloatArray:
         """E'E (T, T) of the columns fitted on fold j and held out on fold k."""
@@ -300,69 +343,94 @@ class ShapeColumns:
     # -- the fits -----------------------------------------------------------------------------
 
     def _fit(
-        self, part: _Part, c: FloatArray, chosen: Sequence[tuple[int, float]]
-    ) -> tuple[FloatArray, FloatArray, list[FloatArray]]:
-        """Penalised least squares of the units ``chosen`` ((unit, kappa) pairs) on one fold:
-        (coefficients a, the columns' indices, each unit's penalty matrix). The fitted residual
-        is Rf + L a; lambda = kappa x the mean diagonal of the unit's projected Gram matrix."""
+        self, part: _Part, c: FloatArray, chosen: Sequence[tuple[int, float]], edf: bool = False
+    ) -> tuple[FloatArray, FloatArray, list[FloatArray], list[float]]:
+        """Penalised least squares of the units ``chosen`` ((unit, kappa) pairs, in the order
+        chosen) on one fold: (coefficients a, the columns' indices, each unit's penalty matrix
+        in coefficient units, each unit's effective degrees of freedom if ``edf``). The fitted
+        residual is Rf + L a; lambda = kappa x the mean diagonal of the unit's projected Gram
+        matrix. A unit whose level another chosen unit of its kind already carries (same
+        component, scaling and multiplier: the constant is in every spline's span) is fitted
+        centred (its coefficients sum to 0), and its penalty holds it there
+        (:data:`CENTRE_WEIGHT`)."""
         idx = np.concatenate([self.units[u].columns for u, _ in chosen]).astype(int)
-        H = part.LL[np.ix_(idx, idx)].copy()
-        pens = []
-        i = 0
+        Zs, pens, reduced = [], [], []
+        seen: set[tuple[str, str, str]] = set()
+        diag = np.diag(part.LL)
         for u, kappa in chosen:
-            cols = list(self.units[u].columns)
-            scale = float(np.mean(np.diag(part.LL)[cols]))
-            P = kappa * max(scale, 0.0) * difference_penalty(len(cols))
-            H[i : i + len(cols), i : i + len(cols)] += P
+            unit = self.units[u]
+            n = len(unit.columns)
+            scale = max(float(np.mean(diag[list(unit.columns)])), 0.0)
+            P = kappa * scale * difference_penalty(n)
+            Z = _centred(n) if unit.kind in seen else np.eye(n)
+            seen.add(unit.kind)
+            reduced.append(Z.T @ P @ Z)
+            if Z.shape[1] < n:
+                P = P + CENTRE_WEIGHT * scale * np.ones((n, n)) / n
+            Zs.append(Z)
             pens.append(P)
-            i += len(cols)
-        H[np.diag_indices_from(H)] += 1e-12 * max(float(np.trace(H)), 1e-300) / len(idx)
-        return -np.linalg.solve(H, c[idx]), idx, pens
+        Z = _block_diag(Zs)
+        LLz = Z.T @ part.LL[np.ix_(idx, idx)] @ Z
+        H = LLz + _block_diag(reduced)
+        H[np.diag_indices_from(H)] += 1e-12 * max(float(np.trace(H)), 1e-300) / max(len(H), 1)
+        a = -Z @ np.linalg.solve(H, Z.T @ c[idx])
+        dof: list[float] = []
+        if edf:
+            hat = np.diag(np.linalg.solve(H, LLz))
+            i = 0
+            for Zu in Zs:
+                dof.append(float(hat[i : i + Zu.shape[1]].sum()))
+                i += Zu.shape[1]
+        return a, idx, pens, dof
 
     def _candidates(self) -> list[int]:
         """Units that can be chosen: columns not (nearly) all imitated by the base."""
         return [u for u in range(len(self.units)) if self.absorbed[u] < 1.0 - MIN_FREE]
 
     def _forward(
-        self,
-        cs: Sequence[FloatArray],
-        ehs: Sequence[FloatArray],
-        EEs: Sequence[FloatArray],
-        max_groups: int,
-        min_gain: float,
-        kappas: Sequence[float],
-    ) -> tuple[list[tuple[int, float]], list[float]]:
-        """Forward selection of (unit, kappa) by the held-out gain summed over both pairs."""
-        pairs = ((0, 1), (1, 0))
+        self, sides: _Sides, d: int, EEs: Sequence[FloatArray], n_eff: float, opts: _Options
+    ) -> _Row:
+        """Forward selection of (unit, kappa) for residual vector d: the best held-out gain
+        summed over both pairs, kept while it raises the held-out gain by ``min_gain`` of the
+        gain so far and lowers the in-sample dBIC."""
+        cs = [c[:, d] for c in sides.c]
+        ehs = [e[:, d] for e in sides.eh]
+        J0 = float(sides.J0[d])
 
         def heldout(chosen: list[tuple[int, float]]) -> float:
             total = 0.0
-            for (j, _), eh, EE in zip(pairs, ehs, EEs, strict=True):
-                a, idx, _ = self._fit(self.parts[j], cs[j], chosen)
+            for j, eh, EE in zip((0, 1), ehs, EEs, strict=True):
+                a, idx, _, _ = self._fit(self.parts[j], cs[j], chosen)
                 total -= float(2.0 * (a @ eh[idx]) + a @ EE[np.ix_(idx, idx)] @ a)
             return total
 
         chosen: list[tuple[int, float]] = []
         path: list[float] = []
-        best = 0.0
+        best, dbic, edf = 0.0, 0.0, []
         pool = self._candidates()
-        for _ in range(max_groups):
+        for _ in range(opts.max_groups):
             taken = {u for u, _ in chosen}
+            kinds = {self.units[u].kind for u in taken}
             trials = [
                 (heldout([*chosen, (u, kap)]), u, kap)
                 for u in pool
-                if u not in taken
-                for kap in (kappas if self.units[u].group.n > 2 else kappas[:1])
+                if u not in taken and (self.units[u].group.n > 1 or self.units[u].kind not in kinds)
+                for kap in (opts.kappas if self.units[u].group.n > 2 else opts.kappas[:1])
             ]
             if not trials:
                 break
             g, u, kap = max(trials)
-            if not np.isfinite(g) or g <= 0.0 or g <= best * (1.0 + min_gain):
+            if not np.isfinite(g) or g <= 0.0 or g <= best * (1.0 + opts.min_gain):
+                break
+            gain, dof = self._insample(cs, [*chosen, (u, kap)])
+            ratio = max((J0 - gain) / J0, 1e-12) if J0 > 0 else 1.0
+            new = float(n_eff * np.log(ratio) + sum(dof) * np.log(n_eff))
+            if new >= dbic:
                 break
             chosen.append((u, kap))
-            path.append(g)
-            best = g
-        return chosen, path
+            path.append(g / max(float(sides.Jho[d]), 1e-300))
+            best, dbic, edf = g, new, dof
+        return chosen, path, edf, dbic
 
     def _insample(
         self, cs: Sequence[FloatArray], chosen: list[tuple[int, float]]
@@ -371,48 +439,18 @@ class ShapeColumns:
         gain = 0.0
         edf = np.zeros(len(chosen))
         for part, c in zip(self.parts, cs, strict=True):
-            a, idx, pens = self._fit(part, c, chosen)
-            LL = part.LL[np.ix_(idx, idx)]
-            gain -= float(2.0 * (a @ c[idx]) + a @ LL @ a)
-            H = LL.copy()
-            i = 0
-            for P in pens:
-                H[i : i + P.shape[0], i : i + P.shape[0]] += P
-                i += P.shape[0]
-            hat = np.diag(np.linalg.solve(H + 1e-12 * np.trace(H) * np.eye(len(idx)), LL))
-            i = 0
-            for q, P in enumerate(pens):
-                edf[q] += float(hat[i : i + P.shape[0]].sum()) / len(self.parts)
-                i += P.shape[0]
+            a, idx, _, dof = self._fit(part, c, chosen, edf=True)
+            gain -= float(2.0 * (a @ c[idx]) + a @ part.LL[np.ix_(idx, idx)] @ a)
+            edf += np.asarray(dof) / len(self.parts)
         return gain, [float(e) for e in edf]
 
-    def _statistic(
-        self,
-        R: FloatArray,
-        n_eff: float,
-        max_groups: int,
-        min_gain: float,
-        kappas: Sequence[float],
-    ) -> list[_Row]:
-        """Per residual vector of R (S, M, D): (chosen, held-out path, J0, edf, dBIC)."""
+    def _statistic(self, R: FloatArray, n_eff: float, opts: _Options) -> list[_Row]:
+        """:meth:`_forward` for every residual vector of R (S, M, D)."""
         if len(self.parts) != 2:
             raise ValueError("the shape selection needs two folds")
-        cs, ehs, J0 = self._sides(R)
+        sides = self._sides(R)
         EEs = [self._held(0, 1), self._held(1, 0)]
-        out: list[_Row] = []
-        for d in range(R.shape[-1]):
-            c_d = [c[:, d] for c in cs]
-            chosen, path = self._forward(
-                c_d, [e[:, d] for e in ehs], EEs, max_groups, min_gain, kappas
-            )
-            if not chosen:
-                out.append((chosen, path, float(J0[d]), [], 0.0))
-                continue
-            gain, edf = self._insample(c_d, chosen)
-            ratio = max((float(J0[d]) - gain) / float(J0[d]), 1e-12)
-            dbic = float(n_eff * np.log(ratio) + sum(edf) * np.log(n_eff))
-            out.append((chosen, path, float(J0[d]), edf, dbic))
-        return out
+        return [self._forward(sides, d, EEs, n_eff, opts) for d in range(R.shape[-1])]
 
     def select(
         self,
@@ -425,16 +463,15 @@ class ShapeColumns:
     ) -> ShapeSelection:
         """The groups chosen for the base's residual vector ``r`` (S, M) (see the module
         docstring), with their coefficients fitted (linearised, penalised) on all windows."""
-        chosen, path, J0, edf, dbic = self._statistic(
-            r[..., None], n_eff, max_groups, min_gain, kappas
-        )[0]
+        opts = _Options(max_groups, min_gain, tuple(kappas))
+        chosen, path, edf, dbic = self._statistic(r[..., None], n_eff, opts)[0]
         coefficients: list[list[float]] = []
         penalties: list[FloatArray] = []
         if chosen:
             f = self.lin.all
             Rf = f.resid(f.stack(r[..., None]))
             c = _tmul(self.lib, f.ix, Rf[: len(f.ix) * r.shape[1]])[:, 0]
-            a, _, penalties = self._fit(self.all, c, chosen)
+            a, _, penalties, _ = self._fit(self.all, c, chosen)
             i = 0
             for u, _ in chosen:
                 n = len(self.units[u].columns)
@@ -444,7 +481,7 @@ class ShapeColumns:
             groups=[self.units[u].group for u, _ in chosen],
             coefficients=coefficients,
             penalties=penalties,
-            heldout_gain=[g / J0 for g in path],
+            heldout_gain=path,
             edf=edf,
             dbic=dbic,
             absorbed=[float(self.absorbed[u]) for u, _ in chosen],
@@ -462,5 +499,5 @@ class ShapeColumns:
     ) -> FloatArray:
         """(D,) the statistic of :meth:`select` (dBIC, 0 when nothing is chosen) for residual
         vectors R (S, M, D), e.g. of noise-only copies of the windows: its null distribution."""
-        rows = self._statistic(R, n_eff, max_groups, min_gain, kappas)
+        rows = self._statistic(R, n_eff, _Options(max_groups, min_gain, tuple(kappas)))
         return np.array([row[-1] for row in rows])

@@ -24,6 +24,7 @@ from mmg.shapes import (
     parse,
     penalty,
     penalty_matrix,
+    probe_rows,
     shape_effect,
     shape_name,
     variable_values,
@@ -158,6 +159,27 @@ def test_the_hook_adds_the_scaled_shapes() -> None:
     assert force(prod, u, v_m, r)[0] == pytest.approx(q * U2 * v_m / Ue, rel=1e-12)
 
 
+def test_the_probe_gives_the_force_of_each_coefficient() -> None:
+    """The probe (parameters G, C, J, A) gives exactly the force of the shape effect with its
+    coefficient (G, C, J) at A and every other at 0, ahead and astern; A = 0 gives nothing."""
+    p = efd_parameters()
+    eff = get_effect(HOOK_SPEC)
+    probe = get_effect(HOOK_SPEC + "#probe")
+    assert probe.param_names == ("G", "C", "J", "A") and probe.neutral() == (0.0,) * 4
+    rows = probe_rows(eff, 0.7)
+    assert rows.shape == (22, 4) and rows[12].tolist() == [1.0, 2.0, 0.0, 0.7]
+    for u, v_m in ((0.5, -0.08), (-0.3, 0.05)):
+        args = (12.0, 1.0, 2.0, u, v_m, 0.02, 0.3, 0.1, 10.0, 1.0, 0.5)
+        for i, row in enumerate(rows):
+            values = np.zeros(22)
+            values[i] = 0.7
+            want = eff.force_at(*args, eff.param_type(*values), p.theta, p.ship)
+            got = probe.force_at(*args, probe.param_type(*row), p.theta, p.ship)
+            assert got == pytest.approx(want, rel=1e-12, abs=1e-300), (i, u)
+        nothing = probe.force_at(*args, probe.param_type(1.0, 2.0, 3.0, 0.0), p.theta, p.ship)
+        assert nothing == (0.0, 0.0, 0.0)
+
+
 def test_variables_from_recorded_samples() -> None:
     """The variables as the hook sees them, from recorded samples (for the knot ranges)."""
     p = efd_parameters()
@@ -259,7 +281,11 @@ def small_case(data_dir: Path):
 
 
 @pytest.mark.integration  # compiles the kernel of a shape effect
-@pytest.mark.kernels(*kernels((), "simulate", "moments"), *kernels((SELECT_SPEC,), "simulate"))
+@pytest.mark.kernels(
+    *kernels((), "simulate", "moments"),
+    *kernels((SELECT_SPEC,), "simulate"),
+    *kernels((SELECT_SPEC + "#probe",), "simulate"),
+)
 def test_the_selection_finds_a_planted_shape_and_nothing_in_noise(small_case) -> None:
     """A yaw moment N = 0.5 rho L^2 d U^2 f(beta) (f oscillating, up to 0.01) planted in
     noisy windows: the selection on the linearised trajectory columns picks N(beta) first,

@@ -59,6 +59,8 @@ FloatArray = NDArray[np.float64]
 
 #: names of shape effects start with this (the rest is the spec of the groups)
 SHAPE_PREFIX = "shape:"
+#: the name of an effect's probe (:func:`probe_effect`) is the effect's name and this
+PROBE_SUFFIX = "#probe"
 #: search interval of a spline coefficient, [-DEFAULT_BOUND, DEFAULT_BOUND] (dimensionless: a
 #: non-dimensional force in the group's scaling, or a share of the multiplying force)
 DEFAULT_BOUND = 1.0
@@ -484,35 +486,66 @@ def {func}(t, x0, y0, u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh):
 '''
 
 
+def _clamped(group: Group) -> str:
+    """The group's variable clamped to [lo, hi], in knot intervals from lo (0 .. n - 3)."""
+    h = (group.hi - group.lo) / (group.n - 3)
+    lo, hi = float(group.lo), float(group.hi)
+    shift = f"+ {-lo!r}" if lo < 0 else f"- {lo!r}"
+    return f"(min(max({VARIABLES[group.variable].code}, {lo!r}), {hi!r}) {shift}) * {1.0 / h!r}"
+
+
+def _factors(group: Group) -> tuple[list[str], dict[str, str]]:
+    """(lines that set ``mult``, the factor of each component's shape): the scaling (with q and
+    L_pp) times the multiplier, or the multiplying force (and the lever L_pp)."""
+    m = group.multiplier
+    if m in FORCES:
+        if FORCES[m][1]:
+            return [], {"X": f"{m} / Lp", "Y": f"{m} / Lp", "N": m}
+        return [], {"X": m, "Y": m, "N": f"{m} * Lp"}
+    mult = INDICATORS[m][1] if m in INDICATORS else (VARIABLES[m].factor if m else "1.0")
+    _, _, sx, syn = SCALES[group.scale_name]
+    return [f"    mult = {mult}"], {
+        "X": f"q * {sx} * mult",
+        "Y": f"q * {syn} * mult",
+        "N": f"q * Lp * {syn} * mult",
+    }
+
+
 def _group_lines(g: int, group: Group) -> list[str]:
     """The hook's code of group ``g``: the clamped variable, its basis, each component's sum."""
     lines = [f"    # {group.text}"]
     if group.variable == "1":
         b = ["1.0"]
     else:
-        h = (group.hi - group.lo) / (group.n - 3)
-        code = VARIABLES[group.variable].code
-        lo, hi = float(group.lo), float(group.hi)
-        shift = f"+ {-lo!r}" if lo < 0 else f"- {lo!r}"
-        lines.append(f"    s = (min(max({code}, {lo!r}), {hi!r}) {shift}) * {1.0 / h!r}")
+        lines.append(f"    s = {_clamped(group)}")
         for j in range(group.n):
             lines.append(f"    b{j} = _b3(s {'+' if j < 1 else '-'} {abs(float(j - 1))!r})")
         b = [f"b{j}" for j in range(group.n)]
-    m = group.multiplier
-    if m in FORCES:
-        factor = {"X": m, "Y": m, "N": m}
-        if FORCES[m][1]:
-            factor["X"] = factor["Y"] = f"{m} / Lp"
-        else:
-            factor["N"] = f"{m} * Lp"
-    else:
-        mult = INDICATORS[m][1] if m in INDICATORS else (VARIABLES[m].factor if m else "1.0")
-        lines.append(f"    mult = {mult}")
-        _, _, sx, syn = SCALES[group.scale_name]
-        factor = {"X": f"q * {sx} * mult", "Y": f"q * {syn} * mult", "N": f"q * Lp * {syn} * mult"}
+    setup, factor = _factors(group)
+    lines += setup
     for c in group.components:
         terms = " + ".join(f"e.s{g}_{c}{j} * {bj}" for j, bj in enumerate(b))
         lines.append(f"    {c} += ({factor[c]}) * ({terms})")
+    return lines
+
+
+def _probe_lines(groups: Sequence[Group]) -> list[str]:
+    """The probe's code: every group's clamped variable and factors weighted by [G == g], then
+    one basis function (J) of one component (C) at amplitude A; no branch."""
+    lines = ["    z = 0.0", "    spline = 0.0", "    fX = 0.0", "    fY = 0.0", "    fN = 0.0"]
+    for g, group in enumerate(groups):
+        lines += [f"    # {group.text}", f"    w = 1.0 if e.G == {float(g)!r} else 0.0"]
+        if group.variable != "1":
+            lines += [f"    z += w * ({_clamped(group)})", "    spline += w"]
+        setup, factor = _factors(group)
+        lines += setup
+        lines += [f"    f{c} += w * ({factor[c]})" for c in group.components]
+    lines += [
+        "    b = e.A * (spline * _b3(z - (e.J - 1.0)) + (1.0 - spline))",
+        "    X = (1.0 if e.C == 0.0 else 0.0) * fX * b",
+        "    Y = (1.0 if e.C == 1.0 else 0.0) * fY * b",
+        "    N = (1.0 if e.C == 2.0 else 0.0) * fN * b",
+    ]
     return lines
 
 
@@ -528,14 +561,23 @@ def _prelude(lines: Sequence[str]) -> list[str]:
     return [f"    {line}" for k, (_, code) in enumerate(_PRELUDE) if wanted[k] for line in code]
 
 
-def _source(name: str, groups: Sequence[Group], key: str) -> str:
+def _source(name: str, groups: Sequence[Group], key: str, probe: bool = False) -> str:
     lines: list[str] = []
     fields: list[str] = []
-    for g, group in enumerate(groups):
-        lines += _group_lines(g, group)
-        for c in group.components:
-            formula = group.formula(c, g)
-            fields += [f"    s{g}_{c}{j}: float  # {formula}" for j in range(group.n)]
+    if probe:
+        lines = _probe_lines(groups)
+        fields = [
+            "    G: float  # the group (0, 1, ...)",
+            "    C: float  # the component (0: X, 1: Y, 2: N)",
+            "    J: float  # the basis function (0 .. n - 1)",
+            "    A: float  # its coefficient (0: no force)",
+        ]
+    else:
+        for g, group in enumerate(groups):
+            lines += _group_lines(g, group)
+            for c in group.components:
+                formula = group.formula(c, g)
+                fields += [f"    s{g}_{c}{j}: float  # {formula}" for j in range(group.n)]
     prelude = _prelude(lines)
     return _TEMPLATE.format(
         name=name,
@@ -564,11 +606,11 @@ _lock = threading.Lock()
 _generated: dict[str, ShapeEffect] = {}
 
 
-def _module(name: str, groups: Sequence[Group]) -> tuple[Any, str]:
+def _module(name: str, groups: Sequence[Group], probe: bool = False) -> tuple[Any, str]:
     """The generated module of ``groups`` (written and imported once per process), its key."""
     from mmg.kernel import kernel_dir  # the generated kernels' directory, shared by workers
 
-    key = hashlib.sha256(_source(name, groups, "KEY").encode()).hexdigest()[:16]
+    key = hashlib.sha256(_source(name, groups, "KEY", probe).encode()).hexdigest()[:16]
     module_name = f"mmg_shape_{key}"
     with _lock:
         module = sys.modules.get(module_name)
@@ -576,7 +618,7 @@ def _module(name: str, groups: Sequence[Group]) -> tuple[Any, str]:
             directory = kernel_dir() / "effects"
             directory.mkdir(parents=True, exist_ok=True)
             path = directory / f"{module_name}.py"
-            text = _source(name, groups, key)
+            text = _source(name, groups, key, probe)
             if not path.exists() or path.read_text() != text:
                 tmp = path.with_suffix(f".{os.getpid()}.tmp")
                 tmp.write_text(text)
@@ -632,9 +674,49 @@ def shape_effect(groups: Sequence[Group] | str, bound: float = DEFAULT_BOUND) ->
     return replace(effect, params=table)
 
 
+def probe_effect(groups: Sequence[Group] | str) -> Effect:
+    """The probe of ``groups``: the force of one coefficient of their shape effect at a time,
+    chosen by its parameters (G: group, C: component 0/1/2 for X/Y/N, J: basis function,
+    A: the coefficient's value; A = 0 is neutral). Each lane of a batch sets its own, so one
+    simulation batch gives the trajectory column of every coefficient at the cost of a single
+    basis function per lane; the shape effect itself evaluates all of them in every lane (30 x
+    the base model's time for 460 coefficients). Named ``<shape effect's name>#probe``."""
+    gs = parse(groups) if isinstance(groups, str) else tuple(groups)
+    name = shape_name(gs) + PROBE_SUFFIX
+    effect = _generated.get(name)
+    if effect is None:
+        module, key = _module(name, gs, probe=True)
+        roles = ("group", "component (0: X, 1: Y, 2: N)", "basis function", "coefficient")
+        effect = ShapeEffect(
+            name=name,
+            description="one coefficient at a time of " + shape_name(gs),
+            regime="shapes",
+            params=tuple(
+                EffectParam(p, "-", 0.0, 0.0, hi, role)
+                for p, hi, role in zip(
+                    "GCJA", (len(gs) - 1, 2, MAX_BASIS - 1, 1.0), roles, strict=True
+                )
+            ),
+            param_type=getattr(module, f"ShapeParams_{key}"),
+            force_at=getattr(module, f"shape_force_{key}"),
+        )
+        _generated[name] = effect
+    return effect
+
+
+def probe_rows(effect: Effect, step: float) -> FloatArray:
+    """(k, 4) parameter rows of the probe of ``effect`` (a shape effect with k coefficients):
+    row i sets the shape effect's coefficient i to ``step`` (G, C, J, A)."""
+    rows = []
+    for g, group in enumerate(groups_of(effect)):
+        for c in group.components:
+            rows += [(g, "XYN".index(c), j, step) for j in range(group.n)]
+    return np.asarray(rows, dtype=np.float64)
+
+
 def groups_of(effect: Effect) -> tuple[Group, ...]:
-    """The groups of a shape effect (from its name)."""
-    return parse(effect.name)
+    """The groups of a shape effect or its probe (from the name)."""
+    return parse(effect.name.removesuffix(PROBE_SUFFIX))
 
 
 def by_name(name: str) -> Effect:
@@ -644,10 +726,12 @@ def by_name(name: str) -> Effect:
     made = _generated.get(name)
     if made is not None:
         return made
-    canonical = shape_name(parse(name))
+    probe = name.endswith(PROBE_SUFFIX)
+    spec = name[: -len(PROBE_SUFFIX)] if probe else name
+    canonical = shape_name(parse(spec)) + (PROBE_SUFFIX if probe else "")
     if canonical != name:
         raise ValueError(f"write the shape effect {name!r} as {canonical!r}")
-    return shape_effect(parse(name))
+    return probe_effect(parse(spec)) if probe else shape_effect(parse(spec))
 
 
 def rebuild(name: str, params: Sequence[Sequence[object]]) -> Effect:
@@ -684,6 +768,7 @@ __all__ = [
     "DEFAULT_BOUND",
     "FORCES",
     "INDICATORS",
+    "PROBE_SUFFIX",
     "SCALES",
     "SHAPE_PREFIX",
     "VARIABLES",
@@ -698,7 +783,10 @@ __all__ = [
     "parse",
     "penalty",
     "penalty_matrix",
+    "probe_effect",
+    "probe_rows",
     "rebuild",
     "shape_effect",
     "shape_name",
+    "variable_values",
 ]

@@ -31,7 +31,14 @@ from numpy.typing import NDArray
 
 from mmg import Parameters
 from mmg.effect import Effect
-from mmg.shapes import Group, difference_penalty, shape_effect, variable_values
+from mmg.shapes import (
+    Group,
+    difference_penalty,
+    probe_effect,
+    probe_rows,
+    shape_effect,
+    variable_values,
+)
 from sweep.data.objective import Objective
 from sweep.data.recordings import Recording
 from sweep.diagnose.linearised import LIBRARY_STEP, MIN_FREE, Linearised
@@ -66,6 +73,8 @@ QUADRANTS = ("ast", "rev")
 N_BASIS = 8
 #: the knots span these quantiles of a variable over the training windows
 RANGE_QUANTILES = (0.005, 0.995)
+#: values at least this large are a sub-model's guard, not a state (J_s = 1e4 at n_p = 0)
+GUARD = 1e3
 #: smoothing grid: lambda = kappa x the mean diagonal of the group's projected Gram matrix
 KAPPAS = (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)
 #: weight of the centring of a shape whose level another chosen group carries: the penalty
@@ -82,8 +91,9 @@ def variable_ranges(
     quantiles: tuple[float, float] = RANGE_QUANTILES,
 ) -> dict[str, tuple[float, float]]:
     """{variable: (lo, hi)}: the ``quantiles`` of each variable over the recorded samples of
-    ``windows`` (with the base ``params`` for the rudder inflow and the wake); a variable that
-    does not vary there (a constant propeller speed) is left out."""
+    ``windows`` (with the base ``params`` for the rudder inflow and the wake), leaving out
+    values beyond :data:`GUARD` (the advance ratio where the propeller stands still); a
+    variable that does not vary there (a constant propeller speed) is left out."""
     cols: dict[str, list[FloatArray]] = {n: [] for n in names}
     for w in windows:
         for n in names:
@@ -91,7 +101,7 @@ def variable_ranges(
     out: dict[str, tuple[float, float]] = {}
     for n in names:
         z = np.concatenate(cols[n])
-        z = z[np.isfinite(z)]
+        z = z[np.isfinite(z) & (np.abs(z) < GUARD)]
         if z.size == 0:
             continue
         lo, hi = (float(v) for v in np.quantile(z, quantiles))
@@ -232,11 +242,19 @@ class _Part:
         Q = fold.Q[:m_rows]
         Qr = fold.Qr[:m_rows]
         Af = fold.rows(A)
-        QL = _tmul(lib, fold.ix, Q).T  # (rank, T)
+        k, n = Q.shape[1], Qr.shape[1]
+        prod = _tmul(lib, fold.ix, np.hstack([Q, Qr, Af])).T  # one pass over the columns
+        QL = prod[:k]  # (rank, T)
         self.LL = self.G - QL.T @ QL
-        self.B = np.linalg.solve(fold.Rr, _tmul(lib, fold.ix, Qr).T)  # (57, T)
-        self.AL = _tmul(lib, fold.ix, Af).T  # (57, T)
+        self.B = np.linalg.solve(fold.Rr, prod[k : k + n])  # (57, T)
+        self.AL = prod[k + n :]  # (57, T): A'lib
         self.AA = Af.T @ Af
+
+
+def _gram(X: FloatArray) -> FloatArray:
+    """X'X in float64."""
+    Y = X.astype(np.float64)
+    return np.asarray(Y.T @ Y)
 
 
 def _tmul(lib: FloatArray, ix: Sequence[int], X: FloatArray) -> FloatArray:
@@ -254,7 +272,8 @@ class ShapeColumns:
 
     ``groups``: candidate groups (:func:`candidate_groups`); every component of each is a
     selection unit. The columns are (r(step e_j) - r(0)) / step for every coefficient j of the
-    groups' shape effect, stored as ``dtype`` (float32 halves the memory: S x M x T values,
+    groups' shape effect (simulated through its probe, :func:`mmg.shapes.probe_effect`), stored
+    as ``dtype`` (float32 halves the memory: S x M x T values,
     0.35 GB for Train-R's 190k residuals and 460 columns); the matrices of the fits are formed
     from them in float64."""
 
@@ -282,7 +301,7 @@ class ShapeColumns:
         self.lib = self._columns(step, dtype)
         self.simulation_seconds = time.perf_counter() - t0
         # per-window Gram matrices, then each fold's (fit fold 0, fit fold 1, all windows)
-        self.grams = np.stack([s.astype(np.float64).T @ s.astype(np.float64) for s in self.lib])
+        self.grams = np.stack([_gram(s) for s in self.lib])
         self.parts = [_Part(f, self.lib, lin.A, self.grams) for f in lin.folds]
         self.all = _Part(lin.all, self.lib, lin.A, self.grams)
         raw = np.array([np.trace(self.all.G[np.ix_(u.columns, u.columns)]) for u in self.units])
@@ -292,22 +311,24 @@ class ShapeColumns:
         self.seconds = time.perf_counter() - t0
 
     def _columns(self, step: float, dtype: Any) -> FloatArray:
-        """(S, M, T) columns of every coefficient of the candidate effect, in batches."""
+        """(S, M, T) columns of every coefficient of the candidate effect, simulated through its
+        probe (one basis function per lane), in batches."""
         lin = self.lin
-        eff = self.effect
+        probe = probe_effect(self.groups)
         obj = Objective(
-            lin.windows, lin.objective, effects=(*lin.base_effects, eff), ship=lin.params.ship
+            lin.windows, lin.objective, effects=(*lin.base_effects, probe), ship=lin.params.ship
         )
-        th = np.concatenate([lin.theta, np.zeros(len(eff.params))])
+        th = np.concatenate([lin.theta, np.zeros(len(probe.params))])
         r0 = residual_vectors(obj, th[None])[0][0]  # (S, M)
         S, M = r0.shape
-        T = len(eff.params)
+        units = probe_rows(self.effect, step)  # (T, 4)
+        T = units.shape[0]
         lib = np.empty((S, M, T), dtype=dtype)
         per = max(1, BATCH_BYTES // (8 * S * M))
         for lo in range(0, T, per):
             idx = np.arange(lo, min(T, lo + per))
             rows = np.repeat(th[None, :], idx.size, axis=0)
-            rows[np.arange(idx.size), lin.theta.size + idx] = step
+            rows[:, lin.theta.size :] = units[idx]
             d = (residual_vectors(obj, rows)[0] - r0[None]) / step  # (c, S, M)
             lib[:, :, idx] = np.moveaxis(np.where(np.isfinite(d), d, 0.0), 0, -1)
         return lib

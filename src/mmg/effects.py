@@ -2,13 +2,14 @@
 
 :func:`get_effect` looks an effect up by the name a config's ``effects=[...]`` or a parameter
 file gives: a catalog effect, an effect added with :func:`register`, or a generated
-``discovered:<term>+<term>...`` effect (:mod:`mmg.discovered`), built on first use in any
-process. What an effect is and its hooks: :mod:`mmg.effect`.
+``discovered:<term>+<term>...`` effect (:mod:`mmg.discovered`) or shape effect
+``shape:<group>+<group>...`` (:mod:`mmg.shapes`), built on first use in any process. What
+an effect is and its hooks: :mod:`mmg.effect`.
 """
 
 from __future__ import annotations
 
-from mmg import discovered, domain
+from mmg import discovered, domain, shapes
 from mmg.catalog import EFFECTS as _CATALOG_EFFECTS
 from mmg.effect import DISCOVERED_PREFIX, Effect
 
@@ -27,8 +28,9 @@ def get_effect(name: str) -> Effect:
 
     A name ``discovered:<term>+<term>...`` is a generated effect (:mod:`mmg.discovered`): it is
     built from the term library on first use, in any process, so that parameter files carrying
-    it load everywhere. A name ``<effect>@held(<box>)`` or ``<effect>@off(<box>)`` is that effect
-    restricted to a box of states (:mod:`mmg.domain`), built alike.
+    it load everywhere. A name ``shape:<group>+<group>...`` is a shape effect (:mod:`mmg.shapes`),
+    built from its spec likewise. A name ``<effect>@held(<box>)`` or ``<effect>@off(<box>)`` is
+    that effect restricted to a box of states (:mod:`mmg.domain`), built alike.
     """
     if name in _REGISTRY:
         return _REGISTRY[name]
@@ -43,7 +45,13 @@ def get_effect(name: str) -> Effect:
             return discovered.by_name(name)
         except ValueError as exc:
             raise KeyError(f"effect {name!r}: {exc}") from None
-    known = ", ".join(sorted({*_REGISTRY, *discovered.generated_names()}))
+    if name.startswith(shapes.SHAPE_PREFIX):
+        try:
+            return shapes.by_name(name)
+        except ValueError as exc:
+            raise KeyError(f"effect {name!r}: {exc}") from None
+    made = {*discovered.generated_names(), *shapes.generated_names()}
+    known = ", ".join(sorted({*_REGISTRY, *made}))
     raise KeyError(f"unknown effect {name!r}; known effects: {known}") from None
 
 

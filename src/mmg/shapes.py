@@ -1,0 +1,792 @@
+"""Shapes of a missing force: sums of penalised cubic splines of physical variables.
+
+A *shape effect* models a force the MMG model lacks as a sum of groups; each group is a smooth
+function f of one variable z, times the variable's MMG scaling and an optional multiplier:
+
+    X += 0.5 rho L_pp d S m f_X(z),  Y += 0.5 rho L_pp d S m f_Y(z),
+    N += 0.5 rho L_pp^2 d S m f_N(z),    f_C(z) = sum_j c_Cj B_j(z)
+
+with S [m^2/s^2] the scaling (U^2, the rudder inflow U_R^2, (n_p D_p)^2, the apparent wind or
+U_ref^2: :data:`SCALES`), m a dimensionless multiplier (another variable, a quadrant indicator,
+or 1) and B_j cubic B-splines on a uniform knot grid over [lo, hi]. z is clamped to [lo, hi]
+before the basis is evaluated, so a shape is held constant outside the range it was learnt on.
+A group may instead multiply an *existing force* of the model (the hull's sway force Y_H, the
+rudder's normal force F_N, ...: :data:`FORCES`): then C += f_C(z) F (times L_pp, or divided by
+it, between a force and a moment), and f is a dimensionless share of that force.
+
+The effect's name is its spec (:func:`parse`, :func:`shape_name`), e.g.
+``shape:YN~beta[-0.6:0.6]/8+N~beta[-0.6:0.6]/6*Y_H+X~1*ast``:
+
+    name   := "shape:" group ("+" group)*
+    group  := comps "~" var "[" lo ":" hi "]/" n ["*" mult] ["@" scale]
+            | comps "~1" ["*" mult] ["@" scale]
+    comps  := X, Y, N or several in this order (one shape per component)
+
+``~1`` is a constant (one coefficient per component): ``X~1*ast`` is a 0/1 group, a surge
+force present only going astern. The parameters are the spline coefficients, named
+``s<g>_<C><j>`` (group g, component C, basis function j), neutral 0 and searched in
+[-:data:`DEFAULT_BOUND`, +:data:`DEFAULT_BOUND`].
+
+Like :mod:`mmg.discovered`, :func:`shape_effect` writes a module with the parameter NamedTuple
+and a ``force_at`` hook (free of branches per group: min/max and selects only, so that the
+kernel's lane loop stays vectorised), imports it from ``<kernel dir>/effects`` (named by a hash
+of its text) and keeps the effect under its name; any process rebuilds it from the name
+(:func:`mmg.get_effect`, :class:`ShapeEffect` pickles by name). In numpy: :func:`basis`,
+:func:`curve` (a shape for given coefficients) and :func:`penalty` (the second-difference
+penalty of P-splines, per group).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import math
+import os
+import re
+import sys
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mmg.effect import Effect, EffectParam
+from mmg.library import T_REF, U_0, U_REF
+
+FloatArray = NDArray[np.float64]
+
+#: names of shape effects start with this (the rest is the spec of the groups)
+SHAPE_PREFIX = "shape:"
+#: the name of an effect's probe (:func:`probe_effect`) is the effect's name and this
+PROBE_SUFFIX = "#probe"
+#: search interval of a spline coefficient, [-DEFAULT_BOUND, DEFAULT_BOUND] (dimensionless: a
+#: non-dimensional force in the group's scaling, or a share of the multiplying force)
+DEFAULT_BOUND = 1.0
+#: the fewest basis functions of a spline (one cubic piece) and the most
+MIN_BASIS = 4
+MAX_BASIS = 40
+
+
+@dataclass(frozen=True)
+class Variable:
+    """A variable a shape can be a function of, or multiply by.
+
+    ``code``: its value in the generated hook [``unit``]; ``factor``: its dimensionless value as
+    a multiplier ("" if it cannot multiply); ``scale``: the default scaling of its shapes
+    (a key of :data:`SCALES`)."""
+
+    symbol: str
+    unit: str
+    meaning: str
+    code: str
+    factor: str
+    scale: str
+    factor_formula: str = ""
+
+
+#: the variables of shapes, by their name in a spec. u, v_m are velocities through the water.
+VARIABLES: dict[str, Variable] = {
+    "beta": Variable("beta", "rad", "drift angle atan2(-v_m, u)", "beta", "beta", "U2"),
+    "rp": Variable("r'", "-", "yaw rate r L_pp / U_e", "rL / Ue", "rL / Ue", "U2", "r L_pp / U_e"),
+    "U": Variable("U", "m/s", "speed through the water", "U", "U / Ue", "U2", "U / U_e"),
+    "u": Variable("u", "m/s", "surge velocity", "u", "u / Ue", "U2", "u / U_e"),
+    "v": Variable("v_m", "m/s", "sway velocity at midship", "v_m", "v_m / Ue", "U2", "v_m / U_e"),
+    "delta": Variable("delta", "rad", "rudder angle", "delta", "delta", "UR2"),
+    "alphaR": Variable(
+        "alpha_R",
+        "rad",
+        "rudder's effective inflow angle delta - atan2(v_R, u_R) (Eqs. (17)-(21))",
+        "alpha_R",
+        "alpha_R",
+        "UR2",
+    ),
+    "JP": Variable("J_P", "-", "advance ratio (1 - w_P) u / (n_p D_p)", "J_P", "", "nD2"),
+    "n": Variable("n_p", "rev/s", "propeller speed", "n_p", "nD / Ue", "nD2", "n_p D_p / U_e"),
+    "gammaA": Variable(
+        "gamma_A", "rad", "apparent-wind angle (0: head wind)", "gamma_A", "gamma_A", "UA2"
+    ),
+    "UA": Variable(
+        "U_A", "m/s", "apparent-wind speed", "U_A", f"U_A / {U_REF!r}", "UA2", "U_A / U_ref"
+    ),
+    "psi": Variable("psi", "rad", "heading wrapped to [-pi, pi)", "psi_w", "psi_w", "ref"),
+    "x0": Variable("x0", "m", "position of midship along x0", "x0", "x0 / Lp", "ref", "x0 / L_pp"),
+    "y0": Variable("y0", "m", "position of midship along y0", "y0", "y0 / Lp", "ref", "y0 / L_pp"),
+    "t": Variable(
+        "t", "s", "time on the recording's clock", "t", f"t / {T_REF!r}", "ref", "t / T_ref"
+    ),
+}
+#: quadrant indicators (multipliers only): [u < 0], [u >= 0], [n_p < 0], [n_p >= 0]
+INDICATORS: dict[str, tuple[str, str]] = {
+    "ast": ("[u < 0]", "1.0 if u < 0.0 else 0.0"),
+    "ahd": ("[u >= 0]", "0.0 if u < 0.0 else 1.0"),
+    "rev": ("[n_p < 0]", "1.0 if n_p < 0.0 else 0.0"),
+    "pos": ("[n_p >= 0]", "0.0 if n_p < 0.0 else 1.0"),
+}
+#: forces of the model a shape can multiply: name -> (meaning, is a moment)
+FORCES: dict[str, tuple[str, bool]] = {
+    "X_H": ("hull surge force", False),
+    "Y_H": ("hull sway force", False),
+    "N_H": ("hull yaw moment", True),
+    "X_P": ("propeller thrust (surge force)", False),
+    "Y_P": ("propeller sway force", False),
+    "N_P": ("propeller yaw moment", True),
+    "X_R": ("rudder surge force", False),
+    "Y_R": ("rudder sway force", False),
+    "N_R": ("rudder yaw moment", True),
+    "F_N": ("rudder normal force", False),
+    "X_A": ("wind surge force", False),
+    "Y_A": ("wind sway force", False),
+    "N_A": ("wind yaw moment", True),
+}
+#: scalings S [m^2/s^2]: name -> (formula in X, in Y and N, code in X, in Y and N)
+SCALES: dict[str, tuple[str, str, str, str]] = {
+    "U2": ("U^2", "U^2", "U2", "U2"),
+    "UR2": ("U_R^2", "U_R^2", "UR2", "UR2"),
+    "nD2": ("(n_p D_p)^2", "(n_p D_p)^2", "nD * nD", "nD * nD"),
+    "UA2": (
+        "(rho_A A_T / rho L_pp d) U_A^2",
+        "(rho_A A_L / rho L_pp d) U_A^2",
+        "wT * UA2",
+        "wL * UA2",
+    ),
+    "ref": ("U_ref^2", "U_ref^2", "1.0", "1.0"),
+}
+
+_TWO_PI = 2.0 * math.pi
+
+#: what the hook computes before the groups, in this order: (names it provides, code lines);
+#: a block is written when a group's code (or a later block that is written) uses a name of it
+_PRELUDE: tuple[tuple[tuple[str, ...], tuple[str, ...]], ...] = (
+    (("U",), ("U = math.sqrt(U2)",)),
+    (("rL",), ("rL = r * Lp",)),
+    (("nD",), ("nD = n_p * sh.D_p",)),
+    (("beta",), ("beta = _atan2(-v_m, u)",)),
+    (("sin_d", "cos_d"), ("sin_d, cos_d = _sincos(delta)",)),
+    (
+        ("u_R", "v_R", "UR2"),
+        ("u_R, v_R = rudder_inflow_at(u, v_m, r, n_p, th, sh)", "UR2 = u_R * u_R + v_R * v_R"),
+    ),
+    (("alpha_R",), ("alpha_R = delta - _atan2(v_R, u_R)",)),
+    (("J_P",), ("J_P = advance_ratio(u, n_p, sh) * wake_factor(u, v_m, r, th, sh)",)),
+    (
+        ("uA", "vA", "UA2", "wT", "wL"),
+        (
+            "sin_psi, cos_psi = _sincos(psi)",
+            "sin_g, cos_g = _sincos(gamma_T)",
+            "uA, vA = apparent_wind(u, v_m, sin_psi, cos_psi, U_T, sin_g, cos_g)",
+            "UA2 = uA * uA + vA * vA",
+            "wT = sh.rho_A * sh.A_T / (sh.rho * Lp * sh.d)",
+            "wL = sh.rho_A * sh.A_L / (sh.rho * Lp * sh.d)",
+        ),
+    ),
+    (("gamma_A",), ("gamma_A = _atan2(vA, uA)",)),
+    (("U_A",), ("U_A = math.sqrt(UA2)",)),
+    (("psi_w",), (f"psi_w = psi - {_TWO_PI!r} * np.floor((psi + {math.pi!r}) * {1 / _TWO_PI!r})",)),
+    (("X_H", "Y_H", "N_H"), ("X_H, Y_H, N_H = hull_forces(u, v_m, r, th, sh)",)),
+    (
+        ("X_P", "Y_P", "N_P"),
+        (
+            "J_s = advance_ratio(u, n_p, sh)",
+            "w_1 = wake_factor(u, v_m, r, th, sh)",
+            "X_P, Y_P, N_P, _ = propeller_forces(u, n_p, J_s, w_1, th, sh)",
+        ),
+    ),
+    (
+        ("X_R", "Y_R", "N_R", "F_N"),
+        (
+            "X_R, Y_R, N_R = rudder_forces(u_R, v_R, sin_d, cos_d, th, sh)",
+            "# Eqs. (17), (20): F_N = 0.5 rho A_R f_alpha U_R^2 sin(alpha_R)",
+            "f_a = 0.5 * sh.rho * sh.A_R * lift_gradient(sh)",
+            "F_N = f_a * math.sqrt(UR2) * (u_R * sin_d - v_R * cos_d)",
+        ),
+    ),
+    (("X_A", "Y_A", "N_A"), ("X_A, Y_A, N_A = wind_forces(uA, vA, th, sh)",)),
+)
+
+
+def _num(v: float) -> str:
+    """A number as a spec writes it: 6 significant digits, no ``+`` (the groups' separator)."""
+    return f"{float(v):.6g}".replace("e+", "e")
+
+
+@dataclass(frozen=True)
+class Group:
+    """One group of a shape effect: f_C(variable) for each component C in ``components``.
+
+    ``variable`` is a key of :data:`VARIABLES` or ``"1"`` (a constant, ``n`` = 1);
+    ``lo``, ``hi`` the knot range in the variable's unit, ``n`` the number of basis functions;
+    ``multiplier`` "" or a key of :data:`VARIABLES`, :data:`INDICATORS` or :data:`FORCES`;
+    ``scale`` "" (the variable's default) or a key of :data:`SCALES`."""
+
+    components: str
+    variable: str
+    lo: float = 0.0
+    hi: float = 0.0
+    n: int = 1
+    multiplier: str = ""
+    scale: str = ""
+
+    def __post_init__(self) -> None:
+        c = self.components
+        if not c or any(x not in "XYN" for x in c) or "".join(sorted(c, key="XYN".index)) != c:
+            raise ValueError(f"components {c!r}: one or more of X, Y, N, in this order")
+        if len(set(c)) != len(c):
+            raise ValueError(f"components {c!r}: repeated")
+        if self.variable == "1":
+            if self.n != 1:
+                raise ValueError("a constant group (~1) has one coefficient per component")
+        elif self.variable not in VARIABLES:
+            names = ", ".join(VARIABLES)
+            raise ValueError(f"unknown shape variable {self.variable!r}; known: {names}, 1")
+        else:
+            if not (math.isfinite(self.lo) and math.isfinite(self.hi) and self.lo < self.hi):
+                raise ValueError(f"{self.variable}: knot range [{self.lo}, {self.hi}] is empty")
+            if not MIN_BASIS <= self.n <= MAX_BASIS:
+                raise ValueError(f"{self.variable}: {self.n} basis functions, need 4 to 40")
+        m = self.multiplier
+        known = [k for k, v in VARIABLES.items() if v.factor] + [*INDICATORS, *FORCES]
+        if m and m not in known:
+            raise ValueError(f"unknown multiplier {m!r}; known: {', '.join(known)}")
+        if self.scale and self.scale not in SCALES:
+            raise ValueError(f"unknown scale {self.scale!r}; known: {', '.join(SCALES)}")
+        if self.scale and m in FORCES:
+            raise ValueError(f"a shape times the force {m} takes no scale")
+        default = VARIABLES[self.variable].scale if self.variable != "1" else "U2"
+        if self.scale == default:  # one spelling of each group: the default scale is implied
+            object.__setattr__(self, "scale", "")
+
+    @property
+    def text(self) -> str:
+        """The group as a spec writes it (canonical)."""
+        if self.variable == "1":
+            out = f"{self.components}~1"
+        else:
+            out = f"{self.components}~{self.variable}[{_num(self.lo)}:{_num(self.hi)}]/{self.n}"
+        if self.multiplier:
+            out += f"*{self.multiplier}"
+        if self.scale:
+            out += f"@{self.scale}"
+        return out
+
+    @property
+    def scale_name(self) -> str:
+        """The scaling used: "" (times a force), the given one, or the variable's default."""
+        if self.multiplier in FORCES:
+            return ""
+        if self.scale:
+            return self.scale
+        return VARIABLES[self.variable].scale if self.variable != "1" else "U2"
+
+    def param_names(self, g: int) -> list[str]:
+        """The coefficients' names when this is group ``g``: components major."""
+        return [f"s{g}_{c}{j}" for c in self.components for j in range(self.n)]
+
+    def formula(self, component: str, g: int = 0) -> str:
+        """What the group adds to ``component``, in the paper's notation, with units."""
+        arg = "" if self.variable == "1" else f"({VARIABLES[self.variable].symbol})"
+        f = f"f_{component}{g}{arg}"
+        unit = "N m" if component == "N" else "N"
+        m = self.multiplier
+        if m in FORCES:
+            lever = ""
+            if component == "N" and not FORCES[m][1]:
+                lever = " L_pp"
+            elif component != "N" and FORCES[m][1]:
+                lever = " / L_pp"
+            return f"{component} += {f} {m}{lever}  [{unit}]"
+        q = "0.5 rho L_pp^2 d" if component == "N" else "0.5 rho L_pp d"
+        mult = ""
+        if m in INDICATORS:
+            mult = " " + INDICATORS[m][0]
+        elif m:
+            mult = f" ({VARIABLES[m].factor_formula or VARIABLES[m].symbol})"
+        scale = SCALES[self.scale_name][0 if component == "X" else 1]
+        return f"{component} += {q} {scale} {f}{mult}  [{unit}]"
+
+
+_GROUP = re.compile(
+    r"^(?P<c>[XYN]+)~(?:(?P<one>1)|(?P<v>\w+)\[(?P<lo>[^:\]]+):(?P<hi>[^\]]+)\]/(?P<n>\d+))"
+    r"(?:\*(?P<m>\w+))?(?:@(?P<s>\w+))?$"
+)
+
+
+def parse(spec: str) -> tuple[Group, ...]:
+    """The groups of a spec (with or without the ``shape:`` prefix); ValueError when malformed."""
+    body = spec[len(SHAPE_PREFIX) :] if spec.startswith(SHAPE_PREFIX) else spec
+    groups = []
+    for part in body.split("+"):
+        m = _GROUP.match(part.strip())
+        if m is None:
+            raise ValueError(
+                f"shape group {part!r}: expected e.g. 'Y~beta[-0.6:0.6]/8', 'N~U[0:1]/6*v' or "
+                "'X~1*ast'"
+            )
+        try:
+            lo, hi = (0.0, 0.0) if m["one"] else (float(m["lo"]), float(m["hi"]))
+        except ValueError:
+            raise ValueError(f"shape group {part!r}: the knot range is not two numbers") from None
+        groups.append(
+            Group(m["c"], m["one"] or m["v"], lo, hi, int(m["n"] or 1), m["m"] or "", m["s"] or "")
+        )
+    if len({g.text for g in groups}) != len(groups):
+        raise ValueError(f"repeated shape group in {spec!r}")
+    return tuple(groups)
+
+
+def shape_name(groups: Sequence[Group]) -> str:
+    """The effect's name: ``shape:`` and the groups' specs joined by ``+`` (canonical)."""
+    if not groups:
+        raise ValueError("a shape effect needs at least one group")
+    return SHAPE_PREFIX + "+".join(g.text for g in groups)
+
+
+# ---------------------------------------------------------------------------------------------
+# the basis and the penalty in numpy
+
+
+def cardinal_bspline(x: Any) -> FloatArray:
+    """The cardinal cubic B-spline at x (support [-2, 2]): ((2 - |x|)_+^3 - 4 (1 - |x|)_+^3) / 6;
+    2/3 at 0, 1/6 at +-1. The same arithmetic as the generated hook's."""
+    a = np.abs(np.asarray(x, dtype=np.float64))
+    p = np.maximum(2.0 - a, 0.0)
+    m = np.maximum(1.0 - a, 0.0)
+    return np.asarray((p * p * p - 4.0 * m * m * m) / 6.0)
+
+
+def basis(group: Group, z: Any) -> FloatArray:
+    """(len(z), n) basis functions of ``group`` at the variable's values z (its unit).
+
+    z is clamped to [lo, hi]; with h = (hi - lo) / (n - 3) and s = (z - lo) / h, basis function
+    j is the cardinal B-spline at s - (j - 1): the knots lie at lo + k h (k = -3 .. n), the basis
+    sums to 1 on [lo, hi]. A constant group's basis is 1."""
+    z = np.atleast_1d(np.asarray(z, dtype=np.float64))
+    if group.variable == "1":
+        return np.ones((z.size, 1))
+    h = (group.hi - group.lo) / (group.n - 3)
+    s = (np.clip(z, group.lo, group.hi) - group.lo) / h
+    return cardinal_bspline(s[:, None] - (np.arange(group.n)[None, :] - 1.0))
+
+
+def curve(group: Group, coefficients: Any, z: Any) -> FloatArray:
+    """f(z) of one component of ``group`` for its n coefficients: the dimensionless shape; the
+    force is f times the group's scaling and multiplier (:meth:`Group.formula`)."""
+    return np.asarray(basis(group, z) @ np.asarray(coefficients, dtype=np.float64))
+
+
+def difference_penalty(n: int, order: int = 2) -> FloatArray:
+    """(n, n) D'D with D the ``order``-th difference matrix: the P-spline penalty
+    sum_j (Delta^order c_j)^2 (its null space: polynomials of degree < order in j)."""
+    if n <= order:
+        return np.zeros((n, n))
+    D = np.diff(np.eye(n), n=order, axis=0)
+    return np.asarray(D.T @ D)
+
+
+def penalty(group: Group, order: int = 2) -> FloatArray:
+    """(k, k) penalty of a group's k coefficients: :func:`difference_penalty` for each
+    component's shape, block-diagonal (components major, as the parameters)."""
+    P = difference_penalty(group.n, order)
+    return np.asarray(np.kron(np.eye(len(group.components)), P))
+
+
+def variable_values(
+    name: str, t: Any, x: Any, controls: Any, wind: Any, theta: Any, ship: Any
+) -> FloatArray:
+    """(N,) values of the variable ``name`` (a key of :data:`VARIABLES`) at N samples, as the
+    hook computes them: t (N,) [s], x (N, 6) states (x0, u, y0, v_m, psi, r), controls (N, 2)
+    (delta, n_p), wind (N, 2) (U_T, gamma_T), the model's parameters ``theta`` (a
+    :class:`mmg.params.Theta`) and ``ship``. Still water (velocity through the water = over
+    ground). For the knot ranges of shapes over recorded windows."""
+    from mmg.model import rudder_inflow_at
+    from mmg.propeller import advance_ratio, wake_factor
+
+    x = np.asarray(x, dtype=np.float64)
+    c = np.asarray(controls, dtype=np.float64)
+    w = np.asarray(wind, dtype=np.float64)
+    u, v_m, r, psi = x[:, 1], x[:, 3], x[:, 5], x[:, 4]
+    U2 = u * u + v_m * v_m
+    gap = w[:, 1] - psi
+    uA = w[:, 0] * np.cos(gap) + u  # mmg.wind.apparent_wind
+    vA = w[:, 0] * np.sin(gap) + v_m
+    rows = zip(u, v_m, r, c[:, 1], strict=True)
+    if name == "alphaR":
+        inflow = np.array([rudder_inflow_at(*p, theta, ship) for p in rows]).reshape(-1, 2)
+        return np.asarray(c[:, 0] - np.arctan2(inflow[:, 1], inflow[:, 0]))
+    if name == "JP":
+        return np.array(
+            [advance_ratio(a, n, ship) * wake_factor(a, b, q, theta, ship) for a, b, q, n in rows]
+        )
+    values = {
+        "beta": lambda: np.arctan2(-v_m, u),
+        "rp": lambda: r * ship.L_pp / np.sqrt(U2 + U_0 * U_0),
+        "U": lambda: np.sqrt(U2),
+        "u": lambda: u,
+        "v": lambda: v_m,
+        "delta": lambda: c[:, 0],
+        "n": lambda: c[:, 1],
+        "gammaA": lambda: np.arctan2(vA, uA),
+        "UA": lambda: np.hypot(uA, vA),
+        "psi": lambda: psi - _TWO_PI * np.floor((psi + math.pi) / _TWO_PI),
+        "x0": lambda: x[:, 0],
+        "y0": lambda: x[:, 2],
+        "t": lambda: np.asarray(t, dtype=np.float64),
+    }
+    if name not in values:
+        raise ValueError(f"unknown shape variable {name!r}; known: {', '.join(VARIABLES)}")
+    return np.asarray(values[name](), dtype=np.float64)
+
+
+# ---------------------------------------------------------------------------------------------
+# the generated effect
+
+
+_TEMPLATE = '''\
+"""Generated by mmg.shapes: the effect {name}. Do not edit."""
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from mmg._jit import subfunction
+from mmg.model import rudder_inflow_at
+from mmg.hull import hull_forces
+from mmg.propeller import advance_ratio, propeller_forces, wake_factor
+from mmg.rudder import lift_gradient, rudder_forces
+from mmg.trig import atan2 as _atan2, sincos as _sincos
+from mmg.wind import apparent_wind, wind_forces
+
+
+class {ptype}(NamedTuple):
+{fields}
+
+
+@subfunction
+def _b3(x):
+    """The cardinal cubic B-spline at x (support [-2, 2]), free of branches."""
+    a = abs(x)
+    p = max(2.0 - a, 0.0)
+    m = max(1.0 - a, 0.0)
+    return (p * p * p - 4.0 * m * m * m) * {sixth!r}
+
+
+@subfunction
+def {func}(t, x0, y0, u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh):
+    """Forces of the shapes (u, v_m through the water)."""
+    Lp = sh.L_pp
+    q = 0.5 * sh.rho * Lp * sh.d
+    U2 = u * u + v_m * v_m
+    Ue = math.sqrt(U2 + {U_0!r} * {U_0!r})
+{prelude}    X = 0.0
+    Y = 0.0
+    N = 0.0
+{lines}
+    return X, Y, N
+'''
+
+
+def _clamped(group: Group) -> str:
+    """The group's variable clamped to [lo, hi], in knot intervals from lo (0 .. n - 3)."""
+    h = (group.hi - group.lo) / (group.n - 3)
+    lo, hi = float(group.lo), float(group.hi)
+    shift = f"+ {-lo!r}" if lo < 0 else f"- {lo!r}"
+    return f"(min(max({VARIABLES[group.variable].code}, {lo!r}), {hi!r}) {shift}) * {1.0 / h!r}"
+
+
+def _factors(group: Group) -> tuple[list[str], dict[str, str]]:
+    """(lines that set ``mult``, the factor of each component's shape): the scaling (with q and
+    L_pp) times the multiplier, or the multiplying force (and the lever L_pp)."""
+    m = group.multiplier
+    if m in FORCES:
+        if FORCES[m][1]:
+            return [], {"X": f"{m} / Lp", "Y": f"{m} / Lp", "N": m}
+        return [], {"X": m, "Y": m, "N": f"{m} * Lp"}
+    mult = INDICATORS[m][1] if m in INDICATORS else (VARIABLES[m].factor if m else "1.0")
+    _, _, sx, syn = SCALES[group.scale_name]
+    return [f"    mult = {mult}"], {
+        "X": f"q * {sx} * mult",
+        "Y": f"q * {syn} * mult",
+        "N": f"q * Lp * {syn} * mult",
+    }
+
+
+def _group_lines(g: int, group: Group) -> list[str]:
+    """The hook's code of group ``g``: the clamped variable, its basis, each component's sum."""
+    lines = [f"    # {group.text}"]
+    if group.variable == "1":
+        b = ["1.0"]
+    else:
+        lines.append(f"    s = {_clamped(group)}")
+        for j in range(group.n):
+            lines.append(f"    b{j} = _b3(s {'+' if j < 1 else '-'} {abs(float(j - 1))!r})")
+        b = [f"b{j}" for j in range(group.n)]
+    setup, factor = _factors(group)
+    lines += setup
+    for c in group.components:
+        terms = " + ".join(f"e.s{g}_{c}{j} * {bj}" for j, bj in enumerate(b))
+        lines.append(f"    {c} += ({factor[c]}) * ({terms})")
+    return lines
+
+
+def _probe_lines(groups: Sequence[Group]) -> list[str]:
+    """The probe's code: every group's clamped variable and factors weighted by [G == g], then
+    one basis function (J) of one component (C) at amplitude A; no branch."""
+    lines = ["    z = 0.0", "    spline = 0.0", "    fX = 0.0", "    fY = 0.0", "    fN = 0.0"]
+    for g, group in enumerate(groups):
+        lines += [f"    # {group.text}", f"    w = 1.0 if e.G == {float(g)!r} else 0.0"]
+        if group.variable != "1":
+            lines += [f"    z += w * ({_clamped(group)})", "    spline += w"]
+        setup, factor = _factors(group)
+        lines += setup
+        lines += [f"    f{c} += w * ({factor[c]})" for c in group.components]
+    lines += [
+        "    b = e.A * (spline * _b3(z - (e.J - 1.0)) + (1.0 - spline))",
+        "    X = (1.0 if e.C == 0.0 else 0.0) * fX * b",
+        "    Y = (1.0 if e.C == 1.0 else 0.0) * fY * b",
+        "    N = (1.0 if e.C == 2.0 else 0.0) * fN * b",
+    ]
+    return lines
+
+
+def _prelude(lines: Sequence[str]) -> list[str]:
+    """The prelude blocks that the groups' lines need (and the blocks those need), in order."""
+    used = set(re.findall(r"\b\w+\b", "\n".join(lines)))
+    wanted = [False] * len(_PRELUDE)
+    for k in reversed(range(len(_PRELUDE))):  # later blocks use earlier ones only
+        names, code = _PRELUDE[k]
+        if used & set(names):
+            wanted[k] = True
+            used |= set(re.findall(r"\b\w+\b", "\n".join(code)))
+    return [f"    {line}" for k, (_, code) in enumerate(_PRELUDE) if wanted[k] for line in code]
+
+
+def _source(name: str, groups: Sequence[Group], key: str, probe: bool = False) -> str:
+    lines: list[str] = []
+    fields: list[str] = []
+    if probe:
+        lines = _probe_lines(groups)
+        fields = [
+            "    G: float  # the group (0, 1, ...)",
+            "    C: float  # the component (0: X, 1: Y, 2: N)",
+            "    J: float  # the basis function (0 .. n - 1)",
+            "    A: float  # its coefficient (0: no force)",
+        ]
+    else:
+        for g, group in enumerate(groups):
+            lines += _group_lines(g, group)
+            for c in group.components:
+                formula = group.formula(c, g)
+                fields += [f"    s{g}_{c}{j}: float  # {formula}" for j in range(group.n)]
+    prelude = _prelude(lines)
+    return _TEMPLATE.format(
+        name=name,
+        ptype=f"ShapeParams_{key}",
+        func=f"shape_force_{key}",
+        fields="\n".join(fields),
+        sixth=1.0 / 6.0,
+        U_0=U_0,
+        prelude="".join(f"{line}\n" for line in prelude),
+        lines="\n".join(lines),
+    )
+
+
+class ShapeEffect(Effect):
+    """A generated shape effect: it pickles by its name and parameter table (its module lives in
+    the kernel directory, not on the import path), like :class:`mmg.discovered.DiscoveredEffect`.
+    Its groups: :func:`groups_of`."""
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """(:func:`rebuild`, (name, parameter table))."""
+        return (rebuild, (self.name, tuple(tuple(p) for p in self.params)))
+
+
+_lock = threading.Lock()
+#: the shape effects of this process by name, with the default search intervals
+_generated: dict[str, ShapeEffect] = {}
+
+
+def _module(name: str, groups: Sequence[Group], probe: bool = False) -> tuple[Any, str]:
+    """The generated module of ``groups`` (written and imported once per process), its key."""
+    from mmg.kernel import kernel_dir  # the generated kernels' directory, shared by workers
+
+    key = hashlib.sha256(_source(name, groups, "KEY", probe).encode()).hexdigest()[:16]
+    module_name = f"mmg_shape_{key}"
+    with _lock:
+        module = sys.modules.get(module_name)
+        if module is None:
+            directory = kernel_dir() / "effects"
+            directory.mkdir(parents=True, exist_ok=True)
+            path = directory / f"{module_name}.py"
+            text = _source(name, groups, key, probe)
+            if not path.exists() or path.read_text() != text:
+                tmp = path.with_suffix(f".{os.getpid()}.tmp")
+                tmp.write_text(text)
+                os.replace(tmp, path)  # atomic for concurrent workers
+            spec = importlib.util.spec_from_file_location(module_name, path)
+            assert spec is not None and spec.loader is not None
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[module_name] = module
+            spec.loader.exec_module(module)
+    return module, key
+
+
+def shape_effect(groups: Sequence[Group] | str, bound: float = DEFAULT_BOUND) -> Effect:
+    """The shape effect of ``groups`` (or of a spec) with every coefficient searched in
+    [-bound, bound]; the one with the default interval is kept under its name for
+    :func:`by_name`. Raises ValueError for a malformed spec, no group or a repeated one."""
+    from dataclasses import replace
+
+    gs = parse(groups) if isinstance(groups, str) else tuple(groups)
+    name = shape_name(gs)
+    if len({g.text for g in gs}) != len(gs):
+        raise ValueError(f"repeated shape group in {name!r}")
+    effect = _generated.get(name)
+    if effect is None:
+        module, key = _module(name, gs)
+        params: list[EffectParam] = []
+        for k, g in enumerate(gs):
+            for c in g.components:
+                formula = g.formula(c, k)
+                params += [
+                    EffectParam(
+                        f"s{k}_{c}{j}",
+                        "-",
+                        0.0,
+                        -DEFAULT_BOUND,
+                        DEFAULT_BOUND,
+                        f"coefficient {j} of {formula}",
+                    )
+                    for j in range(g.n)
+                ]
+        effect = ShapeEffect(
+            name=name,
+            description="shapes of a missing force: " + "; ".join(g.text for g in gs),
+            regime="shapes",
+            params=tuple(params),
+            param_type=getattr(module, f"ShapeParams_{key}"),
+            force_at=getattr(module, f"shape_force_{key}"),
+        )
+        _generated[name] = effect
+    if bound == DEFAULT_BOUND:
+        return effect
+    table = tuple(q._replace(lower=-float(bound), upper=float(bound)) for q in effect.params)
+    return replace(effect, params=table)
+
+
+def probe_effect(groups: Sequence[Group] | str) -> Effect:
+    """The probe of ``groups``: the force of one coefficient of their shape effect at a time,
+    chosen by its parameters (G: group, C: component 0/1/2 for X/Y/N, J: basis function,
+    A: the coefficient's value; A = 0 is neutral). Each lane of a batch sets its own, so one
+    simulation batch gives the trajectory column of every coefficient at the cost of a single
+    basis function per lane; the shape effect itself evaluates all of them in every lane (30 x
+    the base model's time for 460 coefficients). Named ``<shape effect's name>#probe``."""
+    gs = parse(groups) if isinstance(groups, str) else tuple(groups)
+    name = shape_name(gs) + PROBE_SUFFIX
+    effect = _generated.get(name)
+    if effect is None:
+        module, key = _module(name, gs, probe=True)
+        roles = ("group", "component (0: X, 1: Y, 2: N)", "basis function", "coefficient")
+        effect = ShapeEffect(
+            name=name,
+            description="one coefficient at a time of " + shape_name(gs),
+            regime="shapes",
+            params=tuple(
+                EffectParam(p, "-", 0.0, 0.0, hi, role)
+                for p, hi, role in zip(
+                    "GCJA", (len(gs) - 1, 2, MAX_BASIS - 1, 1.0), roles, strict=True
+                )
+            ),
+            param_type=getattr(module, f"ShapeParams_{key}"),
+            force_at=getattr(module, f"shape_force_{key}"),
+        )
+        _generated[name] = effect
+    return effect
+
+
+def probe_rows(effect: Effect, step: float) -> FloatArray:
+    """(k, 4) parameter rows of the probe of ``effect`` (a shape effect with k coefficients):
+    row i sets the shape effect's coefficient i to ``step`` (G, C, J, A)."""
+    rows = []
+    for g, group in enumerate(groups_of(effect)):
+        for c in group.components:
+            rows += [(g, "XYN".index(c), j, step) for j in range(group.n)]
+    return np.asarray(rows, dtype=np.float64)
+
+
+def groups_of(effect: Effect) -> tuple[Group, ...]:
+    """The groups of a shape effect or its probe (from the name)."""
+    return parse(effect.name.removesuffix(PROBE_SUFFIX))
+
+
+def by_name(name: str) -> Effect:
+    """The shape effect ``name``: the one made in this process, else made now. Raises
+    ValueError for a malformed spec, or one not written canonically (the parameters of a
+    parameter file are found by the effect's name, so there is one spelling of it)."""
+    made = _generated.get(name)
+    if made is not None:
+        return made
+    probe = name.endswith(PROBE_SUFFIX)
+    spec = name[: -len(PROBE_SUFFIX)] if probe else name
+    canonical = shape_name(parse(spec)) + (PROBE_SUFFIX if probe else "")
+    if canonical != name:
+        raise ValueError(f"write the shape effect {name!r} as {canonical!r}")
+    return probe_effect(parse(spec)) if probe else shape_effect(parse(spec))
+
+
+def rebuild(name: str, params: Sequence[Sequence[object]]) -> Effect:
+    """The shape effect ``name`` with the parameter table ``params`` (neutral values and search
+    intervals as they were): how a pickled shape effect is restored in another process."""
+    from dataclasses import replace
+
+    effect = by_name(name)
+    table = tuple(EffectParam(*p) for p in params)  # type: ignore[arg-type]
+    if table == effect.params:
+        return effect
+    return replace(effect, params=table)
+
+
+def generated_names() -> list[str]:
+    """The names of the shape effects made so far in this process."""
+    return list(_generated)
+
+
+def penalty_matrix(effect: Effect, order: int = 2) -> FloatArray:
+    """(k, k) block-diagonal penalty of all the coefficients of a shape effect, in parameter
+    order (:func:`penalty` of each group)."""
+    blocks = [penalty(g, order) for g in groups_of(effect)]
+    k = sum(b.shape[0] for b in blocks)
+    out = np.zeros((k, k))
+    i = 0
+    for b in blocks:
+        out[i : i + b.shape[0], i : i + b.shape[0]] = b
+        i += b.shape[0]
+    return out
+
+
+__all__ = [
+    "DEFAULT_BOUND",
+    "FORCES",
+    "INDICATORS",
+    "PROBE_SUFFIX",
+    "SCALES",
+    "SHAPE_PREFIX",
+    "VARIABLES",
+    "Group",
+    "ShapeEffect",
+    "basis",
+    "by_name",
+    "cardinal_bspline",
+    "curve",
+    "difference_penalty",
+    "groups_of",
+    "parse",
+    "penalty",
+    "penalty_matrix",
+    "probe_effect",
+    "probe_rows",
+    "rebuild",
+    "shape_effect",
+    "shape_name",
+    "variable_values",
+]

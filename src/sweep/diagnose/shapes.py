@@ -1,0 +1,524 @@
+"""Shapes of the missing force chosen on the linearised trajectory columns.
+
+The candidates are penalised splines of physical variables (:mod:`mmg.shapes`): for each
+variable a group of basis functions per force component X, Y, N, knots over the range the
+training windows cover. :class:`ShapeColumns` simulates one trajectory column per basis function
+(the residual vectors' derivative with respect to its coefficient, at the base model of a
+:class:`sweep.diagnose.linearised.Linearised`, in one batch) and keeps, per fold, the small
+matrices that every fit below needs: the columns' Gram matrix with the base Jacobian (and the
+prior's rows) projected out, and the images of the columns held out.
+
+:meth:`ShapeColumns.select` picks whole groups (a variable's shape in one component) by their
+*held-out* gain: base and shapes fitted (linearised, each shape with its second-difference
+penalty lambda c' D'D c) on one fold's windows, the gain measured on the other fold's windows
+without refitting, both ways round; each added group must raise the held-out gain by
+``min_gain`` of what the groups before it reached, and lower the in-sample dBIC. The smoothing
+of each group is chosen with it, on the same held-out gain, from a grid relative to the group's
+own column scale. The
+statistic compared with the null is the in-sample linearised dBIC with the effective degrees of
+freedom (the trace of the hat matrix) in place of the number of coefficients;
+:meth:`ShapeColumns.null_dbic` gives the same statistic for noise-only residual vectors.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mmg import Parameters
+from mmg.effect import Effect
+from mmg.shapes import (
+    Group,
+    difference_penalty,
+    probe_effect,
+    probe_rows,
+    shape_effect,
+    variable_values,
+)
+from sweep.data.objective import Objective
+from sweep.data.recordings import Recording
+from sweep.diagnose.linearised import LIBRARY_STEP, MIN_FREE, Linearised
+from sweep.identification.polish import residual_vectors
+
+FloatArray = NDArray[np.float64]
+
+#: the variables of the candidate shapes (keys of :data:`mmg.shapes.VARIABLES`)
+VARIABLES = (
+    "beta",
+    "rp",
+    "U",
+    "u",
+    "v",
+    "delta",
+    "alphaR",
+    "JP",
+    "n",
+    "gammaA",
+    "UA",
+    "psi",
+    "x0",
+    "y0",
+    "t",
+)
+#: varying-coefficient candidates: (shape variable, multiplier): Y_v(U) v_m U, Y_r(U) r' U^2,
+#: a share of the hull's sway force and of the rudder's normal force
+PRODUCTS = (("U", "v"), ("U", "rp"), ("beta", "Y_H"), ("delta", "F_N"))
+#: constant groups times a quadrant indicator: astern, propeller reversed
+QUADRANTS = ("ast", "rev")
+#: basis functions per shape
+N_BASIS = 8
+#: the knots span these quantiles of a variable over the training windows
+RANGE_QUANTILES = (0.005, 0.995)
+#: values at least this large are a sub-model's guard, not a state (J_s = 1e4 at n_p = 0)
+GUARD = 1e3
+#: smoothing grid: lambda = kappa x the mean diagonal of the group's projected Gram matrix
+KAPPAS = (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)
+#: weight of the centring of a shape whose level another chosen group carries: the penalty
+#: CENTRE_WEIGHT x the group's column scale x (sum of its coefficients)^2 / n, for the joint fit
+CENTRE_WEIGHT = 1e3
+#: float64 residuals per simulation batch of the columns [bytes]
+BATCH_BYTES = 2**28
+
+
+def variable_ranges(
+    windows: Sequence[Recording],
+    params: Parameters,
+    names: Sequence[str] = VARIABLES,
+    quantiles: tuple[float, float] = RANGE_QUANTILES,
+) -> dict[str, tuple[float, float]]:
+    """{variable: (lo, hi)}: the ``quantiles`` of each variable over the recorded samples of
+    ``windows`` (with the base ``params`` for the rudder inflow and the wake), leaving out
+    values beyond :data:`GUARD` (the advance ratio where the propeller stands still); a
+    variable that does not vary there (a constant propeller speed) is left out."""
+    cols: dict[str, list[FloatArray]] = {n: [] for n in names}
+    for w in windows:
+        for n in names:
+            cols[n].append(variable_values(n, w.t, w.x, w.u, w.w, params.theta, params.ship))
+    out: dict[str, tuple[float, float]] = {}
+    for n in names:
+        z = np.concatenate(cols[n])
+        z = z[np.isfinite(z) & (np.abs(z) < GUARD)]
+        if z.size == 0:
+            continue
+        lo, hi = (float(v) for v in np.quantile(z, quantiles))
+        if hi - lo > 1e-6 * max(1.0, abs(lo), abs(hi)):
+            out[n] = (lo, hi)
+    return out
+
+
+def candidate_groups(
+    windows: Sequence[Recording],
+    params: Parameters,
+    *,
+    variables: Sequence[str] = VARIABLES,
+    products: Sequence[tuple[str, str]] = PRODUCTS,
+    quadrants: Sequence[str] = QUADRANTS,
+    n: int = N_BASIS,
+) -> list[Group]:
+    """The candidate groups, all three components each (one basis per variable in the hook):
+    a shape of each variable that varies over ``windows``, the varying-coefficient
+    ``products`` and a constant times each quadrant indicator."""
+    ranges = variable_ranges(windows, params, sorted({*variables, *(v for v, _ in products)}))
+    groups = [Group("XYN", v, *ranges[v], n) for v in variables if v in ranges]
+    groups += [Group("XYN", v, *ranges[v], n, m) for v, m in products if v in ranges]
+    groups += [Group("XYN", "1", multiplier=q) for q in quadrants]
+    return groups
+
+
+@dataclass(frozen=True)
+class Unit:
+    """What the selection picks: one component of one candidate group, its columns."""
+
+    group: Group  # a group of a single component (the shape effect of the chosen ones)
+    columns: tuple[int, ...]  # its coefficients' indices among all columns
+
+    @property
+    def label(self) -> str:
+        return self.group.text
+
+    @property
+    def kind(self) -> tuple[str, str, str]:
+        """(component, scaling, multiplier): units of one kind share the constant function."""
+        g = self.group
+        return g.components, g.scale_name, g.multiplier
+
+
+def _centred(n: int) -> FloatArray:
+    """(n, n - 1) orthonormal basis of the coefficient vectors that sum to 0 (for n = 1: no
+    column; a constant group of a kind already chosen adds nothing)."""
+    U = np.linalg.svd(np.ones((n, 1)))[0]
+    return np.asarray(U[:, 1:])
+
+
+def _block_diag(blocks: Sequence[FloatArray]) -> FloatArray:
+    rows = sum(b.shape[0] for b in blocks)
+    cols = sum(b.shape[1] for b in blocks)
+    out = np.zeros((rows, cols))
+    i = j = 0
+    for b in blocks:
+        out[i : i + b.shape[0], j : j + b.shape[1]] = b
+        i += b.shape[0]
+        j += b.shape[1]
+    return out
+
+
+@dataclass
+class ShapeSelection:
+    """Groups chosen on the trajectory residuals (:meth:`ShapeColumns.select`).
+
+    ``coefficients``: per group its linearised coefficients (fit on all windows, with the
+    penalty), ``penalties``: per group the matrix P = lambda D'D (coefficient units, added to
+    J: J + c'Pc), ``heldout_gain``: the held-out gain with 1, 2, ... groups as a share of the
+    control fits' held-out J, ``edf``: per group its effective degrees of freedom (trace of the hat
+    matrix, mean of the two folds' fits), ``dbic``: in-sample linearised dBIC with sum(edf) in
+    the penalty, ``absorbed``: per group the share of its columns the base imitates."""
+
+    groups: list[Group]
+    coefficients: list[list[float]]
+    penalties: list[FloatArray]
+    heldout_gain: list[float]
+    edf: list[float]
+    dbic: float
+    absorbed: list[float] = field(default_factory=list)
+    #: per group the smoothing chosen: lambda = kappa x the mean diagonal of its Gram matrix
+    kappas: list[float] = field(default_factory=list)
+
+    @property
+    def spec(self) -> str:
+        """The name of the shape effect of the chosen groups ("" if none)."""
+        from mmg.shapes import shape_name
+
+        return shape_name(self.groups) if self.groups else ""
+
+    def effect(self) -> Effect:
+        """The shape effect of the chosen groups (for the joint fit by output error)."""
+        return shape_effect(self.groups)
+
+    def values(self) -> list[float]:
+        """The chosen groups' coefficients in the effect's parameter order."""
+        return [c for cs in self.coefficients for c in cs]
+
+    def penalty(self) -> FloatArray:
+        """(k, k) block-diagonal penalty of all chosen coefficients, parameter order."""
+        return _block_diag(self.penalties)
+
+
+#: what the selection gives for one residual vector: ((unit, kappa) chosen, held-out gain path
+#: as a share of the control fits' held-out J, edf per chosen unit, dBIC)
+_Row = tuple[list[tuple[int, float]], list[float], list[float], float]
+
+
+@dataclass(frozen=True)
+class _Options:
+    max_groups: int
+    min_gain: float
+    kappas: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class _Sides:
+    """The residual's side of the fits for D residual vectors: per fit fold L'Rf (T, D), per
+    (fit, held-out) pair E'ho0 (T, D), the control fits' J summed over the folds (D,) and
+    their held-out J summed over the pairs (D,)."""
+
+    c: list[FloatArray]
+    eh: list[FloatArray]
+    J0: FloatArray
+    Jho: FloatArray
+
+
+class _Part:
+    """One fold's matrices for the shape columns: Gram with the base projected out (LL),
+    raw Gram (G), the columns' base coefficients (B), A'lib (AL) and A'A."""
+
+    def __init__(self, fold: Any, lib: FloatArray, A: FloatArray, grams: FloatArray) -> None:
+        self.fold = fold
+        m_rows = len(fold.ix) * lib.shape[1]
+        self.G = grams[fold.ix].sum(axis=0)
+        Q = fold.Q[:m_rows]
+        Qr = fold.Qr[:m_rows]
+        Af = fold.rows(A)
+        k, n = Q.shape[1], Qr.shape[1]
+        prod = _tmul(lib, fold.ix, np.hstack([Q, Qr, Af])).T  # one pass over the columns
+        QL = prod[:k]  # (rank, T)
+        self.LL = self.G - QL.T @ QL
+        self.B = np.linalg.solve(fold.Rr, prod[k : k + n])  # (57, T)
+        self.AL = prod[k + n :]  # (57, T): A'lib
+        self.AA = Af.T @ Af
+
+
+def _gram(X: FloatArray) -> FloatArray:
+    """X'X in float64."""
+    Y = X.astype(np.float64)
+    return np.asarray(Y.T @ Y)
+
+
+def _tmul(lib: FloatArray, ix: Sequence[int], X: FloatArray) -> FloatArray:
+    """lib_f' X for the rows of windows ``ix`` (lib (S, M, T) of any float type; X
+    (len(ix) M, D)): (T, D) in float64, one window at a time."""
+    M = lib.shape[1]
+    out = np.zeros((lib.shape[2], X.shape[1]))
+    for i, s in enumerate(ix):
+        out += lib[s].astype(np.float64).T @ X[i * M : (i + 1) * M]
+    return out
+
+
+class ShapeColumns:
+    """The trajectory columns of candidate shape groups at the base of ``lin``.
+
+    ``groups``: candidate groups (:func:`candidate_groups`); every component of each is a
+    selection unit. The columns are (r(step e_j) - r(0)) / step for every coefficient j of the
+    groups' shape effect (simulated through its probe, :func:`mmg.shapes.probe_effect`), stored
+    as ``dtype`` (float32 halves the memory: S x M x T values,
+    0.35 GB for Train-R's 190k residuals and 460 columns); the matrices of the fits are formed
+    from them in float64."""
+
+    def __init__(
+        self,
+        lin: Linearised,
+        groups: Sequence[Group],
+        *,
+        step: float = LIBRARY_STEP,
+        dtype: Any = np.float32,
+    ) -> None:
+        import time
+
+        t0 = time.perf_counter()
+        self.lin = lin
+        self.groups = list(groups)
+        self.effect = shape_effect(self.groups)
+        self.units: list[Unit] = []
+        k = 0
+        for g in self.groups:
+            for c in g.components:
+                one = Group(c, g.variable, g.lo, g.hi, g.n, g.multiplier, g.scale)
+                self.units.append(Unit(one, tuple(range(k, k + g.n))))
+                k += g.n
+        self.lib = self._columns(step, dtype)
+        self.simulation_seconds = time.perf_counter() - t0
+        # per-window Gram matrices, then each fold's (fit fold 0, fit fold 1, all windows)
+        self.grams = np.stack([_gram(s) for s in self.lib])
+        self.parts = [_Part(f, self.lib, lin.A, self.grams) for f in lin.folds]
+        self.all = _Part(lin.all, self.lib, lin.A, self.grams)
+        raw = np.array([np.trace(self.all.G[np.ix_(u.columns, u.columns)]) for u in self.units])
+        free = np.array([np.trace(self.all.LL[np.ix_(u.columns, u.columns)]) for u in self.units])
+        #: share of each unit's columns that the base imitates (1: all of it, or no columns)
+        self.absorbed = np.where(raw > 0.0, 1.0 - free / np.maximum(raw, 1e-300), 1.0)
+        self.seconds = time.perf_counter() - t0
+
+    def _columns(self, step: float, dtype: Any) -> FloatArray:
+        """(S, M, T) columns of every coefficient of the candidate effect, simulated through its
+        probe (one basis function per lane), in batches."""
+        lin = self.lin
+        probe = probe_effect(self.groups)
+        obj = Objective(
+            lin.windows, lin.objective, effects=(*lin.base_effects, probe), ship=lin.params.ship
+        )
+        th = np.concatenate([lin.theta, np.zeros(len(probe.params))])
+        r0 = residual_vectors(obj, th[None])[0][0]  # (S, M)
+        S, M = r0.shape
+        units = probe_rows(self.effect, step)  # (T, 4)
+        T = units.shape[0]
+        lib = np.empty((S, M, T), dtype=dtype)
+        per = max(1, BATCH_BYTES // (8 * S * M))
+        for lo in range(0, T, per):
+            idx = np.arange(lo, min(T, lo + per))
+            rows = np.repeat(th[None, :], idx.size, axis=0)
+            rows[:, lin.theta.size :] = units[idx]
+            d = (residual_vectors(obj, rows)[0] - r0[None]) / step  # (c, S, M)
+            lib[:, :, idx] = np.moveaxis(np.where(np.isfinite(d), d, 0.0), 0, -1)
+        return lib
+
+    # -- the residual's side of the fits ------------------------------------------------------
+
+    def _sides(self, R: FloatArray) -> _Sides:
+        """The residual's side of the fits for residual vectors R (S, M, D)."""
+        lin = self.lin
+        cs, ehs = [], []
+        J0 = np.zeros(R.shape[-1])
+        Jho = np.zeros(R.shape[-1])
+        for p in self.parts:
+            f = p.fold
+            Rf = f.resid(f.stack(R))
+            J0 += (Rf * Rf).sum(axis=0)
+            cs.append(_tmul(self.lib, f.ix, Rf[: len(f.ix) * R.shape[1]]))
+        for j, k in ((0, 1), (1, 0)):
+            fj, pk = lin.folds[j], self.parts[k]
+            fk = pk.fold
+            Ak = fk.rows(lin.A)
+            ho0 = fk.rows(R) - Ak @ fj.base_coef(fj.stack(R))
+            Jho += (ho0 * ho0).sum(axis=0)
+            ehs.append(_tmul(self.lib, fk.ix, ho0) - self.parts[j].B.T @ (Ak.T @ ho0))
+        return _Sides(cs, ehs, J0, Jho)
+
+    def _held(self, j: int, k: int) -> FloatArray:
+        """E'E (T, T) of the columns fitted on fold j and held out on fold k."""
+        pj, pk = self.parts[j], self.parts[k]
+        cross = pk.AL.T @ pj.B
+        return np.asarray(pk.G - cross - cross.T + pj.B.T @ pk.AA @ pj.B)
+
+    # -- the fits -----------------------------------------------------------------------------
+
+    def _fit(
+        self, part: _Part, c: FloatArray, chosen: Sequence[tuple[int, float]], edf: bool = False
+    ) -> tuple[FloatArray, FloatArray, list[FloatArray], list[float]]:
+        """Penalised least squares of the units ``chosen`` ((unit, kappa) pairs, in the order
+        chosen) on one fold: (coefficients a, the columns' indices, each unit's penalty matrix
+        in coefficient units, each unit's effective degrees of freedom if ``edf``). The fitted
+        residual is Rf + L a; lambda = kappa x the mean diagonal of the unit's projected Gram
+        matrix. A unit whose level another chosen unit of its kind already carries (same
+        component, scaling and multiplier: the constant is in every spline's span) is fitted
+        centred (its coefficients sum to 0), and its penalty holds it there
+        (:data:`CENTRE_WEIGHT`)."""
+        idx = np.concatenate([self.units[u].columns for u, _ in chosen]).astype(int)
+        Zs, pens, reduced = [], [], []
+        seen: set[tuple[str, str, str]] = set()
+        diag = np.diag(part.LL)
+        for u, kappa in chosen:
+            unit = self.units[u]
+            n = len(unit.columns)
+            scale = max(float(np.mean(diag[list(unit.columns)])), 0.0)
+            P = kappa * scale * difference_penalty(n)
+            Z = _centred(n) if unit.kind in seen else np.eye(n)
+            seen.add(unit.kind)
+            reduced.append(Z.T @ P @ Z)
+            if Z.shape[1] < n:
+                P = P + CENTRE_WEIGHT * scale * np.ones((n, n)) / n
+            Zs.append(Z)
+            pens.append(P)
+        Z = _block_diag(Zs)
+        LLz = Z.T @ part.LL[np.ix_(idx, idx)] @ Z
+        H = LLz + _block_diag(reduced)
+        H[np.diag_indices_from(H)] += 1e-12 * max(float(np.trace(H)), 1e-300) / max(len(H), 1)
+        a = -Z @ np.linalg.solve(H, Z.T @ c[idx])
+        dof: list[float] = []
+        if edf:
+            hat = np.diag(np.linalg.solve(H, LLz))
+            i = 0
+            for Zu in Zs:
+                dof.append(float(hat[i : i + Zu.shape[1]].sum()))
+                i += Zu.shape[1]
+        return a, idx, pens, dof
+
+    def _candidates(self) -> list[int]:
+        """Units that can be chosen: columns not (nearly) all imitated by the base."""
+        return [u for u in range(len(self.units)) if self.absorbed[u] < 1.0 - MIN_FREE]
+
+    def _forward(
+        self, sides: _Sides, d: int, EEs: Sequence[FloatArray], n_eff: float, opts: _Options
+    ) -> _Row:
+        """Forward selection of (unit, kappa) for residual vector d: the best held-out gain
+        summed over both pairs, kept while it raises the held-out gain by ``min_gain`` of the
+        gain so far and lowers the in-sample dBIC."""
+        cs = [c[:, d] for c in sides.c]
+        ehs = [e[:, d] for e in sides.eh]
+        J0 = float(sides.J0[d])
+
+        def heldout(chosen: list[tuple[int, float]]) -> float:
+            total = 0.0
+            for j, eh, EE in zip((0, 1), ehs, EEs, strict=True):
+                a, idx, _, _ = self._fit(self.parts[j], cs[j], chosen)
+                total -= float(2.0 * (a @ eh[idx]) + a @ EE[np.ix_(idx, idx)] @ a)
+            return total
+
+        chosen: list[tuple[int, float]] = []
+        path: list[float] = []
+        best, dbic, edf = 0.0, 0.0, []
+        pool = self._candidates()
+        for _ in range(opts.max_groups):
+            taken = {u for u, _ in chosen}
+            kinds = {self.units[u].kind for u in taken}
+            trials = [
+                (heldout([*chosen, (u, kap)]), u, kap)
+                for u in pool
+                if u not in taken and (self.units[u].group.n > 1 or self.units[u].kind not in kinds)
+                for kap in (opts.kappas if self.units[u].group.n > 2 else opts.kappas[:1])
+            ]
+            if not trials:
+                break
+            g, u, kap = max(trials)
+            if not np.isfinite(g) or g <= 0.0 or g <= best * (1.0 + opts.min_gain):
+                break
+            gain, dof = self._insample(cs, [*chosen, (u, kap)])
+            ratio = max((J0 - gain) / J0, 1e-12) if J0 > 0 else 1.0
+            new = float(n_eff * np.log(ratio) + sum(dof) * np.log(n_eff))
+            if new >= dbic:
+                break
+            chosen.append((u, kap))
+            path.append(g / max(float(sides.Jho[d]), 1e-300))
+            best, dbic, edf = g, new, dof
+        return chosen, path, edf, dbic
+
+    def _insample(
+        self, cs: Sequence[FloatArray], chosen: list[tuple[int, float]]
+    ) -> tuple[float, list[float]]:
+        """(in-sample gain summed over the fold fits, per unit edf averaged over the folds)."""
+        gain = 0.0
+        edf = np.zeros(len(chosen))
+        for part, c in zip(self.parts, cs, strict=True):
+            a, idx, _, dof = self._fit(part, c, chosen, edf=True)
+            gain -= float(2.0 * (a @ c[idx]) + a @ part.LL[np.ix_(idx, idx)] @ a)
+            edf += np.asarray(dof) / len(self.parts)
+        return gain, [float(e) for e in edf]
+
+    def _statistic(self, R: FloatArray, n_eff: float, opts: _Options) -> list[_Row]:
+        """:meth:`_forward` for every residual vector of R (S, M, D)."""
+        if len(self.parts) != 2:
+            raise ValueError("the shape selection needs two folds")
+        sides = self._sides(R)
+        EEs = [self._held(0, 1), self._held(1, 0)]
+        return [self._forward(sides, d, EEs, n_eff, opts) for d in range(R.shape[-1])]
+
+    def select(
+        self,
+        r: FloatArray,
+        n_eff: float,
+        *,
+        max_groups: int = 5,
+        min_gain: float = 0.15,
+        kappas: Sequence[float] = KAPPAS,
+    ) -> ShapeSelection:
+        """The groups chosen for the base's residual vector ``r`` (S, M) (see the module
+        docstring), with their coefficients fitted (linearised, penalised) on all windows."""
+        opts = _Options(max_groups, min_gain, tuple(kappas))
+        chosen, path, edf, dbic = self._statistic(r[..., None], n_eff, opts)[0]
+        coefficients: list[list[float]] = []
+        penalties: list[FloatArray] = []
+        if chosen:
+            f = self.lin.all
+            Rf = f.resid(f.stack(r[..., None]))
+            c = _tmul(self.lib, f.ix, Rf[: len(f.ix) * r.shape[1]])[:, 0]
+            a, _, penalties, _ = self._fit(self.all, c, chosen)
+            i = 0
+            for u, _ in chosen:
+                n = len(self.units[u].columns)
+                coefficients.append([float(v) for v in a[i : i + n]])
+                i += n
+        return ShapeSelection(
+            groups=[self.units[u].group for u, _ in chosen],
+            coefficients=coefficients,
+            penalties=penalties,
+            heldout_gain=path,
+            edf=edf,
+            dbic=dbic,
+            absorbed=[float(self.absorbed[u]) for u, _ in chosen],
+            kappas=[float(k) for _, k in chosen],
+        )
+
+    def null_dbic(
+        self,
+        R: FloatArray,
+        n_eff: float,
+        *,
+        max_groups: int = 5,
+        min_gain: float = 0.15,
+        kappas: Sequence[float] = KAPPAS,
+    ) -> FloatArray:
+        """(D,) the statistic of :meth:`select` (dBIC, 0 when nothing is chosen) for residual
+        vectors R (S, M, D), e.g. of noise-only copies of the windows: its null distribution."""
+        rows = self._statistic(R, n_eff, _Options(max_groups, min_gain, tuple(kappas)))
+        return np.array([row[-1] for row in rows])

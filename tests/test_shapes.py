@@ -1,0 +1,344 @@
+"""Shapes of a missing force: the spline basis and penalty, the shape effect by name, in the
+kernel, and the selection of shape groups on the linearised trajectory columns."""
+
+from __future__ import annotations
+
+import pickle
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mmg import efd_parameters, get_effect
+from mmg.hull import hull_forces
+from mmg.params import N_THETA
+from mmg.shapes import (
+    Group,
+    basis,
+    cardinal_bspline,
+    curve,
+    difference_penalty,
+    parse,
+    penalty,
+    penalty_matrix,
+    probe_rows,
+    shape_effect,
+    shape_name,
+    variable_values,
+)
+from sweep.data.recordings import Recording, read_recordings
+from tests.conftest import kernels
+
+#: the effect of the hook tests: a shape in beta (Y and N), a share of the hull's sway force
+#: in N, a surge force astern, a shape in U times v_m'
+HOOK_SPEC = "shape:YN~beta[-0.5:0.5]/6+N~beta[-0.5:0.5]/5*Y_H+X~1*ast+X~U[0:1.2]/4*v"
+
+
+@pytest.mark.parametrize("n", [4, 5, 8, 13])
+def test_the_basis_sums_to_one_and_is_held_constant_outside_its_range(n: int) -> None:
+    """Partition of unity on [lo, hi] (cubic B-splines on a uniform grid), non-negative, and
+    the clamped variable: below lo the basis is its value at lo, above hi its value at hi."""
+    g = Group("Y", "beta", -0.4, 0.7, n)
+    z = np.linspace(-0.4, 0.7, 301)
+    B = basis(g, z)
+    assert B.shape == (301, n)
+    np.testing.assert_allclose(B.sum(axis=1), 1.0, atol=1e-14)
+    assert B.min() >= -1e-15
+    np.testing.assert_array_equal(basis(g, [-3.0, -0.5]), basis(g, [-0.4, -0.4]))
+    np.testing.assert_array_equal(basis(g, [0.71, 9.0]), basis(g, [0.7, 0.7]))
+    # a cubic polynomial is in the span: the basis reproduces z^3 by least squares to rounding
+    coef, *_ = np.linalg.lstsq(B, z**3, rcond=None)
+    np.testing.assert_allclose(curve(g, coef, z), z**3, atol=1e-12)
+    assert cardinal_bspline(0.0) == pytest.approx(2.0 / 3.0)
+    assert cardinal_bspline([1.0, -1.0, 2.0, 2.5]).tolist() == pytest.approx([1 / 6, 1 / 6, 0, 0])
+    assert basis(Group("X", "1", multiplier="ast"), [1.0, 2.0]).tolist() == [[1.0], [1.0]]
+
+
+def test_the_penalty_leaves_straight_lines_free() -> None:
+    """Second differences: constants and straight lines in the coefficients cost nothing, a
+    bend does; a group's penalty is one block per component; an effect's is block-diagonal."""
+    P = difference_penalty(8)
+    j = np.arange(8.0)
+    assert np.abs(P @ np.ones(8)).max() < 1e-12
+    assert np.abs(P @ j).max() < 1e-12
+    assert (j**2) @ P @ (j**2) == pytest.approx(4.0 * 6)  # six second differences of 2
+    assert np.linalg.matrix_rank(P) == 6
+    g = Group("YN", "rp", -0.5, 0.5, 8)
+    np.testing.assert_array_equal(penalty(g), np.kron(np.eye(2), P))
+    assert not penalty(Group("X", "1", multiplier="rev")).any()
+    eff = get_effect("shape:Y~rp[-0.5:0.5]/5+X~1*rev")
+    Pm = penalty_matrix(eff)
+    assert Pm.shape == (6, 6) and not Pm[5].any()
+    np.testing.assert_array_equal(Pm[:5, :5], difference_penalty(5))
+
+
+def test_a_spec_round_trips_through_its_name() -> None:
+    """spec -> groups -> name is the identity for a canonical name; get_effect rebuilds the
+    effect from its name with one coefficient per basis function and component (neutral 0),
+    pickles by name, and a malformed or non-canonical name is a clear error."""
+    groups = parse(HOOK_SPEC)
+    assert [g.text for g in groups] == HOOK_SPEC.removeprefix("shape:").split("+")
+    assert shape_name(groups) == HOOK_SPEC
+    assert groups[1] == Group("N", "beta", -0.5, 0.5, 5, "Y_H")
+    eff = get_effect(HOOK_SPEC)
+    assert eff.name == HOOK_SPEC
+    assert len(eff.params) == 12 + 5 + 1 + 4
+    assert eff.param_names[:7] == (*(f"s0_Y{j}" for j in range(6)), "s0_N0")
+    assert eff.neutral() == (0.0,) * 22
+    assert "Y_H L_pp" in eff.params[12].description
+    assert pickle.loads(pickle.dumps(eff)) is eff
+    narrow = shape_effect(groups, bound=0.2)
+    back = pickle.loads(pickle.dumps(narrow))
+    assert back.name == HOOK_SPEC and back.params == narrow.params and back.bounds[1][0] == 0.2
+    big = Group("X", "t", 0.0, 1.5e6, 4)
+    assert parse(shape_name([big]))[0] == big and "+" not in big.text
+    with pytest.raises(KeyError, match="write the shape effect"):
+        get_effect("shape:Y~beta[-0.50:0.5]/6")
+    for bad, why in (
+        ("shape:Q~beta[0:1]/6", "expected e.g."),
+        ("shape:Y~warp[0:1]/6", "unknown shape variable"),
+        ("shape:Y~beta[1:0]/6", "empty"),
+        ("shape:Y~beta[0:1]/3", "basis functions"),
+        ("shape:NY~beta[0:1]/6", "in this order"),
+        ("shape:Y~beta[0:1]/6*JP", "unknown multiplier"),
+        ("shape:Y~beta[0:1]/6*Y_H@U2", "takes no scale"),
+        ("shape:Y~1+Y~1", "repeated"),
+    ):
+        with pytest.raises(KeyError, match=why):
+            get_effect(bad)
+
+
+def test_a_shape_effect_pickles_into_a_fresh_process() -> None:
+    """A Ray worker rebuilds the effect from its name (its module is not on the import path)."""
+    eff = shape_effect("shape:N~t[0:600]/4", bound=0.3)
+    code = (
+        "import pickle, sys; e = pickle.loads(sys.stdin.buffer.read()); "
+        "print(e.name, e.bounds[1][0], len(e.params), e.force_at is not None)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], input=pickle.dumps(eff), capture_output=True, check=True
+    )
+    assert out.stdout.decode().split() == ["shape:N~t[0:600]/4", "0.3", "4", "True"]
+
+
+def test_the_hook_adds_the_scaled_shapes() -> None:
+    """The generated hook (called from Python): all coefficients of a component equal to c
+    give c times the scaling (partition of unity); the hull-force share gives c Y_H L_pp; the
+    astern group acts only astern; the product group carries v_m / U_e."""
+    p = efd_parameters()
+    th, sh = p.theta, p.ship
+    eff = get_effect(HOOK_SPEC)
+    q = 0.5 * sh.rho * sh.L_pp * sh.d
+
+    def force(values: dict[str, float], u: float, v_m: float, r: float) -> np.ndarray:
+        e = eff.param_type(**{n: values.get(n, 0.0) for n in eff.param_names})
+        args = (12.0, 1.0, 2.0, u, v_m, r, 0.3, 0.1, 10.0, 1.0, 0.5, e, th, sh)
+        return np.array(eff.force_at(*args))
+
+    u, v_m, r = 0.5, -0.08, 0.02
+    U2 = u * u + v_m * v_m
+    for j in range(6):
+        assert force({f"s0_Y{j}": 1.0}, u, v_m, r)[1] >= 0.0
+    ones_Y = {f"s0_Y{j}": 0.3 for j in range(6)}
+    np.testing.assert_allclose(force(ones_Y, u, v_m, r), [0.0, 0.3 * q * U2, 0.0], rtol=1e-12)
+    # far outside [-0.5, 0.5] the beta shape keeps its value at the end of the range
+    one = {"s0_N5": 1.0}
+    beyond = force(one, 0.2, -2.0, r)[2] / (q * sh.L_pp * (0.04 + 4.0))
+    at_end = force(one, 0.5, -0.5 * np.tan(0.5), r)[2] / (q * sh.L_pp * 0.25 / np.cos(0.5) ** 2)
+    assert beyond == pytest.approx(at_end, rel=1e-12) and beyond == pytest.approx(1 / 6)
+    Y_H = hull_forces(u, v_m, r, th, sh)[1]
+    share = {f"s1_N{j}": 0.2 for j in range(5)}
+    assert force(share, u, v_m, r)[2] == pytest.approx(0.2 * Y_H * sh.L_pp, rel=1e-12)
+    assert force({"s2_X0": 0.5}, u, v_m, r)[0] == 0.0
+    assert force({"s2_X0": 0.5}, -u, v_m, r)[0] == pytest.approx(0.5 * q * U2, rel=1e-12)
+    prod = {f"s3_X{j}": 1.0 for j in range(4)}
+    Ue = np.sqrt(U2 + 0.05**2)
+    assert force(prod, u, v_m, r)[0] == pytest.approx(q * U2 * v_m / Ue, rel=1e-12)
+
+
+def test_the_probe_gives_the_force_of_each_coefficient() -> None:
+    """The probe (parameters G, C, J, A) gives exactly the force of the shape effect with its
+    coefficient (G, C, J) at A and every other at 0, ahead and astern; A = 0 gives nothing."""
+    p = efd_parameters()
+    eff = get_effect(HOOK_SPEC)
+    probe = get_effect(HOOK_SPEC + "#probe")
+    assert probe.param_names == ("G", "C", "J", "A") and probe.neutral() == (0.0,) * 4
+    rows = probe_rows(eff, 0.7)
+    assert rows.shape == (22, 4) and rows[12].tolist() == [1.0, 2.0, 0.0, 0.7]
+    for u, v_m in ((0.5, -0.08), (-0.3, 0.05)):
+        args = (12.0, 1.0, 2.0, u, v_m, 0.02, 0.3, 0.1, 10.0, 1.0, 0.5)
+        for i, row in enumerate(rows):
+            values = np.zeros(22)
+            values[i] = 0.7
+            want = eff.force_at(*args, eff.param_type(*values), p.theta, p.ship)
+            got = probe.force_at(*args, probe.param_type(*row), p.theta, p.ship)
+            assert got == pytest.approx(want, rel=1e-12, abs=1e-300), (i, u)
+        nothing = probe.force_at(*args, probe.param_type(1.0, 2.0, 3.0, 0.0), p.theta, p.ship)
+        assert nothing == (0.0, 0.0, 0.0)
+
+
+def test_variables_from_recorded_samples() -> None:
+    """The variables as the hook sees them, from recorded samples (for the knot ranges)."""
+    p = efd_parameters()
+    x = np.array([[1.0, 0.5, 2.0, -0.05, 7.0, 0.01], [3.0, -0.2, 4.0, 0.01, -0.5, 0.0]])
+    c = np.array([[0.2, 10.0], [0.0, 5.0]])
+    w = np.array([[2.0, 0.0], [0.0, 0.0]])
+    t = np.array([5.0, 6.0])
+
+    def values(name: str) -> np.ndarray:
+        return variable_values(name, t, x, c, w, p.theta, p.ship)
+
+    assert values("beta") == pytest.approx(np.arctan2([0.05, -0.01], [0.5, -0.2]))
+    assert values("psi") == pytest.approx([7.0 - 2 * np.pi, -0.5])
+    assert values("UA")[1] == pytest.approx(np.hypot(0.2, 0.01))
+    assert values("gammaA")[0] == pytest.approx(
+        np.arctan2(2 * np.sin(-7.0) - 0.05, 2 * np.cos(7.0) + 0.5)
+    )
+    assert values("JP")[0] > 0 > values("JP")[1]
+    assert abs(values("alphaR")[0] - 0.2) < 0.2
+    assert values("t").tolist() == [5.0, 6.0]
+    with pytest.raises(ValueError, match="unknown shape variable"):
+        values("warp")
+
+
+def test_candidate_groups_span_the_recorded_ranges() -> None:
+    """Knots over the 0.5-99.5 % range of each variable in the windows; a variable that does
+    not vary there (the propeller speed here) is left out; products and quadrant constants."""
+    from sweep.diagnose.shapes import candidate_groups
+
+    p = efd_parameters()
+    k = np.arange(401)
+    x = np.zeros((401, 6))
+    x[:, 1] = 0.5 + 0.1 * np.sin(k / 30.0)
+    x[:, 3] = 0.05 * np.sin(k / 20.0)
+    x[:, 5] = 0.01 * np.cos(k / 25.0)
+    c = np.column_stack([0.3 * np.sin(k / 40.0), np.full(401, 10.0)])
+    w = np.zeros((401, 2))
+    wins = [Recording(f"w{i}", None, 100.0 * i + 0.1 * k, x, c, w) for i in range(2)]
+    groups = candidate_groups(wins, p, products=(("U", "v"),), quadrants=("ast",), n=6)
+    by = {(g.variable, g.multiplier): g for g in groups}
+    assert ("n", "") not in by and ("beta", "") in by and ("t", "") in by
+    beta = np.arctan2(-x[:, 3], x[:, 1])
+    assert (by["beta", ""].lo, by["beta", ""].hi) == pytest.approx(
+        tuple(np.quantile(beta, [0.005, 0.995]))
+    )
+    assert by["U", "v"].n == 6 and by["1", "ast"].components == "XYN"
+    assert all(g.components == "XYN" for g in groups)
+
+
+#: the candidates of the selection test: shapes in beta, r' and t, six basis functions each
+SELECT_SPEC = "shape:XYN~beta[-2.4:0.35]/6+XYN~rp[-0.7:0.8]/6+XYN~t[0:2600]/6"
+
+
+@pytest.mark.integration  # compiles the kernel of a shape effect
+@pytest.mark.kernels(*kernels((), "simulate", "moments"), *kernels((SELECT_SPEC,), "simulate"))
+def test_a_shape_in_the_kernel_pushes_the_ship_its_way(data_dir: Path) -> None:
+    """A constant sway force to starboard (every Y coefficient of the t shape at c > 0, its
+    scaling U_ref^2: Y = 0.5 rho L d c) makes the simulated ship drift to starboard: v_m and
+    the cross-track position grow against the neutral effect, which changes nothing."""
+    from mmg import simulate_batch
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = read_recordings(data_dir / "data" / "random")[0]
+    eff = get_effect(SELECT_SPEC)
+    p = efd_parameters()
+    K = 300
+    x0, u, w = rec.x[:1], rec.u[None, :K], rec.w[None, :K]
+    theta = np.zeros((3, N_THETA + len(eff.params)))
+    theta[:, :N_THETA] = p.vector()
+    theta[2, [eff.param_names.index(f"s2_Y{j}") for j in range(6)]] = 2e-3
+    base = simulate_batch(x0, u, w, p.vector()[None]).states[0]
+    runs = [simulate_batch(x0, u, w, th[None], effects=(eff,)).states[0] for th in theta[1:]]
+    np.testing.assert_array_equal(runs[0], base)
+    dv = runs[1][:, 3] - base[:, 3]
+    assert dv[-1] > 0.0 and np.all(dv[1:] > 0.0)
+    psi = base[:, 4]
+    cross = -(runs[1][:, 0] - base[:, 0]) * np.sin(psi) + (runs[1][:, 2] - base[:, 2]) * np.cos(psi)
+    assert cross[100] > 0.0
+
+
+@pytest.fixture(scope="module")
+def small_case(data_dir: Path):
+    """Four 100-s windows of a perturbed ship without noise, and the noise of the recordings."""
+    from benchmarks.planted import PlantedSpec, generate, noise_levels, perturbed_ship, pick_windows
+
+    from sweep.diagnose.floor import NoiseModel
+    from sweep.diagnose.windows import cut_windows
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        runs = {k: read_recordings(data_dir / "data" / k) for k in ("random", "turning", "zigzag")}
+    rng = np.random.default_rng(3)
+    ship = perturbed_ship(rng, 0.15)
+    wins = pick_windows(runs, {"random": 2, "turning": 1, "zigzag": 1}, rng)
+    levels = noise_levels([r for v in runs.values() for r in v])
+    clean, _ = generate(wins, ship, PlantedSpec("none"), dict.fromkeys(levels, 0.0), rng)
+    return ship, cut_windows(clean), NoiseModel(levels, dict.fromkeys(levels, 0.0))
+
+
+@pytest.mark.integration  # compiles the kernel of a shape effect
+@pytest.mark.kernels(
+    *kernels((), "simulate", "moments"),
+    *kernels((SELECT_SPEC,), "simulate"),
+    *kernels((SELECT_SPEC + "#probe",), "simulate"),
+)
+def test_the_selection_finds_a_planted_shape_and_nothing_in_noise(small_case) -> None:
+    """A yaw moment N = 0.5 rho L^2 d U^2 f(beta) (f oscillating, up to 0.01) planted in
+    noisy windows: the selection on the linearised trajectory columns picks N(beta) first,
+    with a held-out gain, fewer effective degrees of freedom than coefficients and a dBIC far
+    below the null of the same statistic on noise-only copies; on the noise-only windows it
+    picks nothing."""
+    from sweep.diagnose.discover import null_sets
+    from sweep.diagnose.floor import simulate_windows
+    from sweep.diagnose.linearised import Linearised
+    from sweep.diagnose.scoring import n_effective
+    from sweep.diagnose.shapes import ShapeColumns
+    from sweep.identification.vector import with_effects
+
+    ship, windows, noise = small_case
+    eff = get_effect(SELECT_SPEC)
+    groups = parse(SELECT_SPEC)
+    g = groups[0]
+    centres = g.lo + (np.arange(g.n) - 1.0) * (g.hi - g.lo) / (g.n - 3)
+    values = np.zeros(len(eff.params))
+    values[[eff.param_names.index(f"s0_N{j}") for j in range(6)]] = -0.01 * np.sin(3 * centres)
+    truth = with_effects(ship, (eff,), values)
+    rng = np.random.default_rng(8)
+    sims = simulate_windows(truth, windows)
+    data = [
+        Recording(w.name, None, w.t, x + noise.draw(rng, x.shape[0]), w.u, w.w)
+        for w, x in zip(windows, sims, strict=True)
+    ]
+    folds = ([0, 2], [1, 3])
+    n_eff = n_effective(data, "J2")
+    lin = Linearised(ship, data, folds, ())
+    cols = ShapeColumns(lin, groups)
+    assert cols.lib.shape == (4, 7007, 54) and cols.lib.dtype == np.float32
+    sel = cols.select(lin.residuals(data), n_eff)
+    assert sel.groups[0].text == "N~beta[-2.4:0.35]/6"
+    assert sel.heldout_gain[0] > 0.2
+    assert 1.0 < sel.edf[0] < 6.0
+    assert sel.spec.startswith("shape:N~beta[-2.4:0.35]/6")
+    k = 6 * len(sel.groups)
+    assert len(sel.values()) == k and sel.penalty().shape == (k, k)
+    R = np.stack(
+        [lin.residuals(r) for r in null_sets(ship, windows, noise, np.random.default_rng(2), 20)],
+        axis=-1,
+    )
+    null = cols.null_dbic(R, n_eff)
+    assert null.shape == (20,)
+    assert sel.dbic < min(float(np.quantile(null, 0.05)), 0.0) - 30.0
+    # noise only: the same selection on noisy copies of the truth-free windows picks nothing
+    quiet_data = [
+        Recording(
+            w.name, None, w.t, w.x + noise.draw(np.random.default_rng(5), w.x.shape[0]), w.u, w.w
+        )
+        for w in windows
+    ]
+    quiet_lin = Linearised(ship, quiet_data, folds, ())
+    quiet = ShapeColumns(quiet_lin, groups).select(quiet_lin.residuals(quiet_data), n_eff)
+    assert quiet.groups == [] and quiet.dbic == 0.0

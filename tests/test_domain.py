@@ -50,6 +50,7 @@ def test_a_wrapped_effect_is_rebuilt_by_name_and_pickles_by_name():
     assert get_effect(held.name) is held
     assert pickle.loads(pickle.dumps(held)).name == held.name
     assert held.params == walk.params and held.param_type is walk.param_type
+    assert hash(held) == hash(pickle.loads(pickle.dumps(held)))  # (kernels are kept by effects)
     # wrapping a wrapped effect replaces its box
     off = within(held, BOX.with_mode("off"))
     assert off.name == "propeller_walk@off(u=0.2:1.3,n_p=3:5)"

@@ -39,7 +39,7 @@ def _context(tmp_path: Path, lines: list[str], **settings: object) -> Context:
     )
 
 
-def _null(threshold: float, heldout: float = 0.0) -> AcceptanceNull:
+def _null(threshold: float, heldout: float = 0.0, worst_run: float = 0.05) -> AcceptanceNull:
     return AcceptanceNull(
         alpha=0.05,
         draws=3,
@@ -47,6 +47,7 @@ def _null(threshold: float, heldout: float = 0.0) -> AcceptanceNull:
         quantile=threshold,
         best=[],
         heldout_quantile=heldout,
+        worst_run_quantile=worst_run,
     )
 
 
@@ -118,6 +119,11 @@ def test_a_candidate_that_does_not_carry_over_to_held_out_runs_is_not_accepted(
     # the better fits do not carry over: the first accepted candidate in rank order is chosen
     assert (v.verdict, v.effect) == ("propeller_walk", "propeller_walk")
     assert "does not carry over" in lines[2]
+    # a gain in total that makes one held-out run worse than noise would is not accepted
+    scores[2].worst_run_change = 0.08
+    v = decide(ctx, scores, leaders, _null(-10.0, heldout=0.5), significant=True)
+    assert (v.verdict, v.effect) == ("unexplained", "")
+    assert "worst run +8.0 %: does not carry over" in lines[-1]
     # a negative null quantile does not let a held-out loss through
     v = decide(ctx, scores[1:2], ["current"], _null(-10.0, heldout=-5.0), significant=False)
     assert (v.verdict, v.effect) == ("none", "")

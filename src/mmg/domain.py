@@ -34,7 +34,7 @@ import os
 import re
 import sys
 import threading
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from mmg.effect import Effect
@@ -220,8 +220,9 @@ class DomainEffect(Effect):
     """A wrapped effect: ``inner`` acting in ``domain``. It pickles as the two (its module lives
     in the kernel directory, not on the import path, and is written again where it is loaded)."""
 
-    inner: Effect | None = None
-    domain: Domain | None = None
+    # (the name states both: they take no part in comparisons and the hash)
+    inner: Effect | None = field(default=None, compare=False)
+    domain: Domain | None = field(default=None, compare=False)
 
     def __reduce__(self) -> tuple[Any, ...]:
         return (within, (self.inner, self.domain))
@@ -238,15 +239,15 @@ def within(effect: Effect, domain: Domain) -> Effect:
     if made is not None and made.params == effect.params:
         return made
     hooks: dict[str, Any] = {}
-    for field, position in (("force", False), ("force_at", True)):
-        hook = getattr(effect, field)
+    for kind, position in (("force", False), ("force_at", True)):
+        hook = getattr(effect, kind)
         if hook is None:
             continue
         probe = _hook_source(hook, position, d, "HOOK", effect.name)
         key = hashlib.sha256((name + probe).encode()).hexdigest()[:16]
-        func = f"{field}_{key}"
+        func = f"{kind}_{key}"
         text = _hook_source(hook, position, d, func, effect.name).replace("{name}", name)
-        hooks[field] = getattr(_load(name, text, key), func)
+        hooks[kind] = getattr(_load(name, text, key), func)
     where = "held at the boundary of" if d.mode == "held" else "switched off outside"
     wrapped = DomainEffect(
         name=name,

@@ -19,6 +19,7 @@ from mmg import Effect
 from mmg.effect import DISCOVERED_PREFIX
 from sweep.diagnose.context import Context
 from sweep.diagnose.fit import Fit, FitSettings
+from sweep.diagnose.floor import run_of
 from sweep.diagnose.scoring import CandidateScore, delta_bic, heldout_per_window, typical_change
 from sweep.diagnose.store import stage_label
 from sweep.identification.polish import PolishSettings
@@ -34,6 +35,8 @@ class FoldFits:
 
     fits: list[Fit]
     J_heldout: FloatArray
+    #: the run of each held-out window (:func:`sweep.diagnose.floor.run_of`)
+    runs: tuple[str, ...] = ()
 
 
 @dataclass
@@ -88,6 +91,7 @@ def fold_fits(
     fits: list[Fit] = []
     J_ho: list[float] = []
     halves = ((ctx.fit_w, ctx.held_w), (ctx.held_w, ctx.fit_w))
+    runs = tuple(run_of(w) for _, held in halves for w in held)
     for j, (fit_half, held_half) in enumerate(halves):
         p0 = base.params if starts is None else starts[j].params
         res = ctx.staged(
@@ -97,7 +101,7 @@ def fold_fits(
         )
         fits.append(res)
         J_ho += heldout_per_window(held_half, res.params, ctx.settings.objective)
-    return FoldFits(fits, np.asarray(J_ho))
+    return FoldFits(fits, np.asarray(J_ho), runs)
 
 
 def score(
@@ -109,6 +113,7 @@ def score(
     best = min(range(2), key=lambda j: cand.fits[j].f / max(control.fits[j].f, 1e-300))
     vals = effect_values(cand.fits[best].params, (eff,))
     J_ho, J_ho_control = cand.J_heldout, control.J_heldout
+    run, change = worst_run(J_ho, J_ho_control, control.runs)
     scored = CandidateScore(
         effect=eff.name,
         description=eff.description,
@@ -119,10 +124,27 @@ def score(
         improvement=typical_change(J_ho, J_ho_control),
         improvement_total=float(1.0 - J_ho.sum() / max(J_ho_control.sum(), 1e-300)),
         heldout_gain=float(J_ho_control.sum() - J_ho.sum()),
+        worst_run=run,
+        worst_run_change=change,
         delta_bic=delta_bic(J_fit, sum(f.f for f in control.fits), len(eff.params), n_eff),
         evaluations=sum(f.evaluations for f in cand.fits),
     )
     return scored, cand.fits[best]
+
+
+def worst_run(
+    J_effect: FloatArray, J_control: FloatArray, runs: Sequence[str]
+) -> tuple[str, float]:
+    """The held-out run whose J the effect changes most for the worse, and that relative change
+    (J summed over the run's held-out windows; a diverged window counts as infinitely worse)."""
+    worst, change = "", -np.inf
+    for run in dict.fromkeys(runs):
+        rows = [i for i, r in enumerate(runs) if r == run]
+        a, b = float(np.sum(J_effect[rows])), float(np.sum(J_control[rows]))
+        c = a / b - 1.0 if b > 0 and np.isfinite(a) else np.inf
+        if c > change:
+            worst, change = run, c
+    return worst, float(change)
 
 
 def fit_candidates(ctx: Context, base: Fit, extra: Sequence[Effect]) -> Candidates:

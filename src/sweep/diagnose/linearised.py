@@ -24,6 +24,7 @@ from mmg.params import N_THETA
 from sweep.data.objective import Objective
 from sweep.data.recordings import Recording
 from sweep.diagnose.discover import spans
+from sweep.diagnose.floor import run_of
 from sweep.identification.polish import residual_vectors
 from sweep.identification.vector import effect_values
 
@@ -195,6 +196,17 @@ class _Fold:
 
     def resid(self, X: FloatArray) -> FloatArray:
         return X - self.Q @ (self.Q.T @ X)
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """The linearised fits on residual vectors (S, M, D): every candidate's dBIC (D,), and for
+    each column's best candidate its held-out gain [J] (D,) and the largest relative change of
+    the held-out J of one run (D,; positive: that run fits worse)."""
+
+    dbic: dict[str, FloatArray]
+    gain: FloatArray
+    worst_run: FloatArray
 
 
 @dataclass
@@ -381,19 +393,19 @@ class Linearised:
                 out[f"discovered/{t + 1}"] = (lib_gain[t], t + 1)
         return J0, out
 
-    def heldout(self, R: FloatArray, n_eff: float) -> tuple[dict[str, FloatArray], FloatArray]:
-        """({candidate: dBIC (D,)}, the held-out gain (D,) of each column's best candidate) for
-        residual vectors R (S, M, D).
+    def heldout(self, R: FloatArray, n_eff: float) -> HeldOut:
+        """The dBIC of every candidate and, for each column's best candidate (the lowest dBIC,
+        as the verdict would pick it; ``discovered``: the number of library terms with the
+        lowest dBIC), what its fits do on the held-out runs, for residual vectors R (S, M, D).
 
-        The held-out gain of a candidate is what its linearised fit on one fold takes off the
-        control's J on the other fold's windows, both ways round (J units, positive: better
-        there); the best candidate of a column is the one with the lowest dBIC, as the verdict
-        would pick it (``discovered``: the number of library terms with the lowest dBIC)."""
+        A candidate's linearised fit on one fold is judged on the other fold's windows, both
+        ways round, against the control fitted alike: its held-out gain [J] and the relative
+        change of the held-out J of each run (:func:`sweep.diagnose.floor.run_of`)."""
         J0, gains = self.gains(R)
-        dbic: dict[str, FloatArray] = {}
-        held: dict[str, FloatArray] = {}
         pairs = [self._pair(j, k, R) for j, k in ((0, 1), (1, 0))]
         library = self._heldout_library(pairs, R) if self.lib is not None else {}
+        dbic: dict[str, FloatArray] = {}
+        held: dict[str, FloatArray] = {}  # per held-out window (W, D)
         for name, (gain, k) in gains.items():
             ratio = np.clip((J0 - gain) / J0, 1e-12, None)
             v = np.asarray(n_eff * np.log(ratio) + k * np.log(n_eff))
@@ -403,23 +415,36 @@ class Linearised:
                 if key == "discovered"
                 else self._heldout_candidate(pairs, name)
             )
-            better = v < dbic[key] if key in dbic else np.ones(v.shape, dtype=bool)
-            dbic[key] = np.where(better, v, dbic[key]) if key in dbic else v
-            held[key] = np.where(better, h, held[key]) if key in held else h
+            if key in dbic:
+                better = v < dbic[key]
+                dbic[key] = np.where(better, v, dbic[key])
+                held[key] = np.where(better[None, :], h, held[key])
+            else:
+                dbic[key], held[key] = v, h
         names = list(dbic)
         best = np.argmin(np.stack([dbic[n] for n in names]), axis=0)
-        H = np.stack([held[n] for n in names])
-        return dbic, H[best, np.arange(H.shape[1])]
+        cols = np.arange(best.size)
+        gain_w = np.stack([held[n] for n in names])[best, :, cols].T  # (W, D)
+        J0_w = np.concatenate([np.asarray(p["J0_w"]) for p in pairs])  # (W, D)
+        runs = [run_of(self.windows[i]) for k in (1, 0) for i in self.folds[k].ix]
+        worst = np.full(best.size, -np.inf)
+        for run in dict.fromkeys(runs):
+            rows = [i for i, r in enumerate(runs) if r == run]
+            j0 = J0_w[rows].sum(axis=0)
+            change = -gain_w[rows].sum(axis=0) / np.maximum(j0, 1e-300)
+            worst = np.maximum(worst, change)
+        return HeldOut(dbic, gain_w.sum(axis=0), worst)
 
     def _pair(self, j: int, k: int, R: FloatArray) -> dict[str, object]:
         """What every candidate's held-out gain from fold j to fold k needs: the folds, the
-        fold-k base Jacobian rows, the fold-j residuals with the base projected out and the
-        control's held-out residuals H0 (fold-k rows, D)."""
+        fold-k base Jacobian rows, the fold-j residuals with the base projected out, the
+        control's held-out residuals H0 (fold-k rows, D) and its J per fold-k window (W_k, D)."""
         fj, fk = self.folds[j], self.folds[k]
         Ak = fk.rows(self.A)
         Rj = fj.resid(fj.stack(R))
         H0 = fk.rows(R) - Ak @ fj.base_coef(fj.stack(R))
-        return {"fj": fj, "fk": fk, "Ak": Ak, "Rj": Rj, "H0": H0}
+        J0_w = (H0 * H0).reshape(len(fk.ix), -1, H0.shape[1]).sum(axis=1)
+        return {"fj": fj, "fk": fk, "Ak": Ak, "Rj": Rj, "H0": H0, "J0_w": J0_w}
 
     @staticmethod
     def _images(pair: dict[str, object], X: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -431,57 +456,75 @@ class Linearised:
         E = fk.rows(X) - Ak @ fj.base_coef(fj.stack(X))
         return C, E
 
+    @staticmethod
+    def _per_window(pair: dict[str, object], X: FloatArray) -> FloatArray:
+        """Rows of fold k (W_k * M, D) summed per window: (W_k, D)."""
+        fk = pair["fk"]
+        assert isinstance(fk, _Fold)
+        return X.reshape(len(fk.ix), -1, X.shape[1]).sum(axis=1)
+
     def _heldout_candidate(self, pairs: Sequence[dict[str, object]], name: str) -> FloatArray:
-        """(D,) held-out gain of a candidate's fits: the span of its derivatives, or its best
-        single grid direction where that fits the fold better (as :meth:`gains` scores it)."""
+        """(W, D) held-out gain per held-out window (fold 1's, then fold 0's) of a candidate's
+        fits: the span of its derivatives, or its best single grid direction where that fits
+        the fold better (as :meth:`gains` scores it)."""
         dcols, gcols, _ = self.cand[name]
-        total: FloatArray = np.zeros(0)
+        out = []
         for pair in pairs:
             Rj, H0 = pair["Rj"], pair["H0"]
             assert isinstance(Rj, np.ndarray) and isinstance(H0, np.ndarray)
             C, E = self._images(pair, dcols)
             Q = _orth(C)
-            a = np.linalg.lstsq(C, Rj, rcond=None)[0] if C.shape[1] else np.zeros((0, Rj.shape[1]))
+            D = Rj.shape[1]
+            a = np.linalg.lstsq(C, Rj, rcond=None)[0] if C.shape[1] else np.zeros((0, D))
             EA = E @ a
-            h = 2.0 * (H0 * EA).sum(axis=0) - (EA * EA).sum(axis=0)
-            fit = ((Q.T @ Rj) ** 2).sum(axis=0) if Q.shape[1] else np.zeros(Rj.shape[1])
+            h = self._per_window(pair, 2.0 * H0 * EA - EA * EA)
+            fit = ((Q.T @ Rj) ** 2).sum(axis=0) if Q.shape[1] else np.zeros(D)
             if gcols.shape[-1]:
                 G, Eg = self._images(pair, gcols)
                 n2 = np.maximum((G * G).sum(axis=0), 1e-300)[:, None]
                 P = G.T @ Rj  # (g, D)
-                ag = P / n2
-                hg = 2.0 * ag * (Eg.T @ H0) - ag * ag * (Eg * Eg).sum(axis=0)[:, None]
                 i = np.argmax(P * P / n2, axis=0)
-                cols = np.arange(Rj.shape[1])
+                cols = np.arange(D)
                 use = (P * P / n2)[i, cols] > fit
-                h = np.where(use, hg[i, cols], h)
-            total = h if total.size == 0 else total + h
-        return total
+                if use.any():
+                    EG = Eg[:, i] * (P[i, cols] / n2[i, 0])[None, :]  # the chosen direction's
+                    hg = self._per_window(pair, 2.0 * H0 * EG - EG * EG)
+                    h = np.where(use[None, :], hg, h)
+            out.append(h)
+        return np.concatenate(out)
 
     def _heldout_library(
         self, pairs: Sequence[dict[str, object]], R: FloatArray
     ) -> dict[int, FloatArray]:
-        """{t: (D,) held-out gain of the first t library terms of each column's greedy path}
-        (the terms :meth:`gains` chose in-sample), fitted on one fold, judged on the other."""
+        """{t: (W, D) held-out gain per held-out window of the first t library terms of each
+        column's greedy path} (the terms :meth:`gains` chose in-sample), fitted on one fold,
+        judged on the other."""
         assert self.lib is not None
         parts = [_library_part(f, self.lib, f.resid(f.stack(R))) for f in self.folds]
         _, paths = _greedy(parts, self.library_terms, self.term_ids)
         D = R.shape[-1]
-        out = {t: np.zeros(D) for t in range(1, self.library_terms + 1)}
+        out: dict[int, list[FloatArray]] = {t: [] for t in range(1, self.library_terms + 1)}
         for (j, _), pair in zip(((0, 1), (1, 0)), pairs, strict=True):
-            H0 = pair["H0"]
-            assert isinstance(H0, np.ndarray)
+            H0, fk = pair["H0"], pair["fk"]
+            assert isinstance(H0, np.ndarray) and isinstance(fk, _Fold)
             _, E = self._images(pair, self.lib)
-            EH, EE = E.T @ H0, E.T @ E
+            W = len(fk.ix)
+            Ew = E.reshape(W, -1, E.shape[1])
+            EH = np.einsum("wmt,wmd->wtd", Ew, H0.reshape(W, -1, D))  # per window E'H0
+            EE = np.einsum("wmt,wms->wts", Ew, Ew)  # per window E'E
             C, Rp, n0 = parts[j]
-            for d in range(D):
-                for t in out:
+            for t in out:
+                h = np.zeros((W, D))
+                for d in range(D):
                     S = paths[d][:t]  # (a path that stopped early keeps its last terms)
                     if not S:
                         continue
                     a = -np.linalg.lstsq(C[:, S], Rp[:, d], rcond=None)[0] / n0[S]
-                    out[t][d] -= float(2.0 * (a @ EH[S, d]) + a @ EE[np.ix_(S, S)] @ a)
-        return out
+                    h[:, d] = -(
+                        2.0 * EH[:, S, d] @ a + np.einsum("s,wst,t->w", a, EE[:, S][:, :, S], a)
+                    )
+                out[t].append(h)
+        return {t: np.concatenate(v) for t, v in out.items()}
 
     def refit_factor(self, R: FloatArray) -> float:
         """Mean J of the base refitted (linearised, with the prior) on all windows over the mean

@@ -50,7 +50,11 @@ class CandidateScore:
     improvement_total: float = 0.0  # relative change of the summed held-out J
     #: what the fits take off the control's summed J on the held-out runs [J] (positive: better)
     heldout_gain: float = 0.0
-    #: whether the held-out gain exceeds the null's (:mod:`sweep.diagnose.threshold`)
+    #: the held-out run the fits make worst, and by how much (relative change of its J)
+    worst_run: str = ""
+    worst_run_change: float = 0.0
+    #: the held-out gain exceeds the null's and no held-out run gets worse than the null allows
+    #: (:mod:`sweep.diagnose.threshold`)
     carries_over: bool = False
 
 

@@ -8,7 +8,9 @@ linearised (:class:`sweep.diagnose.linearised.Linearised`), never above :data:`C
 It must also carry over: its fits on one fold must take more off the control's J on the other
 fold's whole runs than the best candidate's fits do on the same noise-only copies in all but a
 share ``alpha`` of them (the held-out gain's null, :attr:`AcceptanceNull.heldout_threshold`,
-never below zero).
+never below zero), and it must make no held-out run worse by more than the best candidate's fits
+make their worst held-out run on the same copies in all but a share ``alpha`` of them
+(:attr:`AcceptanceNull.worst_run_limit`).
 The procedure is described in the user guide (docs/guide/diagnosis.md).
 """
 
@@ -46,6 +48,16 @@ class AcceptanceNull:
     #: (never below 0): the gain on held-out runs a candidate must exceed
     heldout_best: list[float] = field(default_factory=list)
     heldout_quantile: float = 0.0
+    #: the largest relative worsening of one held-out run by each draw's best candidate, and
+    #: its 1 - alpha quantile: how much worse than that a candidate may make no held-out run
+    worst_run: list[float] = field(default_factory=list)
+    worst_run_quantile: float = 0.0
+
+    @property
+    def worst_run_limit(self) -> float:
+        """The relative worsening of a held-out run a candidate may not exceed: the null's
+        quantile, at least 0."""
+        return max(self.worst_run_quantile, 0.0)
 
     @property
     def heldout_threshold(self) -> float:
@@ -76,6 +88,8 @@ class AcceptanceNull:
                 "quantile": self.heldout_quantile,
                 "median": float(np.median(self.heldout_best)) if self.heldout_best else 0.0,
                 "q": 1.0 - self.alpha,
+                "worst_run_limit": self.worst_run_limit,
+                "worst_run_median": float(np.median(self.worst_run)) if self.worst_run else 0.0,
             },
         }
 
@@ -98,7 +112,8 @@ def acceptance_null(
     # null residual vectors of the base model on noisy copies of the windows
     cols = [lin.residuals(recs) for recs in null_sets(params, windows, noise, rng, draws)]
     R = np.stack(cols, axis=-1)
-    per, held = lin.heldout(R, n_eff)
+    ho = lin.heldout(R, n_eff)
+    per, held = ho.dbic, ho.gain
     best = np.min(np.stack(list(per.values())), axis=0)
     q = float(np.quantile(best, alpha))
     return AcceptanceNull(
@@ -115,4 +130,6 @@ def acceptance_null(
         refit_factor=lin.refit_factor(R),
         heldout_best=[float(h) for h in held],
         heldout_quantile=float(np.quantile(held, 1.0 - alpha)),
+        worst_run=[float(w) for w in ho.worst_run],
+        worst_run_quantile=float(np.quantile(ho.worst_run, 1.0 - alpha)),
     )

@@ -54,7 +54,9 @@ def _log_threshold(ctx: Context, null: AcceptanceNull, threshold: float) -> None
     ctx.log(
         f"carrying over: a held-out gain above {null.heldout_threshold:.4g} (the "
         f"{1 - s.alpha:.0%} quantile of the best candidate's held-out gain over {null.draws} "
-        f"noise-only copies, {null.heldout_quantile:.4g}, at least 0)"
+        f"noise-only copies, {null.heldout_quantile:.4g}, at least 0), and no held-out run "
+        f"worse by more than {100 * null.worst_run_limit:.1f} % (the same quantile of the best "
+        "candidate's worst held-out run)"
     )
 
 
@@ -74,7 +76,9 @@ def decide(
     _log_threshold(ctx, null, threshold)
     refined = s.refine_top > 0 and s.refine_iterations > 0
     for c in scores:
-        c.carries_over = c.heldout_gain > null.heldout_threshold
+        c.carries_over = (
+            c.heldout_gain > null.heldout_threshold and c.worst_run_change <= null.worst_run_limit
+        )
         c.accepted = (
             c.refined == refined
             and c.improvement >= s.min_improvement
@@ -91,7 +95,8 @@ def decide(
         "ranking: "
         + ", ".join(
             f"{c.effect} dBIC {c.delta_bic:.0f} ({100 * c.improvement:+.1f}% held out, gain "
-            f"{c.heldout_gain:.3g}{'' if c.carries_over else ': does not carry over'})"
+            f"{c.heldout_gain:.3g}, worst run {100 * c.worst_run_change:+.1f} %"
+            f"{'' if c.carries_over else ': does not carry over'})"
             for c in ranked
         )
         + f" -> verdict: {verdict}"

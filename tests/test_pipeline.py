@@ -39,7 +39,7 @@ def _context(tmp_path: Path, lines: list[str], **settings: object) -> Context:
     )
 
 
-def _null(threshold: float, heldout: float = 0.0, worst_run: float = 0.05) -> AcceptanceNull:
+def _null(threshold: float, heldout: float = 0.0, worst_run: float = 0.3) -> AcceptanceNull:
     return AcceptanceNull(
         alpha=0.05,
         draws=3,
@@ -120,10 +120,10 @@ def test_a_candidate_that_does_not_carry_over_to_held_out_runs_is_not_accepted(
     assert (v.verdict, v.effect) == ("propeller_walk", "propeller_walk")
     assert "does not carry over" in lines[2]
     # a gain in total that makes one held-out run worse than noise would is not accepted
-    scores[2].worst_run_change = 0.08
+    scores[2].worst_run_change, scores[2].worst_run_loss = 0.08, 0.4
     v = decide(ctx, scores, leaders, _null(-10.0, heldout=0.5), significant=True)
     assert (v.verdict, v.effect) == ("unexplained", "")
-    assert "worst run +8.0 %: does not carry over" in lines[-1]
+    assert "worst run +8.0 % (+0.4): does not carry over" in lines[-1]
     # a negative null quantile does not let a held-out loss through
     v = decide(ctx, scores[1:2], ["current"], _null(-10.0, heldout=-5.0), significant=False)
     assert (v.verdict, v.effect) == ("none", "")

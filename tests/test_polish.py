@@ -165,6 +165,29 @@ def test_prior_picks_the_plausible_point_along_a_flat_direction(windows):
     assert err_prior < 0.1 * err_plain, (err_prior, err_plain)
 
 
+def test_a_quadratic_penalty_enters_the_normal_equations(windows):
+    """theta' P theta on two parameters: a large weight on (a - b)^2 pulls them together (the
+    second-difference penalty of a shape does this to neighbouring coefficients); J alone is
+    what Polished.f reports."""
+    truth = efd_parameters()
+    data = _synthetic(windows, truth)
+    obj = Objective(data, "J2")
+    lo, hi = bounds()
+    i, j = PARAMETER_NAMES.index("t_R"), PARAMETER_NAMES.index("a_H")
+    start = truth.vector().copy()
+    start[i] *= 1.05
+    P = np.zeros((N_THETA, N_THETA))
+    P[np.ix_([i, j], [i, j])] = 1e4 * np.array([[1.0, -1.0], [-1.0, 1.0]])
+    s = PolishSettings(max_iterations=30)
+    plain = polish(obj, Box(lo, hi), start, s)
+    pen = polish(obj, Box(lo, hi), start, s, penalty=P)
+    gap = truth.vector()[i] - truth.vector()[j]
+    assert abs(pen.theta[i] - pen.theta[j]) < 0.2 * abs(gap)  # pulled together
+    assert abs(plain.theta[i] - plain.theta[j]) > 0.5 * abs(gap)
+    r, bad = residual_vectors(obj, pen.theta[None])
+    assert pen.f == pytest.approx(float(totals(obj, r, bad)[0]), rel=1e-12)
+
+
 def test_refinement_runs_its_linear_algebra_on_one_blas_thread(windows):
     """With two BLAS threads, OpenBLAS's second thread spins on after each J J' and takes a core
     from the simulator's threads; the refinement limits BLAS to one thread and restores it."""

@@ -112,6 +112,11 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--candidates", default="", help="comma-separated effect names (default all)")
     ap.add_argument("--min-improvement", type=float, default=d.min_improvement)
     ap.add_argument(
+        "--no-shapes",
+        action="store_true",
+        help="do not learn the shape of the missing force as a candidate",
+    )
+    ap.add_argument(
         "--outside",
         choices=("held", "off"),
         default=d.outside,
@@ -201,6 +206,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
         candidates=names,
         min_improvement=args.min_improvement,
         outside=args.outside,
+        shapes=not args.no_shapes,
         max_delta_bic=args.max_delta_bic,
         prior_weight=args.prior_weight,
         final_prior_weight=args.final_prior_weight,

@@ -16,14 +16,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mmg import Effect
-from mmg.effect import DISCOVERED_PREFIX
 from sweep.diagnose.context import Context
 from sweep.diagnose.fit import Fit, FitSettings
 from sweep.diagnose.floor import run_of
-from sweep.diagnose.scoring import CandidateScore, delta_bic, heldout_per_window, typical_change
+from sweep.diagnose.scoring import (
+    CandidateScore,
+    delta_bic,
+    generated,
+    heldout_per_window,
+    typical_change,
+)
 from sweep.diagnose.store import stage_label
 from sweep.identification.polish import PolishSettings
-from sweep.identification.vector import effect_values
+from sweep.identification.vector import effect_values, with_effects
 
 FloatArray = NDArray[np.float64]
 
@@ -105,15 +110,16 @@ def fold_fits(
 
 
 def score(
-    eff: Effect, cand: FoldFits, control: FoldFits, n_eff: float
+    eff: Effect, cand: FoldFits, control: FoldFits, n_eff: float, k: float | None = None
 ) -> tuple[CandidateScore, Fit]:
     """The score of ``eff``'s fold fits against the control's, and the fold fit that carries
-    the effect's values (the one that gained more over its control)."""
+    the effect's values (the one that gained more over its control); ``k``: the parameters it
+    counts in dBIC (default: its number of parameters)."""
     J_fit = sum(f.f for f in cand.fits)
     best = min(range(2), key=lambda j: cand.fits[j].f / max(control.fits[j].f, 1e-300))
     vals = effect_values(cand.fits[best].params, (eff,))
     J_ho, J_ho_control = cand.J_heldout, control.J_heldout
-    run, change = worst_run(J_ho, J_ho_control, control.runs)
+    run, change, loss = worst_run(J_ho, J_ho_control, control.runs)
     scored = CandidateScore(
         effect=eff.name,
         description=eff.description,
@@ -126,7 +132,10 @@ def score(
         heldout_gain=float(J_ho_control.sum() - J_ho.sum()),
         worst_run=run,
         worst_run_change=change,
-        delta_bic=delta_bic(J_fit, sum(f.f for f in control.fits), len(eff.params), n_eff),
+        worst_run_loss=loss,
+        delta_bic=delta_bic(
+            J_fit, sum(f.f for f in control.fits), len(eff.params) if k is None else k, n_eff
+        ),
         evaluations=sum(f.evaluations for f in cand.fits),
     )
     return scored, cand.fits[best]
@@ -134,17 +143,19 @@ def score(
 
 def worst_run(
     J_effect: FloatArray, J_control: FloatArray, runs: Sequence[str]
-) -> tuple[str, float]:
-    """The held-out run whose J the effect changes most for the worse, and that relative change
-    (J summed over the run's held-out windows; a diverged window counts as infinitely worse)."""
-    worst, change = "", -np.inf
+) -> tuple[str, float, float]:
+    """The held-out run whose J the effect raises most, that run's relative change and its
+    loss [J] (J summed over the run's held-out windows; a diverged window counts as infinitely
+    worse)."""
+    worst, change, loss = "", -np.inf, -np.inf
     for run in dict.fromkeys(runs):
         rows = [i for i, r in enumerate(runs) if r == run]
         a, b = float(np.sum(J_effect[rows])), float(np.sum(J_control[rows]))
-        c = a / b - 1.0 if b > 0 and np.isfinite(a) else np.inf
-        if c > change:
-            worst, change = run, c
-    return worst, float(change)
+        d = a - b if np.isfinite(a) else np.inf
+        if d > loss:
+            worst, loss = run, d
+            change = a / b - 1.0 if b > 0 and np.isfinite(a) else np.inf
+    return worst, float(change), float(loss)
 
 
 def fit_candidates(ctx: Context, base: Fit, extra: Sequence[Effect]) -> Candidates:
@@ -156,8 +167,15 @@ def fit_candidates(ctx: Context, base: Fit, extra: Sequence[Effect]) -> Candidat
     for i, eff in enumerate(effects, 1):
         ctx.log(f"candidate {i}/{len(effects)}: {eff.name}")
         t_c = time.perf_counter()
-        out.folds[eff.name] = fold_fits(ctx, base, f"candidate-{eff.name}", (eff,), settings)
-        c, out.best_fold[eff.name] = score(eff, out.folds[eff.name], control, ctx.n_eff)
+        starts = None
+        if eff.name in ctx.starts:  # a learned shape starts from its linearised coefficients
+            p0 = with_effects(base.params, (eff,), ctx.starts[eff.name])
+            start = replace(base, params=p0, effects=(eff,))
+            starts = [start, start]
+        name = f"candidate-{eff.name}"
+        out.folds[eff.name] = fold_fits(ctx, base, name, (eff,), settings, starts)
+        k = ctx.parameter_count(eff)
+        c, out.best_fold[eff.name] = score(eff, out.folds[eff.name], control, ctx.n_eff, k)
         c.seconds = time.perf_counter() - t_c
         out.scores.append(c)
     return out
@@ -171,9 +189,7 @@ def leading(scores: Sequence[CandidateScore], threshold: float, top: int) -> lis
     leaders += [
         c.effect
         for c in scores
-        if c.effect.startswith(DISCOVERED_PREFIX)
-        and c.delta_bic <= threshold
-        and c.effect not in leaders
+        if generated(c.effect) and c.delta_bic <= threshold and c.effect not in leaders
     ]
     return leaders
 
@@ -197,7 +213,7 @@ def refine(ctx: Context, base: Fit, cands: Candidates, threshold: float) -> Cand
         folds = fold_fits(
             ctx, base, f"candidate-{name}-refined", (eff,), settings, cands.folds[name].fits
         )
-        c, best_fold[name] = score(eff, folds, control, ctx.n_eff)
+        c, best_fold[name] = score(eff, folds, control, ctx.n_eff, ctx.parameter_count(eff))
         c.refined = True
         c.seconds = time.perf_counter() - t_c
         refined.append(c)

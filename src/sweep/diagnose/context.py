@@ -7,7 +7,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -66,6 +66,16 @@ class Context:
     store: StageStore
     log: Log
     n_eff: float
+    #: per generated effect with a smoothness penalty (a learned shape): the penalty (k, k) its
+    #: fits add, its effective degrees of freedom (dBIC's parameter count) and start values
+    penalties: dict[str, tuple[tuple[float, ...], ...]] = field(default_factory=dict)
+    dof: dict[str, float] = field(default_factory=dict)
+    starts: dict[str, list[float]] = field(default_factory=dict)
+
+    def parameter_count(self, effect: Effect) -> float:
+        """The parameters an effect counts in dBIC: its effective degrees of freedom when it has
+        a penalty, else its number of parameters."""
+        return self.dof.get(effect.name, float(len(effect.params)))
 
     @classmethod
     def open(
@@ -131,7 +141,12 @@ class Context:
         label: str,
     ) -> Fit:
         """Every fit of the diagnosis: from ``p0`` on ``recs``; its refinement's prior is
-        centred on the start (``--params``)."""
+        centred on the start (``--params``). An effect with a penalty (a learned shape) is
+        fitted with it, by Levenberg-Marquardt from its values in ``p0`` (no effect-only
+        search)."""
+        penalised = [self.penalties[e.name] for e in effs if e.name in self.penalties]
+        if penalised and len(effs) == 1:
+            settings = replace(settings, penalty=penalised[0], effect_only_budget=0)
         return fit(
             recs,
             p0,

@@ -102,7 +102,7 @@ def reidentify(
     effect = next(e for e in cands.effects if e.name == verdict.effect)
     start = cands.best_fold[verdict.effect]
     after = reidentify_with(ctx, base, before, effect, start, verdict.verdict)
-    confirm = delta_bic(after.f, before.f, len(effect.params), ctx.n_eff)
+    confirm = delta_bic(after.f, before.f, ctx.parameter_count(effect), ctx.n_eff)
     confirmation = {"effect": verdict.effect, "delta_bic": confirm}
     if confirm > threshold:
         ctx.log(

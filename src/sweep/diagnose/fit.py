@@ -50,6 +50,9 @@ class FitSettings:
     #: Levenberg-Marquardt refinement after CMA-ES (None: none); with ``budget`` 0 the fit is
     #: the effect-only grid followed by this refinement alone (deterministic)
     polish: PolishSettings | None = None
+    #: (k, k) quadratic penalty c' P c on the effects' k parameters c (their units), added in
+    #: the refinement: a shape's smoothness (:func:`sweep.diagnose.shapes`); None: none
+    penalty: tuple[tuple[float, ...], ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -131,10 +134,16 @@ def fit(
     if settings.polish is not None:
         done = spent
         center = None if prior_center is None else full_vector(prior_center, effects)
-        res = polish(obj, box, theta, settings.polish, prior_center=center)
+        P = None
+        if settings.penalty is not None:
+            P = np.zeros((box.n, box.n))
+            P[N_THETA:, N_THETA:] = np.asarray(settings.penalty, dtype=np.float64)
+        res = polish(obj, box, theta, settings.polish, prior_center=center, penalty=P)
         spent += res.evaluations
         history += [{**row, "evaluations": row["evaluations"] + done} for row in res.history]
-        with_prior = settings.polish.prior_weight > 0 and settings.polish.prior_dims > 0
+        with_prior = (
+            settings.polish.prior_weight > 0 and settings.polish.prior_dims > 0
+        ) or settings.penalty is not None
         if with_prior or res.f < f:
             theta, f = res.theta, res.f
     return Fit(

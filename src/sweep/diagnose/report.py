@@ -112,6 +112,70 @@ def discovered_entry(d: Diagnosis) -> dict[str, Any]:
     }
 
 
+def shape_entry(d: Diagnosis) -> dict[str, Any]:
+    """The learned shape when the verdict is ``shape``: per group its formula, the range it was
+    learnt on, its values on a grid, and the closed forms closest to it; else {}."""
+    if d.verdict != "shape":
+        return {}
+    from mmg.shapes import VARIABLES, curve, groups_of
+    from sweep.diagnose.naming import CLOSE, closest_forms
+
+    eff = get_effect(d.verdict_effect)
+    values = d.finding_values()
+    groups = []
+    for g, group in enumerate(groups_of(eff)):
+        for comp in group.components:
+            names = [f"s{g}_{comp}{j}" for j in range(group.n)]
+            coef = [values.get(n, 0.0) for n in names]
+            entry: dict[str, Any] = {
+                "group": group.text,
+                "component": comp,
+                "formula": group.formula(comp, g),
+                "variable": group.variable,
+                "coefficients": coef,
+            }
+            if group.variable != "1":
+                var = VARIABLES[group.variable]
+                z = np.linspace(group.lo, group.hi, 9)
+                entry.update(
+                    {
+                        "range": [group.lo, group.hi],
+                        "unit": var.unit,
+                        "meaning": var.meaning,
+                        "z": [float(v) for v in z],
+                        "f": [float(v) for v in curve(group, coef, z)],
+                    }
+                )
+                forms = closest_forms(group, coef)
+                entry["closest"] = [asdict(c) for c in forms]
+                entry["named"] = bool(forms) and forms[0].r2 >= CLOSE
+            groups.append(entry)
+    return {"effect": d.verdict_effect, "groups": groups}
+
+
+def _shape_text(d: Diagnosis) -> str:
+    entry = shape_entry(d)
+    parts = []
+    for g in entry["groups"]:
+        if g["variable"] == "1":
+            parts.append(f"{g['formula']} = {g['coefficients'][0]:.3g}")
+            continue
+        lo, hi = g["range"]
+        text = (
+            f"{g['formula']}, a smooth function of the {g['meaning']} learnt over "
+            f"[{lo:.3g}, {hi:.3g}] {g['unit']} (held at its end values beyond)"
+        )
+        if g.get("named"):
+            c = g["closest"][0]
+            text += f"; close to {c['a']:.3g} + {c['b']:.3g} {c['formula']} (R^2 {c['r2']:.2f})"
+        parts.append(text)
+    return (
+        "Missing physics, learned as a shape (no library term or catalog effect): "
+        + "; ".join(parts)
+        + ". See shapes.png and the table in report.md. "
+    )
+
+
 def _best_text(d: Diagnosis) -> str:
     best = d.candidates[0] if d.candidates else None
     if best is None:
@@ -178,7 +242,11 @@ def _found_statement(d: Diagnosis) -> str:
     eff = get_effect(d.verdict_effect)
     units = {q.name: q.unit for q in eff.params}
     values = ", ".join(f"{k} = {v:.4g} {units[k]}" for k, v in after.items())
-    if d.verdict == "discovered":
+    if d.verdict == "shape":
+        text = _shape_text(d)
+        dof = sum(d.shape.selection.edf) if d.shape is not None else float("nan")
+        values = f"{len(after)} spline coefficients ({dof:.1f} effective degrees of freedom)"
+    elif d.verdict == "discovered":
         entry = discovered_entry(d)
         like = entry["resembles"]
         text = (
@@ -295,6 +363,8 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
         "verdict": d.verdict,
         "statement": statement(d),
         "discovered": discovered_entry(d),
+        "shape": shape_entry(d),
+        "shapes": d.shape.as_dict() if d.shape is not None else None,
         "misfit": asdict(d.misfit) if d.misfit is not None else None,
         "generalisation": _generalisation_dict(d.generalisation),
         "generalisation_after": _generalisation_dict(d.generalisation_after),
@@ -643,6 +713,9 @@ def write_figures(
     trajectories; returns their file names."""
     plot_candidates(d, out / "candidates.png")
     figures = ["candidates.png"]
+    if d.verdict == "shape":
+        plot_shapes(d, out / "shapes.png")
+        figures.append("shapes.png")
     if view.get("terms"):
         plot_regression(view, out / "equation_residuals.png")
         figures.append("equation_residuals.png")
@@ -660,6 +733,71 @@ def write_figures(
         plot_trajectories(d, test, out / "trajectories.png")
         figures += ["residual_vs_regime.png", "trajectories.png"]
     return figures
+
+
+def plot_shapes(d: Diagnosis, path: Path) -> None:
+    """Each learned shape f(z) over its range and a little beyond (held there)."""
+    entry = shape_entry(d)
+    curves = [g for g in entry["groups"] if g["variable"] != "1"]
+    if not curves:
+        return
+    from mmg.shapes import curve, parse
+
+    groups = {g.text: g for g in parse(entry["effect"])}
+    fig, axes = plt.subplots(1, len(curves), figsize=(4.5 * len(curves), 3.4), squeeze=False)
+    for ax, g in zip(axes[0], curves, strict=True):
+        lo, hi = g["range"]
+        pad = 0.15 * (hi - lo)
+        z = np.linspace(lo - pad, hi + pad, 300)
+        ax.plot(z, curve(groups[g["group"]], g["coefficients"], z), "C0")
+        ax.axvspan(lo, hi, color="C0", alpha=0.08, label="learnt over")
+        if g.get("closest"):
+            c = g["closest"][0]
+            ax.set_title(f"closest: {c['formula']} (R^2 {c['r2']:.2f})", fontsize=8)
+        ax.axhline(0.0, color="k", lw=0.5)
+        ax.set_xlabel(f"{g['variable']} [{g['unit']}]")
+        ax.set_ylabel(f"f_{g['component']} [-]")
+        ax.legend(fontsize=7)
+    fig.suptitle(f"learned shape(s): {entry['effect']}", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _shape_md(d: Diagnosis) -> list[str]:
+    """The learned shape: formula, table and plot (verdict ``shape``), or the selection's
+    result otherwise."""
+    sp = d.shape
+    if sp is None:
+        return []
+    sel = sp.selection
+    md = [
+        "## Learned shape of the missing force",
+        "",
+        f"Groups chosen on the trajectory residuals: `{sel.spec or 'none'}`; effective degrees "
+        f"of freedom {sum(sel.edf):.1f}; held-out gain "
+        + ", ".join(f"{100 * g:.0f} %" for g in sel.heldout_gain)
+        + f" of the control's held-out J; linearised dBIC {sel.dbic:.1f} against the null's "
+        f"quantile {sp.threshold:.1f} ({len(sp.null)} noise-only copies): "
+        + ("proposed." if sp.proposed else "not proposed."),
+        "",
+    ]
+    entry = shape_entry(d)
+    for g in entry.get("groups", []):
+        md += [f"`{g['formula']}`", ""]
+        if g["variable"] == "1":
+            md += [f"value {g['coefficients'][0]:.4g}", ""]
+            continue
+        md += [f"| {g['variable']} [{g['unit']}] | f |", "|---:|---:|"]
+        md += [f"| {z:.4g} | {f:.4g} |" for z, f in zip(g["z"], g["f"], strict=True)]
+        md += ["", "Closest closed forms (a + b g, share of the shape's variance kept):", ""]
+        md += [
+            f"- {c['a']:.3g} + {c['b']:.3g} {c['formula']}: R^2 {c['r2']:.2f}" for c in g["closest"]
+        ]
+        md.append("")
+    if entry:
+        md += ["![learned shape](shapes.png)", ""]
+    return md
 
 
 def _misfit_md(d: Diagnosis) -> list[str]:
@@ -851,6 +989,7 @@ def report_md(
         *_candidates_md(d),
         *_test_md(d, test),
         *_ranges_md(d),
+        *_shape_md(d),
         *_procedure_md(d),
     ]
     return "\n".join(md)

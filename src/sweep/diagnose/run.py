@@ -3,7 +3,8 @@
 :func:`diagnose` runs the stages in order over one :class:`~sweep.diagnose.context.Context`:
 base (:mod:`~sweep.diagnose.base`), floor, null and misfit
 (:mod:`~sweep.diagnose.calibration`), location (:mod:`~sweep.diagnose.location`), proposals
-(:mod:`~sweep.diagnose.proposals`), candidates and their refinement
+(:mod:`~sweep.diagnose.proposals`), the learned shape (:mod:`~sweep.diagnose.shaping`),
+candidates and their refinement
 (:mod:`~sweep.diagnose.candidates`), threshold and verdict (:mod:`~sweep.diagnose.verdict`),
 re-identification and confirmation (:mod:`~sweep.diagnose.final`), the test recordings
 (:mod:`~sweep.diagnose.carry_over`), and returns the :class:`Diagnosis` the report shows. Every
@@ -42,6 +43,7 @@ from sweep.diagnose.location import Location, locate_misfit
 from sweep.diagnose.proposals import Proposals, propose
 from sweep.diagnose.scoring import CandidateScore
 from sweep.diagnose.settings import DiagnoseSettings
+from sweep.diagnose.shaping import ShapeProposal, propose_shape
 from sweep.diagnose.verdict import acceptance_threshold, decide
 
 
@@ -80,6 +82,8 @@ class Diagnosis:
     departures: list[Departure] = field(default_factory=list)
     #: the test table of the finding without its box (extrapolated beyond the ranges)
     test_unbounded: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: the learned shape of the missing force (None with shapes off)
+    shape: ShapeProposal | None = None
 
     @property
     def threshold(self) -> float:
@@ -148,12 +152,19 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
     base, cal, base_retry = second_start(ctx, base, calibrate(ctx, base.params))
     location = locate_misfit(ctx, base.params)
     proposals = propose(ctx, base.params, cal)
+    shape = propose_shape(ctx, base.params, cal)
+    extra = proposals.effects
+    if shape is not None and shape.proposed:
+        extra = (*extra, shape.effect)
+        precompile(tasks([(shape.effect,)]), log=ctx.log)
     threshold = acceptance_threshold(s, cal.null)
-    cands = refine(ctx, base, fit_candidates(ctx, base, proposals.effects), threshold)
+    cands = refine(ctx, base, fit_candidates(ctx, base, extra), threshold)
     verdict = decide(ctx, cands.scores, cands.leaders, cal.null, cal.misfit.significant)
     final = reidentify(ctx, base, cands, verdict, threshold, cal.misfit.significant)
     tested = carry_over(ctx, final, cal.noise)
-    return report(ctx, t0, base, cal, base_retry, location, proposals, cands, tested)
+    out = report(ctx, t0, base, cal, base_retry, location, proposals, cands, tested)
+    out.shape = shape
+    return out
 
 
 def report(

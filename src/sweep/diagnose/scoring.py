@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from mmg import Parameters, get_effect
 from mmg.effect import DISCOVERED_PREFIX
+from mmg.shapes import SHAPE_PREFIX
 from sweep.data.objective import CHANNELS, OBJECTIVES, Objective
 from sweep.data.recordings import Recording
 
@@ -50,12 +51,19 @@ class CandidateScore:
     improvement_total: float = 0.0  # relative change of the summed held-out J
     #: what the fits take off the control's summed J on the held-out runs [J] (positive: better)
     heldout_gain: float = 0.0
-    #: the held-out run the fits make worst, and by how much (relative change of its J)
+    #: the held-out run the fits make worst, by how much (relative change of its J) and its
+    #: loss [J]
     worst_run: str = ""
     worst_run_change: float = 0.0
+    worst_run_loss: float = 0.0
     #: the held-out gain exceeds the null's and no held-out run gets worse than the null allows
     #: (:mod:`sweep.diagnose.threshold`)
     carries_over: bool = False
+
+
+def generated(effect: str) -> bool:
+    """Whether ``effect`` is generated (library terms or a learned shape), not a named one."""
+    return effect.startswith((DISCOVERED_PREFIX, SHAPE_PREFIX))
 
 
 def rank(scores: Sequence[CandidateScore], tie_margin: float = TIE_MARGIN) -> list[CandidateScore]:
@@ -69,9 +77,7 @@ def rank(scores: Sequence[CandidateScore], tie_margin: float = TIE_MARGIN) -> li
     best = by_bic[0].delta_bic
     margin = max(TIE_ABSOLUTE, tie_margin * abs(best)) if math.isfinite(best) else 0.0
     tied = [c for c in by_bic if c.delta_bic - best <= margin]
-    tied.sort(
-        key=lambda c: (not c.accepted, c.effect.startswith(DISCOVERED_PREFIX), -c.improvement)
-    )
+    tied.sort(key=lambda c: (not c.accepted, generated(c.effect), -c.improvement))
     return tied + [c for c in by_bic if c not in tied]
 
 
@@ -103,7 +109,7 @@ def n_effective(windows: Sequence[Recording], objective: str) -> float:
     return len(CHANNELS[objective]) * duration / TAU
 
 
-def delta_bic(J_effect: float, J_control: float, k: int, n_eff: float) -> float:
+def delta_bic(J_effect: float, J_control: float, k: float, n_eff: float) -> float:
     """BIC(effect) - BIC(control) with J as the residual sum of squares of n_eff samples."""
     if J_effect <= 0 or J_control <= 0:
         return math.inf

@@ -91,6 +91,10 @@ class DiagnoseSettings:
     #: landscape led CMA-ES and the descent alone to one point (the planted case the second
     #: start was made for had ended at 1.52 and 2.77)
     base_retry_agreement: float = 0.01
+    #: learn the shape of the missing force (:mod:`sweep.diagnose.shaping`) as one more candidate
+    shapes: bool = True
+    #: noise-only copies of the shape selection's null
+    shape_null_draws: int = 40
     #: what a finding does beyond the states of the training recordings (:mod:`mmg.domain`):
     #: ``held`` at its value on the boundary of their box, or switched ``off``
     outside: str = "held"
@@ -117,6 +121,8 @@ class DiagnoseSettings:
             "generalisation_alpha",
             "generalisation_margin",
             "outside",  # (the test stage only)
+            "shapes",  # (the shape only adds a candidate, with stages of its own)
+            "shape_null_draws",
         )
         data = {k: v for k, v in asdict(self).items() if k not in skip}
         data["procedure"] = PROCEDURE_VERSION  # stages of an older procedure are not reused

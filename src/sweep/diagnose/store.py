@@ -17,6 +17,7 @@ import numpy as np
 
 from mmg import Effect, Parameters
 from mmg.effect import DISCOVERED_PREFIX
+from mmg.shapes import SHAPE_PREFIX
 from sweep.data.recordings import Recording
 from sweep.diagnose.fit import Fit
 
@@ -73,10 +74,11 @@ def stage_label(name: str, effects: Sequence[Effect]) -> str:
     """A file-name-safe stage name; a generated effect's name is replaced by a hash of its terms
     and search box (a different proposal is a different stage)."""
     for e in effects:
-        if e.name.startswith(DISCOVERED_PREFIX) and e.name in name:
-            h = hashlib.sha256(e.name.encode())
-            h.update(json.dumps(e.bounds).encode())
-            name = name.replace(e.name, f"discovered-{h.hexdigest()[:10]}")
+        for prefix in (DISCOVERED_PREFIX, SHAPE_PREFIX):
+            if e.name.startswith(prefix) and e.name in name:
+                h = hashlib.sha256(e.name.encode())
+                h.update(json.dumps(e.bounds).encode())
+                name = name.replace(e.name, f"{prefix[:-1]}-{h.hexdigest()[:10]}")
     return name
 
 

@@ -10,7 +10,8 @@ fold's whole runs than the best candidate's fits do on the same noise-only copie
 share ``alpha`` of them (the held-out gain's null, :attr:`AcceptanceNull.heldout_threshold`,
 never below zero), and it must make no held-out run worse by more than the best candidate's fits
 make their worst held-out run on the same copies in all but a share ``alpha`` of them
-(:attr:`AcceptanceNull.worst_run_limit`).
+(:attr:`AcceptanceNull.worst_run_limit`; the best catalog candidate's, as the library's greedy
+selection on noise is not what a proposal fits).
 The procedure is described in the user guide (docs/guide/diagnosis.md).
 """
 
@@ -48,15 +49,15 @@ class AcceptanceNull:
     #: (never below 0): the gain on held-out runs a candidate must exceed
     heldout_best: list[float] = field(default_factory=list)
     heldout_quantile: float = 0.0
-    #: the largest relative worsening of one held-out run by each draw's best candidate, and
-    #: its 1 - alpha quantile: how much worse than that a candidate may make no held-out run
+    #: the largest loss [J] of one held-out run by each draw's best catalog candidate, and its
+    #: 1 - alpha quantile: a candidate may make no held-out run worse than that
     worst_run: list[float] = field(default_factory=list)
     worst_run_quantile: float = 0.0
 
     @property
     def worst_run_limit(self) -> float:
-        """The relative worsening of a held-out run a candidate may not exceed: the null's
-        quantile, at least 0."""
+        """The loss [J] of one held-out run a candidate may not exceed: the null's quantile, at
+        least 0."""
         return max(self.worst_run_quantile, 0.0)
 
     @property

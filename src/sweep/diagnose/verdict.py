@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from mmg.effect import DISCOVERED_PREFIX
+from mmg.shapes import SHAPE_PREFIX
 from sweep.diagnose.context import Context
 from sweep.diagnose.scoring import CandidateScore, rank
 from sweep.diagnose.settings import DiagnoseSettings
@@ -28,8 +29,11 @@ class Verdict:
 
 def verdict_name(effect: str, significant: bool) -> str:
     """The verdict for the chosen ``effect`` ("" for none), given whether the misfit test found
-    the base significantly above the noise floor."""
+    the base significantly above the noise floor: ``discovered`` for library terms, ``shape``
+    for a learned shape."""
     if effect:
+        if effect.startswith(SHAPE_PREFIX):
+            return "shape"
         return "discovered" if effect.startswith(DISCOVERED_PREFIX) else effect
     return "unexplained" if significant else "none"
 
@@ -55,8 +59,8 @@ def _log_threshold(ctx: Context, null: AcceptanceNull, threshold: float) -> None
         f"carrying over: a held-out gain above {null.heldout_threshold:.4g} (the "
         f"{1 - s.alpha:.0%} quantile of the best candidate's held-out gain over {null.draws} "
         f"noise-only copies, {null.heldout_quantile:.4g}, at least 0), and no held-out run "
-        f"worse by more than {100 * null.worst_run_limit:.1f} % (the same quantile of the best "
-        "candidate's worst held-out run)"
+        f"worse by more than {null.worst_run_limit:.4g} (the same quantile of the loss of the "
+        "best catalog candidate's worst held-out run)"
     )
 
 
@@ -77,7 +81,7 @@ def decide(
     refined = s.refine_top > 0 and s.refine_iterations > 0
     for c in scores:
         c.carries_over = (
-            c.heldout_gain > null.heldout_threshold and c.worst_run_change <= null.worst_run_limit
+            c.heldout_gain > null.heldout_threshold and c.worst_run_loss <= null.worst_run_limit
         )
         c.accepted = (
             c.refined == refined
@@ -95,7 +99,8 @@ def decide(
         "ranking: "
         + ", ".join(
             f"{c.effect} dBIC {c.delta_bic:.0f} ({100 * c.improvement:+.1f}% held out, gain "
-            f"{c.heldout_gain:.3g}, worst run {100 * c.worst_run_change:+.1f} %"
+            f"{c.heldout_gain:.3g}, worst run {100 * c.worst_run_change:+.1f} % "
+            f"({c.worst_run_loss:+.3g})"
             f"{'' if c.carries_over else ': does not carry over'})"
             for c in ranked
         )

@@ -294,18 +294,22 @@ def polish(
     settings: PolishSettings | None = None,
     progress: Callable[[dict[str, float]], None] | None = None,
     prior_center: FloatArray | None = None,
+    penalty: FloatArray | None = None,
 ) -> Polished:
     """Levenberg-Marquardt from ``theta0`` (parameter units, shape (n,)) within ``box``.
 
     The prior of ``settings`` (if any) pulls toward ``prior_center`` (parameter units, shape (n,);
-    default ``theta0``).
+    default ``theta0``). ``penalty`` (n, n), symmetric positive semi-definite, adds
+    theta' P theta (parameter units) to what is minimised: the smoothness penalty of a shape's
+    coefficients, in the normal equations with the Jacobian's. ``Polished.f`` is J alone.
     """
     # One BLAS thread: with two, OpenBLAS's threads spin on after each J J' and take a core from
     # the simulator's threads (8 iterations on Train-R's 14 fit windows, 2 cores: simulations
     # 4.3 -> 3.3 s, residual passes 1.2 -> 0.6 s); the products also no longer depend on the
     # machine's core count
     with threadpool_limits(limits=1, user_api="blas"):
-        return _polish(obj, box, theta0, settings or PolishSettings(), progress, prior_center)
+        s = settings or PolishSettings()
+        return _polish(obj, box, theta0, s, progress, prior_center, penalty)
 
 
 def _polish(
@@ -315,6 +319,7 @@ def _polish(
     s: PolishSettings,
     progress: Callable[[dict[str, float]], None] | None,
     prior_center: FloatArray | None,
+    penalty: FloatArray | None = None,
 ) -> Polished:
     t0 = time.perf_counter()
     width = box.upper - box.lower
@@ -333,10 +338,14 @@ def _polish(
     pm = np.zeros(n)
     pm[: s.prior_dims] = s.prior_weight
 
+    P = np.zeros((n, n)) if penalty is None else np.asarray(penalty, dtype=np.float64)
+    Pz = width[:, None] * P * width[None, :]  # the penalty in box coordinates
+
     def prior(zs: FloatArray) -> FloatArray:
         """Prior penalty (...,) of box points zs (..., n): weighted squared distance from the
-        prior centre over the first ``prior_dims`` coordinates."""
-        return np.asarray((pm * (zs - z_prior) ** 2).sum(axis=-1))
+        prior centre over the first ``prior_dims`` coordinates, plus theta' P theta."""
+        th = to_theta(zs)
+        return np.asarray((pm * (zs - z_prior) ** 2).sum(axis=-1) + ((th @ P) * th).sum(axis=-1))
 
     r, bad = residual_vectors(obj, to_theta(z)[None])
     f = float(totals(obj, r, bad)[0])
@@ -370,8 +379,8 @@ def _polish(
             Jac -= r0[None, :]
             Jac /= h[:, None]
             Jac[badp[:, keep].any(axis=1)] = 0.0  # a probe that diverges: coordinate frozen
-            A = Jac @ Jac.T + np.diag(pm)
-            g = Jac @ r0 + pm * (z - z_prior)
+            A = Jac @ Jac.T + np.diag(pm) + Pz
+            g = Jac @ r0 + pm * (z - z_prior) + width * (P @ to_theta(z))
             d = np.diag(A).copy()
             d[d <= 0] = 1.0
             fresh = True

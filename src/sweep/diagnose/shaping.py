@@ -1,0 +1,102 @@
+"""The learned shape of the missing force as a candidate: the groups of penalised splines chosen
+on the base's trajectory residuals (:mod:`sweep.diagnose.shapes`), proposed only beyond the null
+of the same selection on noise-only copies of the training windows; its smoothness penalty and
+effective degrees of freedom go with it into the fold fits and the verdict.
+
+The procedure is described in the user guide (docs/guide/diagnosis.md).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from mmg import Effect, Parameters
+from sweep.diagnose.calibration import Calibration
+from sweep.diagnose.context import Context
+from sweep.diagnose.discover import null_sets
+from sweep.diagnose.shapes import ShapeColumns, ShapeSelection, candidate_groups
+from sweep.diagnose.threshold import CEILING
+
+
+@dataclass(frozen=True)
+class ShapeProposal:
+    """The shape selection on the base's residuals, the null of its dBIC, the threshold (the
+    ``alpha`` quantile, capped at :data:`CEILING`) and whether it is proposed."""
+
+    selection: ShapeSelection
+    null: list[float]
+    threshold: float
+    proposed: bool
+    seconds: float
+
+    @property
+    def effect(self) -> Effect:
+        """The shape effect of the chosen groups."""
+        return self.selection.effect()
+
+    @property
+    def dof(self) -> float:
+        """Its effective degrees of freedom (the dBIC's parameter count)."""
+        return float(sum(self.selection.edf))
+
+    def penalty(self) -> tuple[tuple[float, ...], ...]:
+        """Its smoothness penalty (k, k) in coefficient units, as the fits take it."""
+        return tuple(tuple(float(v) for v in row) for row in self.selection.penalty())
+
+    def as_dict(self) -> dict[str, Any]:
+        """As ``report.json`` shows it (``shapes``)."""
+        sel = self.selection
+        null = np.asarray(self.null) if self.null else np.zeros(1)
+        return {
+            "effect": sel.spec,
+            "groups": [g.text for g in sel.groups],
+            "coefficients": sel.coefficients,
+            "edf": sel.edf,
+            "kappas": sel.kappas,
+            "heldout_gain": sel.heldout_gain,
+            "absorbed": sel.absorbed,
+            "dbic": sel.dbic,
+            "threshold": self.threshold,
+            "null": {"draws": len(self.null), "median": float(np.median(null))},
+            "proposed": self.proposed,
+            "seconds": self.seconds,
+        }
+
+
+def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapeProposal | None:
+    """The shape candidate at the base ``params`` (None with shapes off), logged."""
+    s = ctx.settings
+    if not s.shapes:
+        return None
+    t0 = time.perf_counter()
+    columns = ShapeColumns(cal.lin, candidate_groups(ctx.windows, params))
+    selection = columns.select(cal.lin.residuals(ctx.windows), ctx.n_eff)
+    null: list[float] = []
+    threshold = CEILING
+    if selection.groups:
+        rng = np.random.default_rng(s.seed + 19)
+        copies = null_sets(params, ctx.windows, cal.noise, rng, s.shape_null_draws)
+        R = np.stack([cal.lin.residuals(c) for c in copies], axis=-1)
+        null = [float(v) for v in columns.null_dbic(R, ctx.n_eff)]
+        threshold = min(float(np.quantile(null, s.alpha)), CEILING)
+    proposed = bool(selection.groups) and selection.dbic <= threshold
+    gain = selection.heldout_gain[-1] if selection.heldout_gain else 0.0
+    ctx.log(
+        f"shapes: {selection.spec or 'no group'} ({sum(selection.edf):.1f} effective degrees "
+        f"of freedom, held-out gain {100 * gain:.0f} % of the control's held-out J), linearised "
+        f"dBIC {selection.dbic:.1f} against the null's {s.alpha:.0%} quantile {threshold:.1f} "
+        f"-> {'proposed' if proposed else 'not proposed'}"
+    )
+    out = ShapeProposal(selection, null, threshold, proposed, time.perf_counter() - t0)
+    if proposed:
+        ctx.penalties[out.effect.name] = out.penalty()
+        ctx.dof[out.effect.name] = out.dof
+        ctx.starts[out.effect.name] = selection.values()
+    return out
+
+
+__all__ = ["ShapeProposal", "propose_shape"]

@@ -1,0 +1,39 @@
+"""Naming a learned shape afterwards: the closed forms closest to it (sweep.diagnose.naming)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mmg.shapes import Group, basis
+from sweep.diagnose.naming import CLOSE, closest_forms
+
+
+def _coefficients(group: Group, f) -> list[float]:
+    """The spline coefficients that fit f on the group's range (least squares)."""
+    z = np.linspace(group.lo, group.hi, 400)
+    c, *_ = np.linalg.lstsq(basis(group, z), f(z), rcond=None)
+    return [float(v) for v in c]
+
+
+@pytest.mark.parametrize(
+    ("f", "family", "formula"),
+    [
+        (lambda z: 0.02 * np.maximum(z - 0.2, 0.0), "hinge", "max(beta - 0.2, 0)"),
+        (lambda z: -0.01 * np.sin(3 * z), "harmonic", "sin(3 beta)"),
+        (lambda z: 0.3 + 0.05 * z * np.abs(z), "odd square", "beta|beta|"),
+    ],
+)
+def test_a_shape_is_named_by_the_closed_form_it_was_made_of(f, family, formula):
+    group = Group("N", "beta", -1.0, 1.4, 12)
+    best = closest_forms(group, _coefficients(group, f))[0]
+    assert (best.family, best.formula) == (family, formula)
+    assert best.r2 > 0.99 >= CLOSE
+
+
+def test_a_shape_of_no_simple_family_is_not_close_to_any():
+    group = Group("Y", "beta", -1.0, 1.0, 16)
+    rng = np.random.default_rng(1)
+    c = rng.normal(size=16)  # a wiggle: no single family keeps 90 % of it
+    assert closest_forms(group, c)[0].r2 < CLOSE
+    assert closest_forms(Group("X", "1", multiplier="ast"), [0.1]) == []

@@ -521,8 +521,9 @@ class Linearised:
             _, E = self._images(pair, self.lib)
             W = len(fk.ix)
             Ew = E.reshape(W, -1, E.shape[1])
-            EH = np.einsum("wmt,wmd->wtd", Ew, H0.reshape(W, -1, D))  # per window E'H0
-            EE = np.einsum("wmt,wms->wts", Ew, Ew)  # per window E'E
+            Et = Ew.transpose(0, 2, 1)
+            EH = Et @ H0.reshape(W, -1, D)  # per window E'H0 (W, T, D)
+            EE = Et @ Ew  # per window E'E (W, T, T)
             C, Rp, n0 = parts[j]
             for t in out:
                 h = np.zeros((W, D))

@@ -43,12 +43,13 @@ def runs(data_dir: Path) -> dict[str, list]:
         return {k: read_recordings(data_dir / "data" / k) for k in KINDS}
 
 
-def _case(runs: dict[str, list], spec: PlantedSpec, directory: Path) -> None:
-    """Four training windows and one test window of the EFD ship with ``spec`` planted."""
+def _case(runs: dict[str, list], spec: PlantedSpec, directory: Path, phi: float = 0.0) -> None:
+    """Four training windows and one test window of the EFD ship with ``spec`` planted
+    (measurement noise coloured by ``phi``, the AR(1) correlation between samples)."""
     rng = np.random.default_rng(3)
     wins = pick_windows(runs, {"random": 3, "turning": 1, "zigzag": 1}, rng)
     noise = noise_levels([r for v in runs.values() for r in v])
-    recs, diverged = generate(wins, efd_parameters(), spec, noise, rng)
+    recs, diverged = generate(wins, efd_parameters(), spec, noise, rng, phi=phi)
     assert not diverged
     write_case(directory, recs[1:], recs[:1], spec, efd_parameters())
 
@@ -79,7 +80,7 @@ def test_planted_rudder_offset_is_found_end_to_end(runs, tmp_path, capsys):
     _case(runs, PlantedSpec("rudder_offset", {"delta_0": 0.05}), case)
     out = tmp_path / "out"
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    assert _diagnose(case, out, "--tracking-uri", uri, "--no-discovery") == 0
+    assert _diagnose(case, out, "--tracking-uri", uri, "--no-discovery", "--no-shapes") == 0
     report = json.loads((out / "report.json").read_text())
     assert report["verdict"] == "rudder_offset"
     assert report["fitted_effect_params"]["delta_0"] == pytest.approx(0.05, rel=0.2)
@@ -135,10 +136,10 @@ def test_planted_rudder_offset_is_found_end_to_end(runs, tmp_path, capsys):
 
     # a second run resumes every stage instead of fitting again; the re-identification's prior
     # is in its stages' names, so another weight refits those two stages only
-    assert _diagnose(case, out, "--no-tracking", "--no-discovery") == 0
+    assert _diagnose(case, out, "--no-tracking", "--no-discovery", "--no-shapes") == 0
     err = capsys.readouterr().err
     assert err.count("resumed from") >= 5 and "final-w0.01-base.json" in err
-    args = ("--no-tracking", "--no-discovery", "--final-prior-weight", "0.02")
+    args = ("--no-tracking", "--no-discovery", "--no-shapes", "--final-prior-weight", "0.02")
     assert _diagnose(case, out, *args) == 0
     err = capsys.readouterr().err
     assert "final-w0.02-base: J =" in err and "final-w0.02-3-rudder_offset: J =" in err
@@ -163,12 +164,16 @@ def test_planted_rudder_offset_beats_the_librarys_proposals(runs, tmp_path):
 @pytest.mark.integration  # a planted case, end to end
 @CANDIDATES
 def test_no_planted_effect_gives_verdict_none(runs, tmp_path):
+    """Nothing planted, the measurement noise coloured (AR(1), 0.6 between samples): the library
+    and the learned shapes are tried too, and nothing is accepted."""
     case = tmp_path / "case"
-    _case(runs, PlantedSpec("none"), case)
+    _case(runs, PlantedSpec("none"), case, phi=0.6)
     out = tmp_path / "out"
     assert _diagnose(case, out, "--no-tracking") == 0
     report = json.loads((out / "report.json").read_text())
     assert report["verdict"] == "none"
+    assert not any(c["accepted"] for c in report["candidates"])
+    assert report["shapes"] is not None  # the shape selection ran
     assert "Nothing significant" in report["statement"]
     assert report["fitted_effect_params"] == {}
     gen = report["generalisation"]
@@ -191,7 +196,7 @@ def test_an_effect_only_the_test_recordings_excite_is_flagged_unexplained(runs, 
     write_case(case, train, test, PlantedSpec("none"), ship)
     out = tmp_path / "out"
     # (catalog candidates only: the verdict rests on the floor and the test recordings)
-    assert _diagnose(case, out, "--no-tracking", "--no-discovery") == 0
+    assert _diagnose(case, out, "--no-tracking", "--no-discovery", "--no-shapes") == 0
     report = json.loads((out / "report.json").read_text())
     assert report["verdict"] == "unexplained"
     assert not report["misfit"]["significant"]
@@ -228,7 +233,8 @@ def test_a_finding_fitted_in_one_regime_is_held_beyond_it_and_the_test_run_is_na
     assert not diverged
     case, out = tmp_path / "case", tmp_path / "out"
     write_case(case, recs[:4], recs[4:], spec, efd_parameters())
-    args = ("--no-tracking", "--no-discovery", "--candidates", "propeller_walk,current")
+    args = ("--no-tracking", "--no-discovery", "--no-shapes")
+    args += ("--candidates", "propeller_walk,current")
     assert _diagnose(case, out, *args) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["verdict"] == "propeller_walk"
@@ -453,7 +459,7 @@ def test_a_second_base_start_runs_when_asked_and_the_lower_end_is_the_base(runs,
     case = tmp_path / "case"
     _case(runs, PlantedSpec("rudder_offset", {"delta_0": 0.05}), case)
     out = tmp_path / "out"
-    extra = ("--no-discovery", "--no-tracking", "--candidates", "rudder_offset")
+    extra = ("--no-discovery", "--no-shapes", "--no-tracking", "--candidates", "rudder_offset")
     assert _diagnose(case, out, "--base-retry-agreement", "0", *extra) == 0
     report = json.loads((out / "report.json").read_text())
     err = capsys.readouterr().err

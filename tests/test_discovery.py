@@ -320,6 +320,7 @@ def _diagnose(case: Path, out: Path) -> dict:
             "--budget", "200",
             "--candidates", "rudder_offset,current",
             "--no-tracking",
+            "--no-shapes",  # (the library's terms are tested here; the shapes in test_diagnose)
         ]
     )  # fmt: skip
     assert code == 0

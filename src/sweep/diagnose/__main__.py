@@ -112,6 +112,12 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     ap.add_argument("--candidates", default="", help="comma-separated effect names (default all)")
     ap.add_argument("--min-improvement", type=float, default=d.min_improvement)
     ap.add_argument(
+        "--shape-variables",
+        default="",
+        help="comma-separated variables the learned shapes may depend on, or 'all' (default: "
+        "the ship's state and controls, without heading, position and time)",
+    )
+    ap.add_argument(
         "--no-shapes",
         action="store_true",
         help="do not learn the shape of the missing force as a candidate",
@@ -207,6 +213,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
         min_improvement=args.min_improvement,
         outside=args.outside,
         shapes=not args.no_shapes,
+        shape_variables=_shape_variables(args.shape_variables),
         max_delta_bic=args.max_delta_bic,
         prior_weight=args.prior_weight,
         final_prior_weight=args.final_prior_weight,
@@ -265,6 +272,23 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
         )
         print(f"MLflow run {rid} in {uri} (experiment {args.experiment})")
     return report
+
+
+def _shape_variables(text: str) -> tuple[str, ...]:
+    """The ``--shape-variables`` list: names of the shape variables, ``all``, or empty."""
+    from sweep.diagnose.shapes import VARIABLES
+
+    if not text.strip():
+        return ()
+    if text.strip() == "all":
+        return VARIABLES
+    names = tuple(v.strip() for v in text.split(",") if v.strip())
+    unknown = [v for v in names if v not in VARIABLES]
+    if unknown:
+        raise UserError(
+            f"--shape-variables: unknown {', '.join(unknown)}; known: {', '.join(VARIABLES)}, all"
+        )
+    return names
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -474,25 +474,39 @@ class Linearised:
         assert isinstance(fk, _Fold)
         return X.reshape(len(fk.ix), -1, X.shape[1]).sum(axis=1)
 
+    @staticmethod
+    def _free(pair: dict[str, object], X: FloatArray, C: FloatArray) -> FloatArray:
+        """(c,) whether each column of X keeps at least :data:`MIN_FREE` of its squared norm on
+        fold j once the base is projected out (``C``): a column the base imitates has no
+        stable coefficient, and its held-out image would be noise amplified."""
+        fj = pair["fj"]
+        assert isinstance(fj, _Fold)
+        raw = (fj.stack(X) ** 2).sum(axis=0)
+        return np.asarray((C * C).sum(axis=0) > MIN_FREE * np.maximum(raw, 1e-300))
+
     def _heldout_candidate(self, pairs: Sequence[dict[str, object]], name: str) -> FloatArray:
         """(W, D) held-out gain per held-out window (fold 1's, then fold 0's) of a candidate's
         fits: the span of its derivatives, or its best single grid direction where that fits
-        the fold better (as :meth:`gains` scores it)."""
+        the fold better (as :meth:`gains` scores it); columns the base imitates beyond
+        1 - :data:`MIN_FREE` are left out."""
         dcols, gcols, _ = self.cand[name]
         out = []
         for pair in pairs:
             Rj, H0 = pair["Rj"], pair["H0"]
             assert isinstance(Rj, np.ndarray) and isinstance(H0, np.ndarray)
             C, E = self._images(pair, dcols)
+            keep = self._free(pair, dcols, C)
+            C, E = C[:, keep], E[:, keep]
             Q = _orth(C)
             D = Rj.shape[1]
-            a = np.linalg.lstsq(C, Rj, rcond=None)[0] if C.shape[1] else np.zeros((0, D))
+            a = np.linalg.lstsq(C, Rj, rcond=1e-8)[0] if C.shape[1] else np.zeros((0, D))
             EA = E @ a
             h = self._per_window(pair, 2.0 * H0 * EA - EA * EA)
             fit = ((Q.T @ Rj) ** 2).sum(axis=0) if Q.shape[1] else np.zeros(D)
             if gcols.shape[-1]:
                 G, Eg = self._images(pair, gcols)
-                n2 = np.maximum((G * G).sum(axis=0), 1e-300)[:, None]
+                free = self._free(pair, gcols, G)
+                n2 = np.where(free, np.maximum((G * G).sum(axis=0), 1e-300), np.inf)[:, None]
                 P = G.T @ Rj  # (g, D)
                 i = np.argmax(P * P / n2, axis=0)
                 cols = np.arange(D)

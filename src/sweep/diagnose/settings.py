@@ -95,6 +95,9 @@ class DiagnoseSettings:
     shapes: bool = True
     #: noise-only copies of the shape selection's null
     shape_null_draws: int = 40
+    #: the variables shapes may depend on (empty: the ship's state and controls,
+    #: :data:`sweep.diagnose.shapes.SHIP_VARIABLES`)
+    shape_variables: tuple[str, ...] = ()
     #: what a finding does beyond the states of the training recordings (:mod:`mmg.domain`):
     #: ``held`` at its value on the boundary of their box, or switched ``off``
     outside: str = "held"
@@ -123,6 +126,7 @@ class DiagnoseSettings:
             "outside",  # (the test stage only)
             "shapes",  # (the shape only adds a candidate, with stages of its own)
             "shape_null_draws",
+            "shape_variables",
         )
         data = {k: v for k, v in asdict(self).items() if k not in skip}
         data["procedure"] = PROCEDURE_VERSION  # stages of an older procedure are not reused

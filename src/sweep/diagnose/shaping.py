@@ -18,7 +18,12 @@ from mmg import Effect, Parameters
 from sweep.diagnose.calibration import Calibration
 from sweep.diagnose.context import Context
 from sweep.diagnose.discover import null_sets
-from sweep.diagnose.shapes import ShapeColumns, ShapeSelection, candidate_groups
+from sweep.diagnose.shapes import (
+    SHIP_VARIABLES,
+    ShapeColumns,
+    ShapeSelection,
+    candidate_groups,
+)
 from sweep.diagnose.threshold import CEILING
 
 
@@ -73,7 +78,8 @@ def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapePr
     if not s.shapes:
         return None
     t0 = time.perf_counter()
-    columns = ShapeColumns(cal.lin, candidate_groups(ctx.windows, params))
+    variables = s.shape_variables or SHIP_VARIABLES
+    columns = ShapeColumns(cal.lin, candidate_groups(ctx.windows, params, variables=variables))
     selection = columns.select(cal.lin.residuals(ctx.windows), ctx.n_eff)
     null: list[float] = []
     threshold = CEILING

@@ -71,7 +71,7 @@ def _run(specs, tracker, efd, tmp, executor=None):
 def test_sweep_logs_jobs_summarises_and_skips_them_on_a_rerun(tmp_path, data_dir, efd):
     tracker = NullTracker()
     specs = _specs(tmp_path, data_dir)
-    first = _run(specs, tracker, efd, tmp_path)
+    first = _run(specs, tracker, efd, tmp_path, LocalExecutor(plots=False, uncertainty=True))
     assert first.ok and sorted(first.finished) == sorted(s.key for s in specs)
     records = tracker.job_outcomes(first.parent_id)
     assert len(records) == 2

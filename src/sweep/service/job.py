@@ -199,7 +199,7 @@ def job_uncertainty(
     result stands."""
     try:
         u = uncertainty_at(objective, box, theta, model_names(effects))
-    except Exception as exc:  # noqa: BLE001 (any failure here must not cost the job's result)
+    except Exception as exc:  # any failure here must not cost the job its result
         return {"error": f"{type(exc).__name__}: {exc}", "params": which}
     return {**u.as_dict(), "markdown": u.to_markdown(), "params": which}
 
@@ -213,11 +213,13 @@ def run_job(
     make_evaluator: Callable[[Objective], Evaluator],
     status: Status | None = None,
     plots: bool = True,
+    uncertainty: bool | None = None,
 ) -> tuple[JobOutcome, dict[str, bytes]]:
-    """Identify, evaluate on the test set, plot. Resumes from the spec's checkpoint (in its
-    job directory, or in the sweep's storage), written after every generation; a checkpoint that
-    is damaged, forged or another job's is set aside and the job resumes from the previous one,
-    or afresh (the outcome's ``checkpoint_recovery`` and ``checkpoint_rejected`` say so)."""
+    """Identify, evaluate on the test set, judge the parameters, plot. Resumes from the spec's
+    checkpoint (in its job directory, or in the sweep's storage), written after every
+    generation; a checkpoint that is damaged, forged or another job's is set aside and the job
+    resumes from the previous one, or afresh (the outcome's ``checkpoint_recovery`` and
+    ``checkpoint_rejected`` say so). ``uncertainty``: the intervals (None: as ``plots``)."""
     cfg = spec.config
     with warnings.catch_warnings():
         # data warnings (dropped trailing rows, ...) are said once, by the driver
@@ -299,7 +301,8 @@ def run_job(
         }
     # the intervals of the job's final parameters, once, on its training set
     final, which = (lm.theta, "polished") if iterations > 0 else (result.theta, "cmaes")
-    uncertainty = job_uncertainty(objective, box, final, effects, which)
+    wanted = plots if uncertainty is None else uncertainty  # the products for people
+    intervals = job_uncertainty(objective, box, final, effects, which) if wanted else None
     outcome = JobOutcome(
         job_key=spec.key,
         objective=spec.objective,
@@ -320,7 +323,7 @@ def run_job(
         polished=polished,
         checkpoint_recovery=result.recovery.tag() if result.recovery else "",
         checkpoint_rejected=len(result.recovery.rejected) if result.recovery else 0,
-        uncertainty=uncertainty,
+        uncertainty=intervals,
     )
     files = draw_plots(result.history, best, test, spec.key) if plots else {}
     return outcome, files

@@ -21,6 +21,7 @@ from sweep.identification.uncertainty import (
     DETERMINED,
     NOT_OPTIMUM,
     STATUSES,
+    Uncertainty,
     UncertaintySettings,
     classify,
     cluster_covariance,
@@ -156,6 +157,11 @@ def test_table_json_and_csv(cases):
     assert all("trade off" in d["sentence"] for d in data["flat_directions"])
     rows = list(csv.DictReader(io.StringIO(u.to_csv())))
     assert len(rows) == 57 and float(rows[5]["estimate"]) == u.estimate[5]
+    again = Uncertainty.from_dict(data)  # what a sweep job's uncertainty.json holds
+    np.testing.assert_array_equal(
+        again.sample(50, np.random.default_rng(2)), u.sample(50, np.random.default_rng(2))
+    )
+    assert again.rows() == u.rows() and again.to_markdown() == u.to_markdown()
     md = u.to_markdown()
     assert "| parameter | estimate |" in md and "| N_r |" in md and "trade off" in md
 

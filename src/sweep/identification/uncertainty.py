@@ -211,7 +211,9 @@ class Uncertainty:
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready: objective, f, level, counts, fraction determined, the rows, the flat
-        directions (sentence, half-width, loadings) and how they were computed (``meta``)."""
+        directions (sentence, collinearity index, loadings), how they were computed (``meta``),
+        the search box and the covariance (normalised coordinates, n x n): enough for
+        :meth:`from_dict` to draw the same samples."""
         return {
             "objective": self.objective,
             "f": self.f,
@@ -231,7 +233,42 @@ class Uncertainty:
                 for d in self.flat
             ],
             "meta": self.meta,
+            "box_lower": self.box_lower.tolist(),
+            "box_upper": self.box_upper.tolist(),
+            "cov": self.cov.tolist(),
         }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Uncertainty:
+        """Inverse of :meth:`as_dict` (e.g. a sweep job's ``uncertainty.json``)."""
+        rows = data["parameters"]
+        column = lambda key: np.array([float(r[key]) for r in rows])  # noqa: E731
+        flat = [
+            FlatDirection(
+                math.inf if d["collinearity"] is None else float(d["collinearity"]),
+                {str(k): float(v) for k, v in d["loadings"].items()},
+            )
+            for d in data["flat_directions"]
+        ]
+        return cls(
+            names=[str(r["name"]) for r in rows],
+            estimate=column("estimate"),
+            sd=column("sd"),
+            lower=column("lower"),
+            upper=column("upper"),
+            status=[str(r["status"]) for r in rows],
+            cov=np.asarray(data["cov"], dtype=np.float64),
+            box_lower=np.asarray(data["box_lower"], dtype=np.float64),
+            box_upper=np.asarray(data["box_upper"], dtype=np.float64),
+            flat=flat,
+            objective=str(data["objective"]),
+            f=float(data["f"]),
+            level=float(data["level"]),
+            quantile=float(data["quantile"]),
+            dof=int(data["dof"]),
+            seconds=float(data["seconds"]),
+            meta=dict(data["meta"]),
+        )
 
     def to_csv(self) -> str:
         """The interval table as CSV text (the columns of :meth:`rows`, floats exact)."""

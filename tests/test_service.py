@@ -71,7 +71,7 @@ def _run(specs, tracker, efd, tmp, executor=None):
 def test_sweep_logs_jobs_summarises_and_skips_them_on_a_rerun(tmp_path, data_dir, efd):
     tracker = NullTracker()
     specs = _specs(tmp_path, data_dir)
-    first = _run(specs, tracker, efd, tmp_path)
+    first = _run(specs, tracker, efd, tmp_path, LocalExecutor(plots=False, uncertainty=True))
     assert first.ok and sorted(first.finished) == sorted(s.key for s in specs)
     records = tracker.job_outcomes(first.parent_id)
     assert len(records) == 2
@@ -80,6 +80,13 @@ def test_sweep_logs_jobs_summarises_and_skips_them_on_a_rerun(tmp_path, data_dir
             assert f"test/{J}/{subset}" in records[0]["metrics"]
     assert set(first.files) >= {"J1.csv", "J2.md", "J3.html", "J2.parquet"}
     assert "EFD" in (tmp_path / "summary" / "J2.md").read_text()
+    # each child run has the intervals of its best parameters on its training set
+    child = next(r for r in tracker.runs.values() if r.tags.get("job_key") == specs[1].key)
+    intervals = json.loads(child.artifacts["uncertainty.json"])
+    assert intervals["objective"] == "J2" and intervals["params"] == "cmaes"
+    assert len(intervals["parameters"]) == 57 and intervals["meta"]["subsequences"] == 29
+    assert child.metrics["fraction_determined"] == intervals["fraction_determined"]
+    assert b"| C_D |" in child.artifacts["uncertainty.md"]
     n_runs = len(tracker.runs)
     again = _run(specs, tracker, efd, tmp_path)
     assert sorted(again.skipped) == sorted(s.key for s in specs) and not again.finished
@@ -402,3 +409,26 @@ def test_27_jobs_on_2_cpus_run_3_at_a_time_on_shares_of_the_cores(tmp_path, data
     capacity, share, ready, f_here, *f_workers = out.stdout.split()[-7:]
     assert (int(capacity), float(share), int(ready)) == (3, 0.6666, 3)
     assert [float(f) for f in f_workers] == [float(f_here)] * 3  # same numbers on a share
+
+
+def test_intervals_that_fail_leave_the_job_its_result(data_dir, efd):
+    """Failure is a value: intervals that cannot be computed (here a training set of one
+    window: nothing to compare it with) come back as an error; the job is logged FINISHED with
+    its results, the error as a tag and uncertainty_error.txt, and no fraction_determined."""
+    from sweep.diagnose.windows import cut_windows
+    from sweep.service.job import job_uncertainty
+    from tests.test_tracking import make_outcome
+
+    run = next(iter(load_split("R").load(str(data_dir)).values()))
+    obj = Objective(cut_windows([run])[:1], "J1")
+    lo, hi = bounds()
+    value = job_uncertainty(obj, Box(lo, hi), efd_parameters().vector(), (), "cmaes")
+    assert value["error"].startswith("ValueError: 1 of 1 subsequences left")
+    outcome = make_outcome()
+    outcome.uncertainty = value
+    tracker = NullTracker()
+    child = tracker.runs[tracker.log_job(tracker.start_sweep("s", {}, efd), outcome, None)]
+    assert child.status == "FINISHED" and "test/J2/total" in child.metrics
+    assert child.tags["uncertainty.error"] == value["error"]
+    assert b"subsequences left" in child.artifacts["uncertainty_error.txt"]
+    assert "fraction_determined" not in child.metrics and "uncertainty.json" not in child.artifacts

@@ -52,7 +52,8 @@ def test_mlflow_holds_parent_children_metrics_and_tables(smoke):
             for subset in SUBSETS:
                 assert f"test/{J}/{subset}" in child.data.metrics
         names = {a.path for a in client.list_artifacts(child.info.run_id)}
-        assert {"best_params.json", "history.csv"} <= names
+        assert {"best_params.json", "history.csv", "uncertainty.md", "uncertainty.json"} <= names
+        assert 0.0 <= child.data.metrics["fraction_determined"] <= 1.0
     summary = {a.path for a in client.list_artifacts(parent.info.run_id, "summary")}
     for J in ("J1", "J2", "J3"):
         for ext in ("csv", "md", "html", "parquet"):

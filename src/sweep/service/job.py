@@ -25,12 +25,14 @@ from sweep.data.recordings import Recording, RecordingWarning
 from sweep.identification.checkpoint import checkpoint_key
 from sweep.identification.cmaes import (
     CHECKPOINT_SECONDS,
+    Box,
     Settings,
     State,
     optimise,
     restart_table,
 )
 from sweep.identification.polish import LAMBDA_TRIALS, PolishSettings, polish
+from sweep.identification.uncertainty import model_names, uncertainty_at
 from sweep.identification.vector import from_full_vector, full_vector, joint_box
 from sweep.service.lease import LEASE_SECONDS
 from sweep.service.outcome import SUBSETS, JobOutcome, complete_subsets, config_hash, make_job_key
@@ -187,6 +189,21 @@ def draw_plots(
     return files
 
 
+def job_uncertainty(
+    objective: Objective, box: Box, theta: np.ndarray, effects: tuple[Effect, ...], which: str
+) -> dict[str, Any]:
+    """The intervals of a job's final parameters ``theta`` (57 + effect parameters) on its
+    training set (:func:`sweep.identification.uncertainty.uncertainty_at`: 2 n + 1 simulations
+    of the training set, a few per cent of the smallest budget), as plain data for the outcome
+    (``which``: "cmaes" or "polished"). Failure is a value: ``{"error": ...}``, and the job's
+    result stands."""
+    try:
+        u = uncertainty_at(objective, box, theta, model_names(effects))
+    except Exception as exc:  # any failure here must not cost the job its result
+        return {"error": f"{type(exc).__name__}: {exc}", "params": which}
+    return {**u.as_dict(), "markdown": u.to_markdown(), "params": which}
+
+
 Evaluator = Any  # callable thetas -> f with close(); see sweep.identification.workers
 Status = Callable[[dict[str, float]], None]
 
@@ -196,11 +213,13 @@ def run_job(
     make_evaluator: Callable[[Objective], Evaluator],
     status: Status | None = None,
     plots: bool = True,
+    uncertainty: bool | None = None,
 ) -> tuple[JobOutcome, dict[str, bytes]]:
-    """Identify, evaluate on the test set, plot. Resumes from the spec's checkpoint (in its
-    job directory, or in the sweep's storage), written after every generation; a checkpoint that
-    is damaged, forged or another job's is set aside and the job resumes from the previous one,
-    or afresh (the outcome's ``checkpoint_recovery`` and ``checkpoint_rejected`` say so)."""
+    """Identify, evaluate on the test set, judge the parameters, plot. Resumes from the spec's
+    checkpoint (in its job directory, or in the sweep's storage), written after every
+    generation; a checkpoint that is damaged, forged or another job's is set aside and the job
+    resumes from the previous one, or afresh (the outcome's ``checkpoint_recovery`` and
+    ``checkpoint_rejected`` say so). ``uncertainty``: the intervals (None: as ``plots``)."""
     cfg = spec.config
     with warnings.catch_warnings():
         # data warnings (dropped trailing rows, ...) are said once, by the driver
@@ -280,6 +299,10 @@ def run_job(
             "params": refined.to_dict(),
             "test": test_metrics(refined, test, effects),
         }
+    # the intervals of the job's final parameters, once, on its training set
+    final, which = (lm.theta, "polished") if iterations > 0 else (result.theta, "cmaes")
+    wanted = plots if uncertainty is None else uncertainty  # the products for people
+    intervals = job_uncertainty(objective, box, final, effects, which) if wanted else None
     outcome = JobOutcome(
         job_key=spec.key,
         objective=spec.objective,
@@ -300,6 +323,7 @@ def run_job(
         polished=polished,
         checkpoint_recovery=result.recovery.tag() if result.recovery else "",
         checkpoint_rejected=len(result.recovery.rejected) if result.recovery else 0,
+        uncertainty=intervals,
     )
     files = draw_plots(result.history, best, test, spec.key) if plots else {}
     return outcome, files

@@ -81,9 +81,12 @@ class Executor(Protocol):
 class LocalExecutor:
     """Runs each job in this process when submitted (sequential; for tests and single runs)."""
 
-    def __init__(self, threads: int | None = None, plots: bool = True) -> None:
+    def __init__(
+        self, threads: int | None = None, plots: bool = True, uncertainty: bool | None = None
+    ) -> None:
         self.threads = threads
         self.plots = plots
+        self.uncertainty = uncertainty  # the intervals of each job's parameters (None: as plots)
         self._done: dict[int, Any] = {}
         self._status: dict[int, dict[str, float]] = {}
         self._next = 0
@@ -98,7 +101,7 @@ class LocalExecutor:
 
         try:
             self._done[handle] = run_job(
-                spec, lambda obj: InProcess(obj, self.threads), status, self.plots
+                spec, lambda obj: InProcess(obj, self.threads), status, self.plots, self.uncertainty
             )
         except Exception as exc:  # a failed job is a value
             exc.add_note(traceback.format_exc())

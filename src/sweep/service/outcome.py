@@ -87,6 +87,11 @@ class JobOutcome:
     #: the previous checkpoint), "fresh: not authenticated, ..." (no good one left); "" if not
     checkpoint_recovery: str = ""
     checkpoint_rejected: int = 0  # checkpoints set aside (damaged, forged, another job's)
+    #: the intervals of the job's final parameters (the refined ones with ``cmaes.polish``) on
+    #: its training set: :meth:`~sweep.identification.uncertainty.Uncertainty.as_dict` plus
+    #: ``markdown`` (the table) and ``params`` ("cmaes" or "polished"); ``{"error": ...}`` when
+    #: they could not be computed; None for an outcome from before they existed
+    uncertainty: dict[str, Any] | None = None
 
 
 def _plain(value: Any) -> Any:

@@ -4,8 +4,10 @@ A sweep is one MLflow *parent run* (tag ``sweep=true``, run name = sweep name) h
 reference metrics ``efd/{J}/{subset}`` and the sweep config; every job is a *child run* (tag
 ``mlflow.parentRunId``) with tags objective, train, seed, job_key, config_hash, the test metrics
 ``test/{J}/{subset}``, best_f, evaluations, seconds, rejected (0/1), restarts, the per-generation
-history as stepped metrics ``history/...`` and the artifacts best_params.json, best_params.csv,
-history.csv, restarts.json, config.json and plots/. A job that raised is a child run with status
+history as stepped metrics ``history/...``, ``fraction_determined`` (the share of the parameters
+the training data determine, :mod:`sweep.identification.uncertainty`) and the artifacts
+best_params.json, best_params.csv, history.csv, restarts.json, config.json, uncertainty.md and
+uncertainty.json (the intervals), and plots/. A job that raised is a child run with status
 FAILED, tag ``error`` and artifact error.txt.
 
 Resume: :meth:`Tracker.start_sweep` reuses a non-deleted parent run of the same name, and
@@ -333,6 +335,8 @@ def outcome_tags(outcome: JobOutcome, parent_id: str) -> dict[str, str]:
     }
     if outcome.checkpoint_recovery:
         tags["checkpoint.recovery"] = outcome.checkpoint_recovery
+    if outcome.uncertainty and "error" in outcome.uncertainty:
+        tags["uncertainty.error"] = str(outcome.uncertainty["error"])[:MAX_ERROR_TAG]
     return tags
 
 
@@ -346,6 +350,12 @@ def outcome_metrics(outcome: JobOutcome) -> dict[str, float]:
             polish_f=float(pol["f"]),
             polish_evaluations=float(pol["evaluations"]),
             polish_seconds=float(pol["seconds"]),
+        )
+    unc = outcome.uncertainty
+    if unc and "error" not in unc:
+        metrics.update(
+            fraction_determined=float(unc["fraction_determined"]),
+            uncertainty_seconds=float(unc["seconds"]),
         )
     metrics.update(
         best_f=float(outcome.f),
@@ -406,7 +416,25 @@ def write_job_artifacts(outcome: JobOutcome, out: Path) -> list[Path]:
         path = out / name
         path.write_text(json.dumps(data, indent=2, sort_keys=True, default=str) + "\n")
         paths.append(path)
+    paths += _uncertainty_artifacts(outcome, out)
     return paths
+
+
+def _uncertainty_artifacts(outcome: JobOutcome, out: Path) -> list[Path]:
+    """uncertainty.json and uncertainty.md (the intervals of the job's final parameters), or
+    uncertainty_error.txt when they could not be computed; nothing for an older outcome."""
+    unc = outcome.uncertainty
+    if not unc:
+        return []
+    if "error" in unc:
+        path = out / "uncertainty_error.txt"
+        path.write_text(str(unc["error"]) + "\n")
+        return [path]
+    data = {k: v for k, v in unc.items() if k != "markdown"}
+    table, summary = out / "uncertainty.md", out / "uncertainty.json"
+    table.write_text(f"# Intervals of {outcome.job_key} ({unc['params']})\n\n{unc['markdown']}")
+    summary.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+    return [table, summary]
 
 
 def outcome_record(

@@ -176,6 +176,44 @@ def _shape_text(d: Diagnosis) -> str:
     )
 
 
+def explainable(d: Diagnosis) -> dict[str, Any] | None:
+    """How much of the misfit a smooth correction explains on held-out runs: the held-out gain
+    (share of the control's held-out J, linearised) of the learned shapes and of the library
+    terms chosen on the trajectories, and the share of the first that the named terms keep;
+    None without the shape selection."""
+    if d.shape is None:
+        return None
+    sel = d.shape.selection
+    flexible = sel.heldout_gain[-1] if sel.heldout_gain else 0.0
+    tr = d.extra.get("trajectory_discovery") or {}
+    named = (tr.get("heldout_gain") or [0.0])[-1]
+    return {
+        "flexible_heldout_gain": flexible,
+        "named_heldout_gain": named,
+        "named_share": named / flexible if flexible > 0 else None,
+        "shape": sel.spec,
+    }
+
+
+def explainable_text(d: Diagnosis) -> str:
+    """The explainable share in words ("" without the shape selection)."""
+    e = explainable(d)
+    if e is None:
+        return ""
+    if e["flexible_heldout_gain"] <= 0:
+        return (
+            " No smooth function of the ship's state and controls (learned shapes) helps on "
+            "held-out runs."
+        )
+    share = e["named_share"]
+    kept = f"; the library's terms keep {100 * share:.0f} % of it" if share is not None else ""
+    return (
+        f" A flexible smooth correction (learned shapes, {e['shape']}) takes "
+        f"{100 * e['flexible_heldout_gain']:.0f} % off the held-out runs' J when linearised"
+        f"{kept}."
+    )
+
+
 def _best_text(d: Diagnosis) -> str:
     best = d.candidates[0] if d.candidates else None
     if best is None:
@@ -194,7 +232,8 @@ def _unexplained_statement(d: Diagnosis) -> str:
         text = (
             f"Unexplained misfit: the base model misses by {m.ratio:.1f} x what measurement "
             f"noise alone gives ({d.settings.objective} {m.J:.3g} against a floor of "
-            f"{m.floor:.3g}, z = {m.z:.0f}), and no candidate (catalog or discovered) was accepted."
+            f"{m.floor:.3g}, z = {m.z:.0f}), and no candidate (catalog, discovered or learned "
+            "shape) was accepted." + explainable_text(d)
         )
     else:
         beyond = ", ".join(
@@ -365,6 +404,7 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
         "discovered": discovered_entry(d),
         "shape": shape_entry(d),
         "shapes": d.shape.as_dict() if d.shape is not None else None,
+        "explainable": explainable(d),
         "misfit": asdict(d.misfit) if d.misfit is not None else None,
         "generalisation": _generalisation_dict(d.generalisation),
         "generalisation_after": _generalisation_dict(d.generalisation_after),

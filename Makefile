@@ -1,7 +1,7 @@
 # Common commands; see README.md.
 PY ?= python
 
-.PHONY: install test test-integration test-all lint format typecheck check bench bench-peak bench-parts bench-lm bench-grid bench-grid-fit bench-faults bench-diagnose data sweep \
+.PHONY: install test test-integration test-all lint format typecheck check bench bench-peak bench-parts bench-lm bench-grid bench-grid-fit bench-faults bench-diagnose bench-unforeseen data sweep \
 	smoke ui diagnose
 
 install:  ## install the project and its development tools
@@ -53,6 +53,9 @@ bench-faults:  ## what each fault the sweep survives costs: jobs lost or run twi
 
 bench-diagnose:  ## planted-effect benchmark of the diagnosis (34 cases: catalog, unlisted forms, none; 1-2 h on 2 cores)
 	PYTHONPATH=. $(PY) benchmarks/diagnose_planted.py --out benchmarks/out/diagnose
+
+bench-unforeseen:  ## the diagnosis on planted forms no library term expresses (26 cases, strong and weak; hours on 2 cores)
+	PYTHONPATH=. $(PY) benchmarks/diagnose_planted.py --set unforeseen --out benchmarks/out/diagnose
 
 diagnose:  ## missing physics on the real recordings: best shipped model, Train-R, paper's test set
 	$(PY) -m sweep.diagnose --params results/best_params.json --train R --test paper \

@@ -1,0 +1,153 @@
+"""The planted benchmark's sets and figures: the forms no library term expresses, the explained
+criterion, the harm count and the rows (no kernels: the hooks run as plain Python)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pytest
+from benchmarks.diagnose_planted import (
+    ROWS,
+    SPECS,
+    all_cases,
+    explained,
+    explained_former,
+    row_figures,
+    select_cases,
+)
+from benchmarks.harm import Harm, finding_harm, report_harm, total
+from benchmarks.planted import (
+    FAMILY,
+    STRONG_BAND,
+    UNFORESEEN,
+    UNFORESEEN_CASES,
+    WEAK_BAND,
+    DeadBandParams,
+    DriftHingeParams,
+    RudderPlayParams,
+    RudderRateParams,
+    dead_band_inputs,
+    drift_hinge_force,
+    rudder_play_inputs,
+    rudder_rate_inputs,
+    unforeseen_spec,
+)
+
+from mmg import catalog, efd_parameters
+from mmg.library import TERMS
+
+
+def test_the_unforeseen_set_covers_every_kind_at_two_magnitudes_with_its_own_seeds():
+    assert len(UNFORESEEN) >= 8
+    kinds = {f.kind for f in UNFORESEEN.values()}
+    wanted = {"time", "position", "controls", "state", "component", "interaction", "memory"}
+    assert wanted <= kinds
+    for name, form in UNFORESEEN.items():
+        assert name not in TERMS and name not in catalog() and FAMILY[name] == "discovered"
+        assert form.strength or form.onset
+        bands = sorted(c.band for c in UNFORESEEN_CASES if c.form == name)
+        assert bands == sorted([STRONG_BAND, WEAK_BAND])
+    indices = [c.index for c in UNFORESEEN_CASES]
+    assert len(set(indices)) == len(indices)
+    assert not set(indices) & set(range(len(SPECS)))  # seeds apart from the twin set's
+    for band in (STRONG_BAND, WEAK_BAND):  # no-effect cases in each magnitude's row
+        none = [
+            c
+            for c in UNFORESEEN_CASES
+            if c.form == "none" and c.name.split("/")[1][0] == ("s" if band == STRONG_BAND else "w")
+        ]
+        assert len(none) >= 3
+    # a magnitude scale multiplies the strengths and divides the onsets
+    assert unforeseen_spec("seiche", 2.0).values["C_s"] == 2.0 * UNFORESEEN["seiche"].nominal["C_s"]
+    rate = UNFORESEEN["rudder_rate"].nominal["R_d"]
+    assert unforeseen_spec("rudder_rate", 2.0).values["R_d"] == rate / 2.0
+
+
+def test_the_memory_and_controls_forms_act_on_the_rudder_as_documented():
+    rate = rudder_rate_inputs.py_func
+    e = RudderRateParams(R_d=0.5)
+    assert rate(0.4, 5.0, 0.0, 5.0, 0.1, e) == (pytest.approx(0.05), 5.0)  # a step: slewed
+    assert rate(0.03, 5.0, 0.0, 5.0, 0.1, e) == (pytest.approx(0.03), 5.0)  # slow: followed
+    play = rudder_play_inputs.py_func
+    p = RudderPlayParams(b_p=0.02)
+    assert play(0.3, 5.0, 0.0, 5.0, 0.1, p) == (pytest.approx(0.28), 5.0)  # short of the log
+    assert play(0.27, 5.0, 0.28, 5.0, 0.1, p) == (pytest.approx(0.28), 5.0)  # reversal < 2 b_p
+    assert play(0.2, 5.0, 0.28, 5.0, 0.1, p) == (pytest.approx(0.22), 5.0)
+    band = dead_band_inputs.py_func
+    d = DeadBandParams(b_d=0.02)
+    assert band(0.01, 5.0, 0.0, 5.0, 0.1, d) == (0.0, 5.0)
+    assert band(-0.3, 5.0, 0.0, 5.0, 0.1, d) == (pytest.approx(-0.28), 5.0)
+
+
+def test_the_drift_hinge_is_zero_below_its_angle_and_damps_beyond():
+    p = efd_parameters()
+    hinge = drift_hinge_force.py_func
+    e = DriftHingeParams(C_h=0.1, beta_h=math.radians(30.0), x_h=-0.25)
+    beta = math.radians(20.0)
+    u, v = math.cos(beta) * 0.2, -math.sin(beta) * 0.2
+    assert hinge(u, v, 0.0, 0.0, 0.0, 5.0, 0.0, 0.0, e, p.theta, p.ship) == (0.0, 0.0, 0.0)
+    beta = math.radians(45.0)
+    u, v = math.cos(beta) * 0.2, math.sin(beta) * 0.2
+    _, dY, dN = hinge(u, v, 0.0, 0.0, 0.0, 5.0, 0.0, 0.0, e, p.theta, p.ship)
+    assert dY < 0.0
+    assert dN == pytest.approx(-0.25 * p.ship.L_pp * dY)
+
+
+def test_harm_counts_accepted_findings_that_worsen_the_test_j2():
+    before = {"a": 1.0, "b": 2.0, "Total": 3.0}
+    assert finding_harm("none", before, {"a": 9.0, "b": 9.0, "Total": 18.0}) == Harm()
+    h = finding_harm("discovered", before, {"a": 1.12, "b": 2.12, "Total": 3.24})
+    assert h == Harm(findings=1, total_worse=1, subsets=2, subset_worse_10=1, subset_worse_5=2)
+    better = finding_harm("current", before, {"a": 0.5, "b": 2.08, "Total": 2.58})
+    assert better == Harm(findings=1, total_worse=0, subsets=2, subset_worse_10=0, subset_worse_5=0)
+    assert total([h, better]).subset_worse_5 == 2
+    report = {"verdict": "discovered", "J_before": {"J2": before}, "J_after": {"J2": before}}
+    assert report_harm(report) == Harm(findings=1, subsets=2)
+
+
+def _result(index: int, form: str, verdict: str, before: float, after: float, **kw: Any) -> dict:
+    return {
+        "index": index,
+        "repeat": 0,
+        "form": form,
+        "verdict": verdict,
+        "J2_test_before": before,
+        "J2_test_after": after,
+        "J2_test_true": 1.0,
+        **kw,
+    }
+
+
+def test_a_case_is_explained_only_with_something_to_explain_and_explained():
+    assert explained(_result(1, "seiche", "discovered", 3.0, 1.4))
+    assert not explained(_result(1, "seiche", "discovered", 1.4, 1.0))  # absorbed by the base
+    assert explained_former(_result(1, "seiche", "discovered", 1.4, 1.0))  # counted before
+    assert not explained(_result(1, "seiche", "unexplained", 3.0, 1.0))
+    assert not explained(_result(1, "seiche", "discovered", 3.0, 1.6))
+
+
+def test_rows_keep_the_sets_apart_and_count_harm_and_false_alarms():
+    strong = ROWS["unforeseen"] + ", strong"
+    results = [
+        _result(20, "bank", "discovered", 9.0, 1.1),
+        _result(0, "none", "none", 1.0, 1.0),
+        _result(100, "seiche", "discovered", 9.0, 1.2, row=strong),
+        _result(101, "shallow_patch", "unexplained", 9.0, 9.0, row=strong),
+        _result(110, "none", "current", 1.0, 1.1, row=strong),
+    ]
+    rows = {f["row"]: f for f in row_figures(results)}
+    assert rows[ROWS["twin"]]["explained"] == 1 and rows[ROWS["twin"]]["false_alarms"] == 0
+    f = rows[strong]
+    assert (f["effects"], f["explained"], f["named"], f["flagged"]) == (2, 1, 1, 1)
+    assert (f["none"], f["false_alarms"]) == (1, 1)
+    assert f["harm"]["findings"] == 2 and f["harm"]["total_worse"] == 1  # the false alarm, +10 %
+
+
+def test_cases_are_selected_by_set_index_or_name():
+    assert len(all_cases("all")) == len(SPECS) + len(UNFORESEEN_CASES)
+    (case,) = select_cases("twin", "seiche/strong")
+    assert case.set == "unforeseen" and case.band == STRONG_BAND and case.phi is not None
+    assert [c.index for c in select_cases("unforeseen", "3,100")] == [3, 100]
+    with pytest.raises(SystemExit, match="unknown case"):
+        select_cases("all", "seiche/medium")

@@ -219,6 +219,9 @@ class TrajectorySelection:
     dbic: float  # in-sample linearised dBIC of the terms
     #: the grid point of each chosen term that has a shape: {term: {placeholder: value}}
     shapes: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: the chosen terms' held-out gain as a share of the control fits' held-out J (both ways
+    #: round, linearised): the learned shapes' measure, so the two can be compared
+    heldout_share: float = 0.0
 
 
 class Linearised:
@@ -309,6 +312,7 @@ class Linearised:
             parts.append(_library_part(fold, self.lib, Rf))
         # held-out images: control residual and term columns of fold k fitted on fold j
         pairs = []
+        J_ho0 = 0.0
         for j, k in ((0, 1), (1, 0)):
             fj, fk = self.folds[j], self.folds[k]
             Ak = fk.rows(self.A)
@@ -318,6 +322,7 @@ class Linearised:
             # gain |ho0|^2 - |e|^2 = -(2 a'E_S'ho0 + a'E_S'E_S a): from E'ho0 and E'E, formed
             # once (gathering E_S from the tall E for every trial took most of the selection)
             pairs.append((parts[j], E.T @ ho0, E.T @ E))
+            J_ho0 += float(ho0 @ ho0)
 
         def heldout(S: list[int]) -> float:
             total = 0.0
@@ -359,6 +364,7 @@ class Linearised:
             heldout_gain=[g / J0 for g in path_gain],
             dbic=dbic if k else 0.0,
             shapes=chosen_shapes([self.columns[j] for j in chosen]),
+            heldout_share=path_gain[-1] / J_ho0 if path_gain and J_ho0 > 0 else 0.0,
         )
 
     def residuals(self, recordings: Sequence[Recording]) -> FloatArray:

@@ -186,7 +186,7 @@ def explainable(d: Diagnosis) -> dict[str, Any] | None:
     sel = d.shape.selection
     flexible = sel.heldout_gain[-1] if sel.heldout_gain else 0.0
     tr = d.extra.get("trajectory_discovery") or {}
-    named = (tr.get("heldout_gain") or [0.0])[-1]
+    named = float(tr.get("heldout_share") or 0.0)
     return {
         "flexible_heldout_gain": flexible,
         "named_heldout_gain": named,

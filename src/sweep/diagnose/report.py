@@ -466,6 +466,7 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
         },
         "settings": asdict(d.settings),
         "seconds": d.seconds,
+        "stage_seconds": d.extra.get("stage_seconds", {}),
         "params_before": d.before.params.to_dict(),
         "params_after": d.after.params.to_dict(),
     }

@@ -138,9 +138,27 @@ def diagnose(
         return run_stages(ctx, t0)
 
 
+class StageClock:
+    """Wall time per stage [s], logged as one line at the end."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+        self._last = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        """The time since the previous lap goes to stage ``name``."""
+        now = time.perf_counter()
+        self.seconds[name] = self.seconds.get(name, 0.0) + now - self._last
+        self._last = now
+
+    def text(self) -> str:
+        return ", ".join(f"{k} {v:.0f} s" for k, v in self.seconds.items())
+
+
 def run_stages(ctx: Context, t0: float) -> Diagnosis:
     """The stages in order; ``t0`` [s, ``time.perf_counter``] is when the diagnosis began."""
     s = ctx.settings
+    clock = StageClock()
     # the kernels of the base model and of every catalog effect, compiled side by side where
     # the cache lacks them (one after another as the stages reach them took minutes)
     precompile(
@@ -148,22 +166,33 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
         + tasks((e,) for e in s.candidate_effects()),
         log=ctx.log,
     )
+    clock.lap("compilation")
     base = identify_base(ctx)
+    clock.lap("base")
     base, cal, base_retry = second_start(ctx, base, calibrate(ctx, base.params))
+    clock.lap("calibration")
     location = locate_misfit(ctx, base.params)
+    clock.lap("location")
     proposals = propose(ctx, base.params, cal)
+    clock.lap("proposals")
     shape = propose_shape(ctx, base.params, cal)
     extra = proposals.effects
     if shape is not None and shape.proposed:
         extra = (*extra, shape.effect)
         precompile(tasks([(shape.effect,)]), log=ctx.log)
+    clock.lap("shapes")
     threshold = acceptance_threshold(s, cal.null)
     cands = refine(ctx, base, fit_candidates(ctx, base, extra), threshold)
+    clock.lap("candidates")
     verdict = decide(ctx, cands.scores, cands.leaders, cal.null, cal.misfit.significant)
     final = reidentify(ctx, base, cands, verdict, threshold, cal.misfit.significant)
+    clock.lap("re-identification")
     tested = carry_over(ctx, final, cal.noise)
+    clock.lap("test recordings")
+    ctx.log(f"time per stage: {clock.text()}")
     out = report(ctx, t0, base, cal, base_retry, location, proposals, cands, tested)
     out.shape = shape
+    out.extra["stage_seconds"] = clock.seconds
     return out
 
 

@@ -48,6 +48,8 @@ def _null(threshold: float, heldout: float = 0.0, worst_run: float = 0.3) -> Acc
         best=[],
         heldout_quantile=heldout,
         worst_run_quantile=worst_run,
+        noise_J=1.0,
+        run_noise={"run1": 1.0, "run2": 2.0},
     )
 
 
@@ -120,10 +122,10 @@ def test_a_candidate_that_does_not_carry_over_to_held_out_runs_is_not_accepted(
     assert (v.verdict, v.effect) == ("propeller_walk", "propeller_walk")
     assert "does not carry over" in lines[2]
     # a gain in total that makes one held-out run worse than noise would is not accepted
-    scores[2].worst_run_change, scores[2].worst_run_loss = 0.08, 0.4
+    scores[2].worst_run_change, scores[2].run_losses = 0.08, {"run1": -0.5, "run2": 0.8}
     v = decide(ctx, scores, leaders, _null(-10.0, heldout=0.5), significant=True)
     assert (v.verdict, v.effect) == ("unexplained", "")
-    assert "worst run +8.0 % (+0.4): does not carry over" in lines[-1]
+    assert "worst run +8.0 % (+40 % of its noise J): does not carry over" in lines[-1]
     # a negative null quantile does not let a held-out loss through
     v = decide(ctx, scores[1:2], ["current"], _null(-10.0, heldout=-5.0), significant=False)
     assert (v.verdict, v.effect) == ("none", "")

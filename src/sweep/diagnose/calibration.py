@@ -90,4 +90,8 @@ def calibrate(ctx: Context, params: Parameters) -> Calibration:
     noise, floor = noise_and_floor(ctx, params)
     lin = linearise(ctx, params)
     null = null_of(ctx, lin, noise)
-    return Calibration(noise, lin, null, misfit_of(ctx, floor, null))
+    misfit = misfit_of(ctx, floor, null)
+    # the scale of the carrying-over thresholds: the noise's J of a fitted model
+    null.noise_J = misfit.floor
+    null.run_noise = {str(r["run"]): float(r["floor"]) for r in misfit.per_run}
+    return Calibration(noise, lin, null, misfit)

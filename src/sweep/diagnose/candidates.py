@@ -120,6 +120,7 @@ def score(
     vals = effect_values(cand.fits[best].params, (eff,))
     J_ho, J_ho_control = cand.J_heldout, control.J_heldout
     run, change, loss = worst_run(J_ho, J_ho_control, control.runs)
+    losses = run_losses(J_ho, J_ho_control, control.runs)
     scored = CandidateScore(
         effect=eff.name,
         description=eff.description,
@@ -133,6 +134,7 @@ def score(
         worst_run=run,
         worst_run_change=change,
         worst_run_loss=loss,
+        run_losses=losses,
         delta_bic=delta_bic(
             J_fit, sum(f.f for f in control.fits), len(eff.params) if k is None else k, n_eff
         ),
@@ -156,6 +158,19 @@ def worst_run(
             worst, loss = run, d
             change = a / b - 1.0 if b > 0 and np.isfinite(a) else np.inf
     return worst, float(change), float(loss)
+
+
+def run_losses(
+    J_effect: FloatArray, J_control: FloatArray, runs: Sequence[str]
+) -> dict[str, float]:
+    """{held-out run: J with the effect minus J of the control} over the run's held-out windows
+    (infinite where a window diverged)."""
+    out = {}
+    for run in dict.fromkeys(runs):
+        rows = [i for i, r in enumerate(runs) if r == run]
+        a = float(np.sum(J_effect[rows]))
+        out[run] = a - float(np.sum(J_control[rows])) if np.isfinite(a) else float("inf")
+    return out
 
 
 def fit_candidates(ctx: Context, base: Fit, extra: Sequence[Effect]) -> Candidates:

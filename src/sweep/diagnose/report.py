@@ -903,8 +903,11 @@ def _candidates_md(d: Diagnosis) -> list[str]:
             f"{held['threshold']:.4g} off the control's {d.settings.objective} on the other "
             f"half's whole runs (held-out gain, both ways round): the {100 * held['q']:.0f} % "
             f"quantile of the best candidate's held-out gain on noise-only copies of the "
-            f"training windows ({held['quantile']:.4g}; median {held['median']:.4g}), and at "
-            "least 0.",
+            f"training windows, {100 * held['quantile']:.1f} % of the noise's J "
+            f"({held.get('noise_J', float('nan')):.3g}), and at least 0; and make no held-out "
+            f"run worse by more than {100 * held.get('worst_run_limit', 0.0):.0f} % of that "
+            "run's noise J (the same quantile of the best catalog candidate's worst held-out "
+            "run).",
         ]
     return [*md, "", "![candidates](candidates.png)", ""]
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -56,6 +56,10 @@ class CandidateScore:
     worst_run: str = ""
     worst_run_change: float = 0.0
     worst_run_loss: float = 0.0
+    #: {held-out run: J with the effect minus the control's} and the largest of them as a share
+    #: of that run's noise J (:meth:`sweep.diagnose.threshold.AcceptanceNull.run_excess`)
+    run_losses: dict[str, float] = field(default_factory=dict)
+    worst_run_excess: float = 0.0
     #: the held-out gain exceeds the null's and no held-out run gets worse than the null allows
     #: (:mod:`sweep.diagnose.threshold`)
     carries_over: bool = False

@@ -17,6 +17,7 @@ The procedure is described in the user guide (docs/guide/diagnosis.md).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -45,25 +46,39 @@ class AcceptanceNull:
     #: J of the base refitted on all windows over J before refitting, on the noise-only copies:
     #: what fitting the 57 parameters (with the prior) takes out of pure noise
     refit_factor: float = 1.0
-    #: held-out gain [J] of each draw's best candidate (by dBIC), and its 1 - alpha quantile
-    #: (never below 0): the gain on held-out runs a candidate must exceed
+    #: held-out gain of each draw's best candidate (by dBIC) relative to the control's held-out
+    #: J (noise alone: the noise's J), and its 1 - alpha quantile
     heldout_best: list[float] = field(default_factory=list)
     heldout_quantile: float = 0.0
-    #: the largest loss [J] of one held-out run by each draw's best catalog candidate, and its
-    #: 1 - alpha quantile: a candidate may make no held-out run worse than that
+    #: the largest loss of one held-out run by each draw's best catalog candidate relative to
+    #: the control's held-out J of that run, and its 1 - alpha quantile
     worst_run: list[float] = field(default_factory=list)
     worst_run_quantile: float = 0.0
+    #: the noise's J of a fitted model on all training windows and on each run
+    #: (:class:`sweep.diagnose.floor.MisfitTest`): the scale of the two thresholds
+    noise_J: float = 0.0
+    run_noise: dict[str, float] = field(default_factory=dict)
 
     @property
     def worst_run_limit(self) -> float:
-        """The loss [J] of one held-out run a candidate may not exceed: the null's quantile, at
-        least 0."""
+        """The loss of one held-out run a candidate may not exceed, as a share of that run's
+        noise J: the null's quantile, at least 0."""
         return max(self.worst_run_quantile, 0.0)
 
     @property
     def heldout_threshold(self) -> float:
-        """The held-out gain [J] a candidate must exceed: the null's quantile, at least 0."""
-        return max(self.heldout_quantile, 0.0)
+        """The held-out gain [J] a candidate must exceed: the null's quantile times the noise's
+        J on the training windows, at least 0."""
+        return max(self.heldout_quantile, 0.0) * self.noise_J
+
+    def run_excess(self, run_losses: dict[str, float]) -> float:
+        """The largest loss of a held-out run as a share of that run's noise J (0 without
+        runs; infinite for a loss on a run whose noise J is unknown)."""
+        out = 0.0 if not run_losses else -math.inf
+        for run, loss in run_losses.items():
+            n = self.run_noise.get(run, 0.0)
+            out = max(out, loss / n if n > 0 else (math.inf if loss > 0 else 0.0))
+        return out
 
     def as_dict(self) -> dict[str, Any]:
         """The null as ``report.json`` shows it (``acceptance``), with a summary of ``best``."""
@@ -90,6 +105,7 @@ class AcceptanceNull:
                 "median": float(np.median(self.heldout_best)) if self.heldout_best else 0.0,
                 "q": 1.0 - self.alpha,
                 "worst_run_limit": self.worst_run_limit,
+                "noise_J": self.noise_J,
                 "worst_run_median": float(np.median(self.worst_run)) if self.worst_run else 0.0,
             },
         }

@@ -58,9 +58,10 @@ def _log_threshold(ctx: Context, null: AcceptanceNull, threshold: float) -> None
     ctx.log(
         f"carrying over: a held-out gain above {null.heldout_threshold:.4g} (the "
         f"{1 - s.alpha:.0%} quantile of the best candidate's held-out gain over {null.draws} "
-        f"noise-only copies, {null.heldout_quantile:.4g}, at least 0), and no held-out run "
-        f"worse by more than {null.worst_run_limit:.4g} (the same quantile of the loss of the "
-        "best catalog candidate's worst held-out run)"
+        f"noise-only copies, {100 * null.heldout_quantile:.1f} % of the noise's J "
+        f"{null.noise_J:.3g}, at least 0), and no held-out run worse by more than "
+        f"{100 * null.worst_run_limit:.0f} % of its noise J (the same quantile of the best catalog "
+        "candidate's worst held-out run)"
     )
 
 
@@ -80,8 +81,9 @@ def decide(
     _log_threshold(ctx, null, threshold)
     refined = s.refine_top > 0 and s.refine_iterations > 0
     for c in scores:
+        c.worst_run_excess = null.run_excess(c.run_losses)
         c.carries_over = (
-            c.heldout_gain > null.heldout_threshold and c.worst_run_loss <= null.worst_run_limit
+            c.heldout_gain > null.heldout_threshold and c.worst_run_excess <= null.worst_run_limit
         )
         c.accepted = (
             c.refined == refined
@@ -100,7 +102,7 @@ def decide(
         + ", ".join(
             f"{c.effect} dBIC {c.delta_bic:.0f} ({100 * c.improvement:+.1f}% held out, gain "
             f"{c.heldout_gain:.3g}, worst run {100 * c.worst_run_change:+.1f} % "
-            f"({c.worst_run_loss:+.3g})"
+            f"({100 * c.worst_run_excess:+.0f} % of its noise J)"
             f"{'' if c.carries_over else ': does not carry over'})"
             for c in ranked
         )

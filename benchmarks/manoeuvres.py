@@ -20,11 +20,9 @@ uncertainty module's draws, used for the timing only (the time does not depend o
 from __future__ import annotations
 
 import argparse
-import math
 import statistics
 import time
 from pathlib import Path
-from typing import Any
 
 import numba
 import numpy as np
@@ -32,7 +30,13 @@ import numpy as np
 from mmg.params import Parameters, efd_parameters
 from sweep.data.datasets import data_root, load_split
 from sweep.data.manoeuvre_figures import plot_manoeuvres
-from sweep.data.manoeuvre_tables import recorded_table, settings_note, standard_table
+from sweep.data.manoeuvre_tables import (
+    recorded_markdown,
+    recorded_table,
+    settings_note,
+    standard_markdown,
+    standard_table,
+)
 from sweep.data.recordings import read_recording
 from sweep.data.standard_manoeuvres import (
     RecordedRun,
@@ -59,55 +63,6 @@ def recorded_runs() -> list[RecordedRun]:
     base = data_root()
     found = [find_manoeuvre(read_recording(base / rel), label) for label, rel in RUNS.items()]
     return [r for r in found if r is not None]
-
-
-def _cell(value: Any, digits: int = 2) -> str:
-    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else (
-        f"{value:.{digits}f}"
-    )  # fmt: skip
-
-
-def _value(row: dict[str, Any]) -> str:
-    text = _cell(row["value"] if "value" in row else row["predicted"])
-    if row["samples"]:
-        text += f" [{_cell(row['lo'])}, {_cell(row['hi'])}]"
-    return text
-
-
-def standard_markdown(tables: dict[str, list[dict[str, Any]]]) -> str:
-    """One row per quantity, a value (and interval) column per model, the IMO limit and each
-    model's margin and verdict."""
-    names = list(tables)
-    head = "| manoeuvre | quantity | unit | " + " | ".join(names) + " | IMO limit | "
-    head += " | ".join(f"margin {n}" for n in names) + " |"
-    lines = [head, "|---|---|---|" + "---:|" * (2 * len(names) + 1)]
-    for i, row in enumerate(tables[names[0]]):
-        cells = [row["manoeuvre"], row["quantity"], row["unit"]]
-        cells += [_value(tables[n][i]) for n in names]
-        if "limit" in row:
-            cells.append(f"{row['limit']:g}")
-            cells += [f"{_cell(tables[n][i]['margin'])} ({tables[n][i]['verdict']})" for n in names]
-        else:
-            cells += [""] * (1 + len(names))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def recorded_markdown(tables: dict[str, list[dict[str, Any]]]) -> str:
-    """One row per recorded run and quantity: the measurement and each model's prediction."""
-    names = list(tables)
-    lines = [
-        "| run | manoeuvre | quantity | unit | measured | " + " | ".join(names) + " |",
-        "|---|---|---|---|---:|" + "---:|" * len(names),
-    ]
-    for i, row in enumerate(tables[names[0]]):
-        cells = [row["run"], row["manoeuvre"], row["quantity"], row["unit"], _cell(row["measured"])]
-        for n in names:
-            r = tables[n][i]
-            mark = "" if r["inside"] is None else (" (inside)" if r["inside"] else " (outside)")
-            cells.append(_value(r) + mark)
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
 
 
 def write_docs(out: Path, samples: dict[str, np.ndarray]) -> None:

@@ -29,7 +29,7 @@ from tests.conftest import SHARED_EFFECTS, kernels
 from tests.memory_tracker import NullTracker
 
 pytestmark = pytest.mark.kernels(
-    *kernels((), "simulate", "moments"), *kernels(SHARED_EFFECTS, "moments")
+    *kernels((), "simulate", "moments", "derivatives"), *kernels(SHARED_EFFECTS, "moments")
 )
 
 

@@ -94,6 +94,16 @@ def test_sweep_logs_jobs_summarises_and_skips_them_on_a_rerun(tmp_path, data_dir
     assert "manoeuvre/recorded.Test-T.advance_measured" in m
     table = child.artifacts["manoeuvres.md"].decode()
     assert "over 50 draws" in table and "| Test-Z | zigzag 20/20 |" in table
+    # the parent's manoeuvre table: each case's seeds beside EFD and the measurements
+    md = (tmp_path / "summary" / "manoeuvres.md").read_text()
+    assert "| measured | EFD | J1-R | J2-R |" in md and "| Test-T (turning) | advance | L |" in md
+    parent = tracker.runs[first.parent_id]
+    frame = parent.artifacts["summary/manoeuvres.json"].set_index("key")
+    assert frame.loc["turning.advance", "J2-R mean"] == m["manoeuvre/turning.advance"]
+    assert frame.loc["turning.advance", "J2-R lo"] == m["manoeuvre/turning.advance_lo"]
+    assert np.isfinite(frame.loc["turning.advance", "EFD"])
+    measured = frame.loc["recorded.Test-T.advance", "measured"]
+    assert measured == m["manoeuvre/recorded.Test-T.advance_measured"]
     n_runs = len(tracker.runs)
     again = _run(specs, tracker, efd, tmp_path)
     assert sorted(again.skipped) == sorted(s.key for s in specs) and not again.finished

@@ -30,7 +30,8 @@ INTERVAL = (0.05, 0.95)
 
 Row = dict[str, Any]
 
-_UNITS = {"length": "L", "time": "s", "angle": "deg", "ratio": "%"}
+UNITS = {"length": "L", "time": "s", "angle": "deg", "ratio": "%"}
+"""The tables' unit of each kind of quantity (lengths in ship lengths, ratios in per cent)."""
 
 
 def _display(kind: str, value: float, L: float) -> float:
@@ -77,7 +78,7 @@ def standard_table(pred: Prediction, interval: tuple[float, float] = INTERVAL) -
             "key": q.key,
             "manoeuvre": q.manoeuvre,
             "quantity": q.label,
-            "unit": _UNITS[q.kind],
+            "unit": UNITS[q.kind],
             "value": value,
             "lo": lo,
             "hi": hi,
@@ -124,7 +125,7 @@ def recorded_table(
                     "manoeuvre": c.run.title,
                     "quantity": QUANTITY[f"{group}.{key}"].label,
                     "key": key,
-                    "unit": _UNITS[kind],
+                    "unit": UNITS[kind],
                     "measured": m,
                     "predicted": _display(kind, float(lanes[0]), L),
                     "lo": lo,
@@ -139,7 +140,8 @@ def recorded_table(
 def manoeuvre_metrics(pred: Prediction, comparisons: Sequence[Comparison] = ()) -> dict[str, float]:
     """Flat metrics for tracking: ``manoeuvre.<key>`` (full scale, table units) with ``_lo`` and
     ``_hi`` when there are samples, ``manoeuvre.<key>_margin`` for the IMO criteria, and
-    ``recorded.<run>.<key>`` (predicted) and ``..._measured`` for the recorded runs."""
+    ``recorded.<run>.<key>`` (predicted; ``_lo`` and ``_hi`` with samples) and
+    ``..._measured`` for the recorded runs."""
     out: dict[str, float] = {}
     for row in standard_table(pred):
         name = f"manoeuvre.{row['key']}"
@@ -151,6 +153,8 @@ def manoeuvre_metrics(pred: Prediction, comparisons: Sequence[Comparison] = ()) 
     for row in recorded_table(comparisons):
         name = f"recorded.{row['run']}.{row['key']}"
         out[name], out[f"{name}_measured"] = row["predicted"], row["measured"]
+        if row["samples"]:
+            out[f"{name}_lo"], out[f"{name}_hi"] = row["lo"], row["hi"]
     return {k: v for k, v in out.items() if not math.isnan(v)}
 
 
@@ -259,6 +263,7 @@ def settings_note(pred: Prediction) -> str:
 
 __all__ = [
     "INTERVAL",
+    "UNITS",
     "format_recorded",
     "format_standard",
     "full_scale_l_over_v",

@@ -7,9 +7,12 @@ Usage::
 
 ``--docs DIR`` writes, for the EFD parameters and the shipped model (results/best_params.json),
 the standard manoeuvres and every recorded turning and zigzag run of the data set against the
-model: ``DIR/tables.md`` (included by docs/guide/manoeuvres.md) and ``DIR/<name>.png``.
-Intervals appear only for a model given parameter samples (``--samples efd=S.npy``, vectors
-(S, n) such as the identification's uncertainty draws).
+model: ``DIR/tables.md`` (included by docs/guide/manoeuvres.md) and ``DIR/<name>.png``. The
+shipped model's intervals come from 50 draws (``--seed``, 0) of its own uncertainty on the
+training set and with the objective its metadata names (Train-R, J1), as
+``python -m sweep.evaluate --params results/best_params.json --manoeuvres --intervals`` draws
+them; the EFD parameters were not identified and have no such uncertainty: point values.
+``--samples NAME=S.npy`` gives a model samples from a file instead (vectors (S, n)).
 
 ``--time`` prints the wall time of all manoeuvres of one model (the standard ones and the test
 set's Test-T and Test-Z) with S parameter samples, median of three after one warm-up call. The
@@ -44,6 +47,7 @@ from sweep.data.standard_manoeuvres import (
     find_manoeuvre,
     predict_standard,
 )
+from sweep.evaluate import interval_samples
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "results" / "best_params.json"
@@ -65,13 +69,20 @@ def recorded_runs() -> list[RecordedRun]:
     return [r for r in found if r is not None]
 
 
-def write_docs(out: Path, samples: dict[str, np.ndarray]) -> None:
+def write_docs(out: Path, samples: dict[str, np.ndarray], seed: int = 0, draws: int = 50) -> None:
     """The tables (``out/tables.md``) and figures (``out/<name>.png``) of EFD and the shipped
-    model."""
+    model (its samples drawn from its own intervals unless ``samples`` has them)."""
     out.mkdir(parents=True, exist_ok=True)
     models = {"EFD": efd_parameters(), "shipped": Parameters.load_json(SHIPPED)}
     runs = recorded_runs()
     standard, recorded, notes = {}, {}, []
+    if "shipped" not in samples:
+        samples["shipped"], source = interval_samples(
+            models["shipped"], str(SHIPPED), "", None, draws, seed
+        )
+        notes.append(f"shipped: {source}")
+    notes.append("EFD: point values: the EFD parameters were not identified on recordings and")
+    notes[-1] += " have no identification uncertainty."
     for name, params in models.items():
         s = samples.get(name.lower())
         pred = predict_standard(params, s)
@@ -131,13 +142,14 @@ def main() -> None:
     ap.add_argument("--samples", nargs="*", default=[], help="NAME=S.npy (NAME: efd, shipped)")
     ap.add_argument("--time", action="store_true", help="time all manoeuvres of one model")
     ap.add_argument("--samples-count", type=int, default=50)
+    ap.add_argument("--seed", type=int, default=0, help="--docs: seed of the shipped model's draws")
     args = ap.parse_args()
     samples = {}
     for spec in args.samples:
         name, _, path = spec.partition("=")
         samples[name.lower()] = np.load(path)
     if args.docs:
-        write_docs(args.docs, samples)
+        write_docs(args.docs, samples, args.seed, args.samples_count)
     if args.time:
         time_all(args.samples_count)
 

@@ -1,7 +1,8 @@
 # Common commands; see README.md.
 PY ?= python
 
-.PHONY: install test test-integration test-all lint format typecheck check bench bench-peak bench-parts bench-lm bench-grid bench-grid-fit bench-faults bench-diagnose bench-unforeseen data sweep \
+.PHONY: install test test-integration test-all lint format typecheck check bench bench-peak bench-parts bench-lm bench-grid bench-grid-fit bench-faults bench-diagnose bench-unforeseen \
+	bench-coverage bench-manoeuvres manoeuvres data sweep \
 	smoke ui diagnose
 
 install:  ## install the project and its development tools
@@ -56,6 +57,15 @@ bench-diagnose:  ## planted-effect benchmark of the diagnosis (34 cases: catalog
 
 bench-unforeseen:  ## the diagnosis on planted forms no library term expresses (26 cases, strong and weak; hours on 2 cores)
 	PYTHONPATH=. $(PY) benchmarks/diagnose_planted.py --set unforeseen --out benchmarks/out/diagnose
+
+bench-coverage:  ## how often the parameters' 90 % intervals hold known truths (simulated data; 8 min on 2 cores)
+	PYTHONPATH=. $(PY) benchmarks/interval_coverage.py
+
+bench-manoeuvres:  ## wall time of one model's manoeuvres with 50 parameter samples on one core
+	NUMBA_NUM_THREADS=1 PYTHONPATH=. $(PY) benchmarks/manoeuvres.py --time
+
+manoeuvres:  ## the manoeuvre tables and figures of the docs: EFD and the shipped model with its intervals
+	PYTHONPATH=. $(PY) benchmarks/manoeuvres.py --docs docs/manoeuvres
 
 diagnose:  ## missing physics on the real recordings: best shipped model, Train-R, paper's test set
 	$(PY) -m sweep.diagnose --params results/best_params.json --train R --test paper \

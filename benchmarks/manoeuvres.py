@@ -7,9 +7,12 @@ Usage::
 
 ``--docs DIR`` writes, for the EFD parameters and the shipped model (results/best_params.json),
 the standard manoeuvres and every recorded turning and zigzag run of the data set against the
-model: ``DIR/tables.md`` (included by docs/guide/manoeuvres.md) and ``DIR/<name>.png``.
-Intervals appear only for a model given parameter samples (``--samples efd=S.npy``, vectors
-(S, n) such as the identification's uncertainty draws).
+model: ``DIR/tables.md`` (included by docs/guide/manoeuvres.md) and ``DIR/<name>.png``. The
+shipped model's intervals come from 50 draws (``--seed``, 0) of its own uncertainty on the
+training set and with the objective its metadata names (Train-R, J1), as
+``python -m sweep.evaluate --params results/best_params.json --manoeuvres --intervals`` draws
+them; the EFD parameters were not identified and have no such uncertainty: point values.
+``--samples NAME=S.npy`` gives a model samples from a file instead (vectors (S, n)).
 
 ``--time`` prints the wall time of all manoeuvres of one model (the standard ones and the test
 set's Test-T and Test-Z) with S parameter samples, median of three after one warm-up call. The
@@ -20,11 +23,9 @@ uncertainty module's draws, used for the timing only (the time does not depend o
 from __future__ import annotations
 
 import argparse
-import math
 import statistics
 import time
 from pathlib import Path
-from typing import Any
 
 import numba
 import numpy as np
@@ -32,7 +33,13 @@ import numpy as np
 from mmg.params import Parameters, efd_parameters
 from sweep.data.datasets import data_root, load_split
 from sweep.data.manoeuvre_figures import plot_manoeuvres
-from sweep.data.manoeuvre_tables import recorded_table, settings_note, standard_table
+from sweep.data.manoeuvre_tables import (
+    recorded_markdown,
+    recorded_table,
+    settings_note,
+    standard_markdown,
+    standard_table,
+)
 from sweep.data.recordings import read_recording
 from sweep.data.standard_manoeuvres import (
     RecordedRun,
@@ -40,6 +47,7 @@ from sweep.data.standard_manoeuvres import (
     find_manoeuvre,
     predict_standard,
 )
+from sweep.evaluate import interval_samples
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "results" / "best_params.json"
@@ -61,62 +69,20 @@ def recorded_runs() -> list[RecordedRun]:
     return [r for r in found if r is not None]
 
 
-def _cell(value: Any, digits: int = 2) -> str:
-    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else (
-        f"{value:.{digits}f}"
-    )  # fmt: skip
-
-
-def _value(row: dict[str, Any]) -> str:
-    text = _cell(row["value"] if "value" in row else row["predicted"])
-    if row["samples"]:
-        text += f" [{_cell(row['lo'])}, {_cell(row['hi'])}]"
-    return text
-
-
-def standard_markdown(tables: dict[str, list[dict[str, Any]]]) -> str:
-    """One row per quantity, a value (and interval) column per model, the IMO limit and each
-    model's margin and verdict."""
-    names = list(tables)
-    head = "| manoeuvre | quantity | unit | " + " | ".join(names) + " | IMO limit | "
-    head += " | ".join(f"margin {n}" for n in names) + " |"
-    lines = [head, "|---|---|---|" + "---:|" * (2 * len(names) + 1)]
-    for i, row in enumerate(tables[names[0]]):
-        cells = [row["manoeuvre"], row["quantity"], row["unit"]]
-        cells += [_value(tables[n][i]) for n in names]
-        if "limit" in row:
-            cells.append(f"{row['limit']:g}")
-            cells += [f"{_cell(tables[n][i]['margin'])} ({tables[n][i]['verdict']})" for n in names]
-        else:
-            cells += [""] * (1 + len(names))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def recorded_markdown(tables: dict[str, list[dict[str, Any]]]) -> str:
-    """One row per recorded run and quantity: the measurement and each model's prediction."""
-    names = list(tables)
-    lines = [
-        "| run | manoeuvre | quantity | unit | measured | " + " | ".join(names) + " |",
-        "|---|---|---|---|---:|" + "---:|" * len(names),
-    ]
-    for i, row in enumerate(tables[names[0]]):
-        cells = [row["run"], row["manoeuvre"], row["quantity"], row["unit"], _cell(row["measured"])]
-        for n in names:
-            r = tables[n][i]
-            mark = "" if r["inside"] is None else (" (inside)" if r["inside"] else " (outside)")
-            cells.append(_value(r) + mark)
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def write_docs(out: Path, samples: dict[str, np.ndarray]) -> None:
+def write_docs(out: Path, samples: dict[str, np.ndarray], seed: int = 0, draws: int = 50) -> None:
     """The tables (``out/tables.md``) and figures (``out/<name>.png``) of EFD and the shipped
-    model."""
+    model (its samples drawn from its own intervals unless ``samples`` has them)."""
     out.mkdir(parents=True, exist_ok=True)
     models = {"EFD": efd_parameters(), "shipped": Parameters.load_json(SHIPPED)}
     runs = recorded_runs()
     standard, recorded, notes = {}, {}, []
+    if "shipped" not in samples:
+        samples["shipped"], source = interval_samples(
+            models["shipped"], str(SHIPPED), "", None, draws, seed
+        )
+        notes.append(f"shipped: {source}")
+    notes.append("EFD: point values: the EFD parameters were not identified on recordings and")
+    notes[-1] += " have no identification uncertainty."
     for name, params in models.items():
         s = samples.get(name.lower())
         pred = predict_standard(params, s)
@@ -176,13 +142,14 @@ def main() -> None:
     ap.add_argument("--samples", nargs="*", default=[], help="NAME=S.npy (NAME: efd, shipped)")
     ap.add_argument("--time", action="store_true", help="time all manoeuvres of one model")
     ap.add_argument("--samples-count", type=int, default=50)
+    ap.add_argument("--seed", type=int, default=0, help="--docs: seed of the shipped model's draws")
     args = ap.parse_args()
     samples = {}
     for spec in args.samples:
         name, _, path = spec.partition("=")
         samples[name.lower()] = np.load(path)
     if args.docs:
-        write_docs(args.docs, samples)
+        write_docs(args.docs, samples, args.seed, args.samples_count)
     if args.time:
         time_all(args.samples_count)
 

@@ -6,6 +6,7 @@ import json
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -13,7 +14,9 @@ from mmg import efd_parameters
 from sweep.evaluate import TEST_COLUMNS, main
 from tests.conftest import kernels
 
-pytestmark = pytest.mark.kernels(*kernels((), "moments"))
+pytestmark = pytest.mark.kernels(*kernels((), "moments", "simulate", "derivatives"))
+
+SHIPPED = Path(__file__).resolve().parents[1] / "results" / "best_params.json"
 
 
 def test_efd_on_the_real_test_set(data_dir, tmp_path, monkeypatch, capsys):
@@ -106,3 +109,29 @@ def test_a_source_is_required_and_manoeuvre_flags_need_manoeuvres(capsys):
         assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "--manoeuvres is required" in err and "go with --manoeuvres" in err
+
+
+def test_manoeuvre_intervals_from_the_parameters_own_uncertainty(data_dir, tmp_path, capsys):
+    """--intervals: the shipped model's intervals on the training set its file names (Train-R,
+    J1), drawn with a seed: the same seed gives the same table; EFD and a file that names no
+    training set are refused with a message."""
+    args = ["--params", str(SHIPPED), "--manoeuvres", "--data-root", str(data_dir), "--draws", "4"]
+    out = tmp_path / "m.json"
+    assert main([*args, "--intervals", "--seed", "3", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "4 draws (seed 3)" in printed and "on set R with J1" in printed
+    report = json.loads(out.read_text())["manoeuvres"]
+    advance = next(r for r in report["standard"] if r["key"] == "turning.advance")
+    assert 0 < advance["samples"] <= 4 and advance["lo"] <= advance["hi"]
+    assert {r["inside"] for r in report["recorded"]} <= {True, False, None}
+    again = tmp_path / "again.json"
+    assert main([*args, "--intervals", "R", "--objective", "J1", "--seed", "3",
+                 "--json", str(again)]) == 0  # fmt: skip
+    assert json.loads(again.read_text())["manoeuvres"] == report
+    capsys.readouterr()
+    assert main(["--params", "efd", "--manoeuvres", "--intervals", "R"]) == 2
+    assert "no identification uncertainty" in capsys.readouterr().err
+    bare = tmp_path / "p.json"
+    efd_parameters().save_json(bare)
+    assert main(["--params", str(bare), "--manoeuvres", "--intervals"]) == 2
+    assert "names no training set" in capsys.readouterr().err

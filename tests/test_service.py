@@ -29,7 +29,7 @@ from tests.conftest import SHARED_EFFECTS, kernels
 from tests.memory_tracker import NullTracker
 
 pytestmark = pytest.mark.kernels(
-    *kernels((), "simulate", "moments"), *kernels(SHARED_EFFECTS, "moments")
+    *kernels((), "simulate", "moments", "derivatives"), *kernels(SHARED_EFFECTS, "moments")
 )
 
 
@@ -87,6 +87,23 @@ def test_sweep_logs_jobs_summarises_and_skips_them_on_a_rerun(tmp_path, data_dir
     assert len(intervals["parameters"]) == 57 and intervals["meta"]["subsequences"] == 29
     assert child.metrics["fraction_determined"] == intervals["fraction_determined"]
     assert b"| C_D |" in child.artifacts["uncertainty.md"]
+    # and the manoeuvres of those parameters, with intervals from 50 draws of them
+    m = child.metrics
+    assert m["manoeuvre/turning.advance_lo"] <= m["manoeuvre/turning.advance_hi"]
+    assert "manoeuvre/zigzag10.overshoot_1_margin" in m
+    assert "manoeuvre/recorded.Test-T.advance_measured" in m
+    table = child.artifacts["manoeuvres.md"].decode()
+    assert "over 50 draws" in table and "| Test-Z | zigzag 20/20 |" in table
+    # the parent's manoeuvre table: each case's seeds beside EFD and the measurements
+    md = (tmp_path / "summary" / "manoeuvres.md").read_text()
+    assert "| measured | EFD | J1-R | J2-R |" in md and "| Test-T (turning) | advance | L |" in md
+    parent = tracker.runs[first.parent_id]
+    frame = parent.artifacts["summary/manoeuvres.json"].set_index("key")
+    assert frame.loc["turning.advance", "J2-R mean"] == m["manoeuvre/turning.advance"]
+    assert frame.loc["turning.advance", "J2-R lo"] == m["manoeuvre/turning.advance_lo"]
+    assert np.isfinite(frame.loc["turning.advance", "EFD"])
+    measured = frame.loc["recorded.Test-T.advance", "measured"]
+    assert measured == m["manoeuvre/recorded.Test-T.advance_measured"]
     n_runs = len(tracker.runs)
     again = _run(specs, tracker, efd, tmp_path)
     assert sorted(again.skipped) == sorted(s.key for s in specs) and not again.finished
@@ -409,6 +426,32 @@ def test_27_jobs_on_2_cpus_run_3_at_a_time_on_shares_of_the_cores(tmp_path, data
     capacity, share, ready, f_here, *f_workers = out.stdout.split()[-7:]
     assert (int(capacity), float(share), int(ready)) == (3, 0.6666, 3)
     assert [float(f) for f in f_workers] == [float(f_here)] * 3  # same numbers on a share
+
+
+def test_manoeuvres_that_fail_leave_the_job_its_result(data_dir, efd):
+    """The manoeuvres of a job are a value too: intervals that cannot be read (here without
+    their covariance) come back as an error, logged as a tag and manoeuvres_error.txt; with
+    good intervals the same call gives the metrics, the table and the figure."""
+    from sweep.service.job import job_manoeuvres
+    from tests.test_tracking import make_outcome
+
+    test = load_split("paper").load(str(data_dir))
+    params = efd_parameters()
+    value, files = job_manoeuvres(params, (), test, {"parameters": []}, 0, "cmaes", "title")
+    assert value["error"].startswith("KeyError") and files == {}
+    outcome = make_outcome()
+    outcome.manoeuvres = value
+    tracker = NullTracker()
+    child = tracker.runs[tracker.log_job(tracker.start_sweep("s", {}, efd), outcome, None)]
+    assert child.status == "FINISHED" and "test/J2/total" in child.metrics
+    assert child.tags["manoeuvres.error"] == value["error"]
+    assert b"KeyError" in child.artifacts["manoeuvres_error.txt"]
+    assert not any(k.startswith("manoeuvre/") for k in child.metrics)
+    # without intervals: point values, and the figure
+    value, files = job_manoeuvres(params, (), test, None, 0, "cmaes", "EFD")
+    assert value["samples"] == 0 and "point values" in value["markdown"]
+    assert "manoeuvre.turning.advance_lo" not in value["metrics"]
+    assert files["manoeuvres.png"].startswith(b"\x89PNG")
 
 
 def test_intervals_that_fail_leave_the_job_its_result(data_dir, efd):

@@ -9,7 +9,7 @@ import json
 
 import numpy as np
 import pytest
-from benchmarks.coverage import REAL_NOISE, synthetic_windows, truth_of
+from benchmarks.interval_coverage import REAL_NOISE, synthetic_windows, truth_of
 
 from mmg import Parameters, bounds
 from sweep.data.datasets import load_split

@@ -3,9 +3,11 @@
 Usage::
 
     python -m sweep.evaluate --params {efd|PATH.json} (--set test | --recordings PATH [PATH ...])
-                             [--manoeuvres [--samples S.npy] [--figure PNG]]
+                             [--manoeuvres [--intervals [SET] | --samples S.npy]
+                                           [--figure PNG]]
                              [--json OUT] [--data-root DIR]
-    python -m sweep.evaluate --params {efd|PATH.json} --manoeuvres [--samples S.npy] ...
+    python -m sweep.evaluate --params PATH.json --manoeuvres --intervals [SET]
+                             [--objective J] [--draws 50] [--seed 0] ...
 
 ``--set test`` is the paper's test set under the data root (``--data-root``, else $MMG_DATA_DIR,
 else the user cache; see :func:`sweep.data.datasets.data_root`); ``--set R|TR|TZR`` a training set.
@@ -21,9 +23,14 @@ the JSON).
 stop) at full scale with the margins to the IMO criteria, and the turning and zigzag runs among
 the recordings (without ``--set`` and ``--recordings``: the test set's Test-T and Test-Z)
 against the model's prediction (:mod:`sweep.data.standard_manoeuvres`); in the JSON under
-``"manoeuvres"``. Intervals need parameter samples: ``--samples S.npy`` (an array (S, n) of
-flat parameter vectors, e.g. drawn from the identification's uncertainty); without them the
-tables hold point values. ``--figure PNG`` draws the predicted manoeuvres over the recorded runs.
+``"manoeuvres"``. Intervals need parameter samples. ``--intervals [SET]`` draws them from the
+parameters' own uncertainty (:mod:`sweep.identification.uncertainty`, as
+``python -m sweep.uncertainty`` computes it) on the training set SET (R, TR, TZR, or test), by
+default the ``train`` the file's metadata names, with the objective ``--objective`` (default:
+the file's, else J2): ``--draws`` vectors (50) from ``np.random.default_rng(--seed)`` (0).
+``--samples S.npy`` takes them from a file instead (an array (S, n) of flat parameter vectors).
+Without either the tables hold point values; the EFD parameters have no identification
+uncertainty. ``--figure PNG`` draws the predicted manoeuvres over the recorded runs.
 
 A user mistake (a bad recording, a bad parameter file, missing data) exits with status 2 and a
 message that names the file and the problem; never a traceback.
@@ -64,6 +71,7 @@ from sweep.data.standard_manoeuvres import (
     predict_standard,
 )
 from sweep.errors import USER_ERRORS, UserError
+from sweep.identification.uncertainty import NOT_OPTIMUM, parameter_uncertainty
 
 #: the paper's column order (Tables 6-8)
 TEST_COLUMNS = (
@@ -147,6 +155,68 @@ def load_samples(path: str) -> np.ndarray:
     return np.asarray(samples, dtype=np.float64)
 
 
+def parameter_metadata(spec: str) -> dict[str, Any]:
+    """The ``metadata`` of a parameter file ({} for ``efd`` or a file without it)."""
+    path = Path(spec)
+    if spec.lower() == "efd" or not path.is_file():
+        return {}
+    try:
+        meta = json.loads(path.read_text()).get("metadata", {})
+    except (OSError, ValueError, AttributeError):
+        return {}
+    return meta if isinstance(meta, dict) else {}
+
+
+def interval_samples(
+    params: Parameters,
+    spec: str,
+    set_name: str,
+    objective: str | None,
+    draws: int,
+    seed: int,
+    root: str | None = None,
+) -> tuple[np.ndarray, str]:
+    """(draws, n) parameter vectors drawn from the intervals of ``params`` (the file ``spec``)
+    on the training set ``set_name`` ("" : the file's metadata ``train``) with ``objective``
+    (None: the file's, else J2), from ``np.random.default_rng(seed)``; and a sentence saying
+    where they come from. UserError for EFD (not identified: no such uncertainty), a file that
+    names no training set, or intervals that cannot be computed."""
+    if spec.lower() == "efd":
+        raise UserError(
+            "efd: the captive-model parameters were not identified on recordings, so they have "
+            "no identification uncertainty; --intervals needs identified parameters (or give "
+            "--samples)"
+        )
+    if draws < 1:
+        raise UserError(f"--draws {draws}: give at least one draw, e.g. 50")
+    meta = parameter_metadata(spec)
+    name = set_name or meta.get("train")
+    if not isinstance(name, str) or not name:
+        raise UserError(f"{spec} names no training set: give --intervals R|TR|TZR|test")
+    J = objective or meta.get("objective") or "J2"
+    if J not in OBJECTIVES:
+        raise UserError(f"{spec}: unknown objective {J!r} in its metadata")
+    split = "paper" if name.lower() == "test" else name
+    recs = list(load_split(split).load(root).values())
+    try:
+        u = parameter_uncertainty(params, recs, str(J), effects_of(params))
+    except ValueError as exc:
+        raise UserError(f"{spec} on set {name}: {exc}") from None
+    c = u.counts
+    text = (
+        f"The samples: {draws} draws (seed {seed}) from the parameters' "
+        f"{round(100 * u.level)} % intervals on set {name} with {J} "
+        f"({c['determined']} of {len(u.names)} parameters determined; "
+        "python -m sweep.uncertainty prints them)."
+    )
+    if float(u.meta.get("newton_step_sd", 0.0)) > NOT_OPTIMUM:
+        text += (
+            f" Warning: these parameters are probably not an optimum of {J} on set {name}; "
+            "the intervals describe the curvature there."
+        )
+    return u.sample(draws, np.random.default_rng(seed)), text
+
+
 def manoeuvre_runs(recs: Sequence[Recording], labels: Sequence[str]) -> list[RecordedRun]:
     """The turning and zigzag runs among ``recs`` (the others are left out)."""
     found = (find_manoeuvre(rec, label) for rec, label in zip(recs, labels, strict=True))
@@ -159,12 +229,13 @@ def manoeuvres(
     samples: Any = None,
     figure: str | None = None,
     name: str = "",
+    source: str = "",
 ) -> dict[str, Any]:
     """Print the standard manoeuvres and the recorded runs against the model; return both
     tables as rows (``"standard"``, ``"recorded"``) with the settings (``"note"``).
 
     ``samples``: None, or parameter vectors (S, n) / a sequence of Parameters for intervals
-    (e.g. drawn from the identification's uncertainty)."""
+    (e.g. drawn from the identification's uncertainty); ``source`` says where they come from."""
     effects = effects_of(params)
     pred = predict_standard(params, samples, effects)
     comparisons = compare_recorded(params, runs, samples, effects)
@@ -172,11 +243,12 @@ def manoeuvres(
     note = settings_note(pred)
     if samples is None:
         note += (
-            " Point values only: intervals need parameter samples (--samples, e.g. drawn from "
-            "the identification's uncertainty)."
+            " Point values only: intervals need parameter samples (--intervals: drawn from "
+            "the identification's uncertainty, or --samples)."
         )
     else:
         note += f" Intervals: 5-95 % over {pred.n_samples} parameter samples."
+        note += f" {source}" if source else ""
     print(format_standard(standard, f"Standard manoeuvres of {name}"))
     print(note)
     if comparisons:
@@ -231,16 +303,37 @@ def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
     ap.add_argument(
         "--manoeuvres", action="store_true", help="standard manoeuvres and recorded runs"
     )
-    ap.add_argument("--samples", help="with --manoeuvres: parameter samples (S, n) in a .npy")
+    draw = ap.add_mutually_exclusive_group()
+    draw.add_argument(
+        "--intervals",
+        nargs="?",
+        const="",
+        metavar="SET",
+        help="with --manoeuvres: intervals from draws of the parameters' uncertainty on SET "
+        "(R, TR, TZR, test; default: the training set of the file's metadata)",
+    )
+    draw.add_argument("--samples", help="with --manoeuvres: parameter samples (S, n) in a .npy")
+    ap.add_argument(
+        "--objective", choices=OBJECTIVES, help="with --intervals: default the file's, else J2"
+    )
+    ap.add_argument("--draws", type=int, default=50, help="with --intervals: draws (50)")
+    ap.add_argument("--seed", type=int, default=0, help="with --intervals: seed of the draws (0)")
     ap.add_argument("--figure", help="with --manoeuvres: draw the manoeuvres to this PNG")
     args = ap.parse_args(argv)
     if not (args.set_name or args.recordings or args.manoeuvres):
         ap.error("one of the arguments --set --recordings --manoeuvres is required")
-    if (args.samples or args.figure) and not args.manoeuvres:
-        ap.error("--samples and --figure go with --manoeuvres")
+    drawn = args.intervals is not None
+    if (args.samples or args.figure or drawn) and not args.manoeuvres:
+        ap.error("--intervals, --samples and --figure go with --manoeuvres")
 
     params = load_parameters(args.params)
     samples = load_samples(args.samples) if args.samples else None
+    source = ""
+    if drawn:
+        samples, source = interval_samples(
+            params, args.params, args.intervals, args.objective, args.draws, args.seed,
+            args.data_root,
+        )  # fmt: skip
     if args.set_name:
         name = "paper" if args.set_name.lower() == "test" else args.set_name
         recs, labels, is_test = _recordings_from_set(name, args.data_root)
@@ -269,7 +362,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
             out["departures"] = beyond
     if args.manoeuvres:
         runs = manoeuvre_runs(recs, labels)
-        out["manoeuvres"] = manoeuvres(params, runs, samples, args.figure, args.params)
+        out["manoeuvres"] = manoeuvres(params, runs, samples, args.figure, args.params, source)
     if args.json_out:
         Path(args.json_out).write_text(json.dumps(out, indent=2) + "\n")
     return out

@@ -22,11 +22,18 @@ SAMPLE_LINES = 40
 """Most sample tracks drawn per panel (tracks have no band: their samples are drawn as lines)."""
 
 
+def _good(runs: Runs) -> np.ndarray:
+    """(R,) bool: the lanes to draw (those that neither diverged nor lacked an approach)."""
+    R = runs.states.shape[0]
+    return np.ones(R, dtype=bool) if runs.bad is None else ~np.asarray(runs.bad, dtype=bool)
+
+
 def _tracks(ax: Axes, runs: Runs, L: float, colour: str, label: str, to_stop: bool = False) -> None:
     """Tracks in the original course's frame (across to the right, along up) in ship lengths:
     the samples thin, the estimate bold; ``to_stop``: each up to its first u <= 0."""
     R = runs.states.shape[0]
-    for lane in [*range(1, min(R, SAMPLE_LINES + 1)), 0]:
+    good = _good(runs)
+    for lane in [*[k for k in range(1, R) if good[k]][:SAMPLE_LINES], 0]:
         x = runs.states[lane]
         if to_stop:
             stopped = np.flatnonzero(x[:, 1] <= 0.0)
@@ -41,8 +48,9 @@ def _heading(ax: Axes, runs: Runs, time_scale: float, colour: str, label: str) -
     estimate."""
     dev = np.degrees(runs.states[:, :, 4] - runs.states[:, :1, 4])
     t = runs.t * time_scale
-    if dev.shape[0] > 1:
-        lo, hi = np.nanquantile(dev[1:], BAND, axis=0)
+    samples = dev[1:][_good(runs)[1:]]
+    if samples.shape[0] > 0:
+        lo, hi = np.nanquantile(samples, BAND, axis=0)
         ax.fill_between(t, lo, hi, color=colour, alpha=0.25, lw=0)
     ax.plot(t, dev[0], color=colour, lw=1.4, label=label)
 

@@ -5,7 +5,7 @@ metrics for tracking."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -30,7 +30,8 @@ INTERVAL = (0.05, 0.95)
 
 Row = dict[str, Any]
 
-_UNITS = {"length": "L", "time": "s", "angle": "deg", "ratio": "%"}
+UNITS = {"length": "L", "time": "s", "angle": "deg", "ratio": "%"}
+"""The tables' unit of each kind of quantity (lengths in ship lengths, ratios in per cent)."""
 
 
 def _display(kind: str, value: float, L: float) -> float:
@@ -77,7 +78,7 @@ def standard_table(pred: Prediction, interval: tuple[float, float] = INTERVAL) -
             "key": q.key,
             "manoeuvre": q.manoeuvre,
             "quantity": q.label,
-            "unit": _UNITS[q.kind],
+            "unit": UNITS[q.kind],
             "value": value,
             "lo": lo,
             "hi": hi,
@@ -124,7 +125,7 @@ def recorded_table(
                     "manoeuvre": c.run.title,
                     "quantity": QUANTITY[f"{group}.{key}"].label,
                     "key": key,
-                    "unit": _UNITS[kind],
+                    "unit": UNITS[kind],
                     "measured": m,
                     "predicted": _display(kind, float(lanes[0]), L),
                     "lo": lo,
@@ -139,7 +140,8 @@ def recorded_table(
 def manoeuvre_metrics(pred: Prediction, comparisons: Sequence[Comparison] = ()) -> dict[str, float]:
     """Flat metrics for tracking: ``manoeuvre.<key>`` (full scale, table units) with ``_lo`` and
     ``_hi`` when there are samples, ``manoeuvre.<key>_margin`` for the IMO criteria, and
-    ``recorded.<run>.<key>`` (predicted) and ``..._measured`` for the recorded runs."""
+    ``recorded.<run>.<key>`` (predicted; ``_lo`` and ``_hi`` with samples) and
+    ``..._measured`` for the recorded runs."""
     out: dict[str, float] = {}
     for row in standard_table(pred):
         name = f"manoeuvre.{row['key']}"
@@ -151,6 +153,8 @@ def manoeuvre_metrics(pred: Prediction, comparisons: Sequence[Comparison] = ()) 
     for row in recorded_table(comparisons):
         name = f"recorded.{row['run']}.{row['key']}"
         out[name], out[f"{name}_measured"] = row["predicted"], row["measured"]
+        if row["samples"]:
+            out[f"{name}_lo"], out[f"{name}_hi"] = row["lo"], row["hi"]
     return {k: v for k, v in out.items() if not math.isnan(v)}
 
 
@@ -192,6 +196,59 @@ def format_recorded(rows: Sequence[Row], title: str = "") -> str:
     return "\n".join(lines)
 
 
+def _text(value: Any, digits: int = 2) -> str:
+    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else (
+        f"{value:.{digits}f}"
+    )  # fmt: skip
+
+
+def _value_cell(row: Row) -> str:
+    """``value [lo, hi]`` of a row (its prediction for a recorded run's row)."""
+    text = _text(row["value"] if "value" in row else row["predicted"])
+    if row["samples"]:
+        text += f" [{_text(row['lo'])}, {_text(row['hi'])}]"
+    return text
+
+
+def standard_markdown(tables: Mapping[str, Sequence[Row]]) -> str:
+    """The standard manoeuvres of one or more models ({name: :func:`standard_table` rows}) as
+    a Markdown table: one row per quantity, a value (and interval) column per model, the IMO
+    limit and each model's margin and verdict."""
+    names = list(tables)
+    head = "| manoeuvre | quantity | unit | " + " | ".join(names) + " | IMO limit | "
+    head += " | ".join(f"margin {n}" for n in names) + " |"
+    lines = [head, "|---|---|---|" + "---:|" * (2 * len(names) + 1)]
+    for i, row in enumerate(tables[names[0]]):
+        cells = [row["manoeuvre"], row["quantity"], row["unit"]]
+        cells += [_value_cell(tables[n][i]) for n in names]
+        if "limit" in row:
+            cells.append(f"{row['limit']:g}")
+            cells += [f"{_text(tables[n][i]['margin'])} ({tables[n][i]['verdict']})" for n in names]
+        else:
+            cells += [""] * (1 + len(names))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def recorded_markdown(tables: Mapping[str, Sequence[Row]]) -> str:
+    """The recorded runs against one or more models ({name: :func:`recorded_table` rows}) as a
+    Markdown table: one row per run and quantity, the measurement and each model's prediction
+    (with its interval and whether the measurement lies inside it)."""
+    names = list(tables)
+    lines = [
+        "| run | manoeuvre | quantity | unit | measured | " + " | ".join(names) + " |",
+        "|---|---|---|---|---:|" + "---:|" * len(names),
+    ]
+    for i, row in enumerate(tables[names[0]]):
+        cells = [row["run"], row["manoeuvre"], row["quantity"], row["unit"], _text(row["measured"])]
+        for n in names:
+            r = tables[n][i]
+            mark = "" if r["inside"] is None else (" (inside)" if r["inside"] else " (outside)")
+            cells.append(_value_cell(r) + mark)
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def settings_note(pred: Prediction) -> str:
     """One paragraph: the approach, the scale and the rudder and propeller of the manoeuvres."""
     s = pred.settings
@@ -206,11 +263,14 @@ def settings_note(pred: Prediction) -> str:
 
 __all__ = [
     "INTERVAL",
+    "UNITS",
     "format_recorded",
     "format_standard",
     "full_scale_l_over_v",
     "manoeuvre_metrics",
+    "recorded_markdown",
     "recorded_table",
     "settings_note",
+    "standard_markdown",
     "standard_table",
 ]

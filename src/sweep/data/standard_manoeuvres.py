@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -75,11 +75,14 @@ class Settings:
 @dataclass(frozen=True)
 class Runs:
     """Simulated runs of one manoeuvre: t (K + 1,) [s], states (R, K + 1, 6), rudder (R, K + 1)
-    [rad] (NaN-padded after a lane's end), lane 0 the estimate, lanes 1.. the samples."""
+    [rad] (NaN-padded after a lane's end), lane 0 the estimate, lanes 1.. the samples; ``bad``
+    (R,) bool the lanes that diverged or found no approach revolution (None: not known), which
+    have no quantities and are not drawn."""
 
     t: FloatArray
     states: FloatArray
     delta: FloatArray
+    bad: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -305,7 +308,10 @@ def predict_standard(
     n_app = approach_revolutions(rows, s.approach_speed, effects, params.ship)
     no_approach = ~np.isfinite(n_app)
     turn, stop, bad_turn, bad_stop = _open_loop(rows, n_app, s, effects, params.ship)
-    runs = {"turning": turn, "stopping": stop}
+    runs = {
+        "turning": replace(turn, bad=bad_turn | no_approach),
+        "stopping": replace(stop, bad=bad_stop | no_approach),
+    }
     groups = {
         "turning": _measure_lanes("turning", turn, bad_turn | no_approach),
         "stopping": _measure_lanes("stopping", stop, bad_stop | no_approach),
@@ -319,7 +325,7 @@ def predict_standard(
         zz, bad_z = simulate_zigzag(
             rows, x0, n_p, wind, check, s.rudder_rate, effects, params.ship, dt=s.dt
         )
-        runs[name] = zz
+        runs[name] = replace(zz, bad=bad_z | no_approach)
         groups[name] = _measure_lanes("zigzag", zz, bad_z | no_approach)
     values = {f"{g}.{k}": v for g, measured in groups.items() for k, v in measured.items()}
     return Prediction(settings=s, values=values, n_approach=n_app, runs=runs)
@@ -507,7 +513,7 @@ def compare_recorded(
         )
         predicted = _measure_lanes(r.kind, sim, bad)
         measured = _measure(r.kind, t, rec.x[r.k0 : r.end], delta)
-        out.append(Comparison(r, measured, predicted, sim))
+        out.append(Comparison(r, measured, predicted, replace(sim, bad=bad)))
     return out
 
 

@@ -41,8 +41,8 @@ would be if the others were known (Brun, Reichert and Kuensch 2001, Water Resour
 1015-1030; an index of 10 or more is reported). Each is named by its dominant parameters, those
 that carry ``dominant_share`` of its squared loading (2 to ``max_named`` of them).
 
-Calibration (``benchmarks/coverage.py``): on data simulated from known parameters with the
-recordings' coloured noise, the 90 % intervals of the parameters called determined cover the
+Calibration (``benchmarks/interval_coverage.py``): on data simulated from known parameters with
+the recordings' coloured noise, the 90 % intervals of the parameters called determined cover the
 truth in 85-95 % of cases (docs/guide/uncertainty.md has the figures).
 """
 

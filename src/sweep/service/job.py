@@ -1,4 +1,5 @@
-"""One job of a sweep: identify on a training set, evaluate on the test set, draw the plots.
+"""One job of a sweep: identify on a training set, evaluate on the test set, judge the
+parameters (intervals, standard manoeuvres), draw the plots.
 
 A job is described by a :class:`JobSpec` (plain data: the job's composed configuration and its
 directory) and run by :func:`run_job` wherever an executor puts it (this process, a Ray actor).
@@ -10,6 +11,7 @@ bytes (so that a job on another machine can hand them to the driver).
 from __future__ import annotations
 
 import tempfile
+import time
 import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -20,8 +22,17 @@ import numpy as np
 
 from mmg import Effect, Parameters, efd_parameters, get_effect, simulate_batch
 from sweep.data.datasets import split_from_mapping
+from sweep.data.manoeuvre_tables import (
+    manoeuvre_metrics,
+    recorded_markdown,
+    recorded_table,
+    settings_note,
+    standard_markdown,
+    standard_table,
+)
 from sweep.data.objective import OBJECTIVES, Objective, split_recording
 from sweep.data.recordings import Recording, RecordingWarning
+from sweep.data.standard_manoeuvres import compare_recorded, find_manoeuvre, predict_standard
 from sweep.identification.checkpoint import checkpoint_key
 from sweep.identification.cmaes import (
     CHECKPOINT_SECONDS,
@@ -32,7 +43,7 @@ from sweep.identification.cmaes import (
     restart_table,
 )
 from sweep.identification.polish import LAMBDA_TRIALS, PolishSettings, polish
-from sweep.identification.uncertainty import model_names, uncertainty_at
+from sweep.identification.uncertainty import Uncertainty, model_names, uncertainty_at
 from sweep.identification.vector import from_full_vector, full_vector, joint_box
 from sweep.service.lease import LEASE_SECONDS
 from sweep.service.outcome import SUBSETS, JobOutcome, complete_subsets, config_hash, make_job_key
@@ -204,6 +215,108 @@ def job_uncertainty(
     return {**u.as_dict(), "markdown": u.to_markdown(), "params": which}
 
 
+#: parameter samples drawn from a job's intervals to give its manoeuvres intervals
+MANOEUVRE_SAMPLES = 50
+
+
+def manoeuvre_samples(intervals: Mapping[str, Any] | None, n: int, seed: int) -> np.ndarray | None:
+    """(n, 57 + k) parameter vectors drawn from a job's intervals (the outcome's
+    ``uncertainty``, :meth:`Uncertainty.sample` with ``np.random.default_rng(seed)``: the same
+    draws from the logged ``uncertainty.json``); None without intervals or when they failed."""
+    if not intervals or "error" in intervals or n <= 0:
+        return None
+    return Uncertainty.from_dict(dict(intervals)).sample(n, np.random.default_rng(seed))
+
+
+def job_manoeuvres(
+    params: Parameters,
+    effects: tuple[Effect, ...],
+    test: Mapping[str, Recording],
+    intervals: Mapping[str, Any] | None,
+    seed: int,
+    which: str,
+    figure: str = "",
+    n_samples: int = MANOEUVRE_SAMPLES,
+) -> tuple[dict[str, Any], dict[str, bytes]]:
+    """The standard manoeuvres of a job's final parameters and the test set's turning and
+    zigzag runs (Test-T, Test-Z) against them, with intervals from ``n_samples`` draws of the
+    job's ``intervals`` (seeded by the job's ``seed``; point values without intervals), as
+    plain data for the outcome, and, when ``figure`` (a title) is given, the figure as
+    ``{"manoeuvres.png": bytes}``. About 1 s for 50 draws and 1 s for the figure on one core.
+    Failure is a value: ``{"error": ...}``, and the job's result stands."""
+    t0 = time.perf_counter()
+    try:
+        samples = manoeuvre_samples(intervals, n_samples, seed)
+        found = (find_manoeuvre(rec, label) for label, rec in test.items())
+        runs = [r for r in found if r is not None]
+        pred = predict_standard(params, samples, effects)
+        comparisons = compare_recorded(params, runs, samples, effects)
+        standard = standard_markdown({"model": standard_table(pred)})
+        recorded = recorded_markdown({"model": recorded_table(comparisons, L=params.ship.L_pp)})
+        spread = (
+            f"5-95 % over {pred.n_samples} draws of the parameters' intervals (seed {seed})"
+            if samples is not None
+            else "point values (no parameter intervals)"
+        )
+        markdown = (
+            f"Standard manoeuvres, full scale; {spread}.\n\n{standard}\n\n{settings_note(pred)}\n"
+        )
+        if comparisons:
+            markdown += f"\nThe test set's runs against the model (model scale).\n\n{recorded}\n"
+        files: dict[str, bytes] = {}
+        if figure:
+            from sweep.data.manoeuvre_figures import plot_manoeuvres
+
+            with tempfile.TemporaryDirectory() as tmp:
+                path = plot_manoeuvres(
+                    pred, comparisons, Path(tmp) / "manoeuvres.png", figure, params.ship.L_pp
+                )
+                files[path.name] = path.read_bytes()
+        metrics = manoeuvre_metrics(pred, comparisons)
+    except Exception as exc:  # any failure here must not cost the job its result
+        return {"error": f"{type(exc).__name__}: {exc}", "params": which}, {}
+    value = {
+        "metrics": metrics,
+        "markdown": markdown,
+        "samples": 0 if samples is None else int(samples.shape[0]),
+        "seed": seed,
+        "params": which,
+        "seconds": time.perf_counter() - t0,
+    }
+    return value, files
+
+
+def judge(
+    objective: Objective,
+    box: Box,
+    theta: np.ndarray,
+    effects: tuple[Effect, ...],
+    which: str,
+    test: Mapping[str, Recording],
+    seed: int,
+    title: str = "",
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, bytes]]:
+    """The intervals of a job's final parameters ``theta`` (:func:`job_uncertainty`) and their
+    manoeuvres with intervals from draws of them (:func:`job_manoeuvres`), and with a
+    ``title`` the manoeuvres' figure."""
+    intervals = job_uncertainty(objective, box, theta, effects, which)
+    params = from_full_vector(theta, efd_parameters(), effects)
+    figure = f"{title}: manoeuvres" if title else ""
+    manoeuvres, files = job_manoeuvres(params, effects, test, intervals, seed, which, figure)
+    return intervals, manoeuvres, files
+
+
+def job_recordings(spec: JobSpec) -> tuple[dict[str, Recording], dict[str, Recording]]:
+    """The training and the test recordings of a job, by label."""
+    with warnings.catch_warnings():
+        # data warnings (dropped trailing rows, ...) are said once, by the driver
+        # (check_recordings), not by every job that reads the file
+        warnings.simplefilter("ignore", RecordingWarning)
+        train = split_from_mapping(dict(spec.config["train"]), f"train={spec.train}")
+        test = split_from_mapping(dict(spec.config["test"]), "test")
+        return train.load(spec.data_root), test.load(spec.data_root)
+
+
 Evaluator = Any  # callable thetas -> f with close(); see sweep.identification.workers
 Status = Callable[[dict[str, float]], None]
 
@@ -219,21 +332,16 @@ def run_job(
     checkpoint (in its job directory, or in the sweep's storage), written after every
     generation; a checkpoint that is damaged, forged or another job's is set aside and the job
     resumes from the previous one, or afresh (the outcome's ``checkpoint_recovery`` and
-    ``checkpoint_rejected`` say so). ``uncertainty``: the intervals (None: as ``plots``)."""
+    ``checkpoint_rejected`` say so). ``uncertainty``: the intervals and the manoeuvres of the
+    final parameters (None: as ``plots``; the manoeuvres' figure only with ``plots``)."""
     cfg = spec.config
-    with warnings.catch_warnings():
-        # data warnings (dropped trailing rows, ...) are said once, by the driver
-        # (check_recordings), not by every job that reads the file
-        warnings.simplefilter("ignore", RecordingWarning)
-        train = split_from_mapping(dict(cfg["train"]), f"train={spec.train}").load(spec.data_root)
-        test = split_from_mapping(dict(cfg["test"]), "test").load(spec.data_root)
+    train, test = job_recordings(spec)
     settings = settings_of(cfg, spec.seed)
     # extra effects (``effects=[...]``: catalog or discovered) are identified with the 57
     # parameters, their parameters searched over their own boxes from neutral
     effects = tuple(get_effect(str(name)) for name in cfg.get("effects") or ())
     objective = Objective(list(train.values()), spec.objective, effects=effects)
-    box = joint_box(effects)
-    x0 = full_vector(efd_parameters(), effects)
+    box, x0 = joint_box(effects), full_vector(efd_parameters(), effects)
     if spec.checkpoint is None:  # with a storage URI the job needs no directory on its node
         spec.job_dir.mkdir(parents=True, exist_ok=True)
 
@@ -299,10 +407,15 @@ def run_job(
             "params": refined.to_dict(),
             "test": test_metrics(refined, test, effects),
         }
-    # the intervals of the job's final parameters, once, on its training set
+    # the intervals of the job's final parameters, once, on its training set, and the
+    # manoeuvres those parameters predict, with intervals from draws of them
     final, which = (lm.theta, "polished") if iterations > 0 else (result.theta, "cmaes")
     wanted = plots if uncertainty is None else uncertainty  # the products for people
-    intervals = job_uncertainty(objective, box, final, effects, which) if wanted else None
+    intervals, manoeuvres, manoeuvre_files = (
+        judge(objective, box, final, effects, which, test, spec.seed, spec.key if plots else "")
+        if wanted
+        else (None, None, {})
+    )
     outcome = JobOutcome(
         job_key=spec.key,
         objective=spec.objective,
@@ -324,6 +437,7 @@ def run_job(
         checkpoint_recovery=result.recovery.tag() if result.recovery else "",
         checkpoint_rejected=len(result.recovery.rejected) if result.recovery else 0,
         uncertainty=intervals,
+        manoeuvres=manoeuvres,
     )
     files = draw_plots(result.history, best, test, spec.key) if plots else {}
-    return outcome, files
+    return outcome, {**files, **manoeuvre_files}

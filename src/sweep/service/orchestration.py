@@ -43,7 +43,7 @@ from sweep.identification.workers import InProcess
 from sweep.service import pending, storage
 from sweep.service.job import JobSpec, job_key, run_job, test_metrics
 from sweep.service.lease import LEASE_SECONDS, Driver, Heartbeat, Holder, Lease
-from sweep.service.outcome import JobOutcome
+from sweep.service.outcome import JobOutcome, manoeuvre_metric_name
 
 
 class Executor(Protocol):
@@ -138,7 +138,7 @@ class SweepSummary:
     failed: dict[str, str] = field(default_factory=dict)
     files: dict[str, Path] = field(default_factory=dict)
     retries: dict[str, int] = field(default_factory=dict)  # resubmissions per job key
-    tables: dict[str, Any] = field(default_factory=dict)  # {J: summary table} (service.tables)
+    tables: dict[str, Any] = field(default_factory=dict)  # {J or "manoeuvres": table}
     notes: list[str] = field(default_factory=list)  # said under the tables (duplicates ignored)
     seconds: float = 0.0
 
@@ -227,6 +227,23 @@ def efd_reference(
         warnings.simplefilter("ignore", RecordingWarning)  # said once by check_recordings
         test = split_from_mapping(dict(test_cfg), "test").load(data_root)
     return test_metrics(efd_parameters(), test)
+
+
+def efd_manoeuvres(test_cfg: Mapping[str, Any], data_root: str | None) -> dict[str, float]:
+    """The EFD model's manoeuvres (the standard ones and the test set's turning and zigzag runs)
+    as ``manoeuvre/...`` metrics: the EFD column of the manoeuvre table (point values: the EFD
+    parameters have no identification uncertainty)."""
+    from sweep.data.manoeuvre_tables import manoeuvre_metrics
+    from sweep.data.standard_manoeuvres import compare_recorded, find_manoeuvre, predict_standard
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RecordingWarning)  # said once by check_recordings
+        test = split_from_mapping(dict(test_cfg), "test").load(data_root)
+    found = (find_manoeuvre(rec, label) for label, rec in test.items())
+    efd = efd_parameters()
+    comparisons = compare_recorded(efd, [r for r in found if r is not None])
+    metrics = manoeuvre_metrics(predict_standard(efd), comparisons)
+    return {manoeuvre_metric_name(k): v for k, v in metrics.items()}
 
 
 class Progress:
@@ -455,7 +472,8 @@ def run_sweep(
         raise
     finally:
         claims.close()
-    _write_summary(tracker, parent, efd_table, out_dir, summary, progress)
+    test = (dict(specs[0].config["test"]), specs[0].data_root) if specs else None
+    _write_summary(tracker, parent, efd_table, out_dir, summary, progress, test)
     summary.seconds = time.perf_counter() - t0
     return summary
 
@@ -592,11 +610,20 @@ def _write_summary(
     out_dir: Path,
     summary: SweepSummary,
     progress: Progress,
+    test: tuple[dict[str, Any], str | None] | None = None,
 ) -> None:
     """The summary tables of every logged job (and the sweep figure) to ``out_dir/summary``,
-    logged to the parent run; nothing when no job has an outcome."""
+    logged to the parent run; nothing when no job has an outcome. With the jobs' manoeuvres
+    also the manoeuvre table, beside the EFD model's on the ``test`` set (its config and data
+    root), computed here once."""
     from sweep.service.figures import plot_sweep
-    from sweep.service.tables import summary_tables, write_tables
+    from sweep.service.tables import (
+        MANOEUVRE_TABLE,
+        manoeuvre_table,
+        summary_tables,
+        write_manoeuvre_table,
+        write_tables,
+    )
 
     outcomes = tracker.job_outcomes(parent)
     if not outcomes:
@@ -618,5 +645,14 @@ def _write_summary(
         summary.files[figure.name] = figure
     except Exception as exc:  # the figure is a convenience: the tables must still land
         progress.note(f"warning: the sweep figure could not be drawn ({exc})")
+    manoeuvres = manoeuvre_table(outcomes)
+    if not manoeuvres.empty:
+        efd = None
+        try:
+            efd = efd_manoeuvres(*test) if test is not None else None
+        except Exception as exc:  # the EFD column is a reference: the table must still land
+            progress.note(f"warning: the EFD model's manoeuvres could not be computed ({exc})")
+        tables[MANOEUVRE_TABLE] = manoeuvre_table(outcomes, efd)
+        summary.files.update(write_manoeuvre_table(tables[MANOEUVRE_TABLE], out_dir / "summary"))
     summary.tables = tables
     tracker.finish_sweep(parent, tables, summary.files)

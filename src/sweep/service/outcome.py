@@ -16,7 +16,10 @@ subset      table column (paper)       metric name
 ``total``   Total                      ``test/{J}/total``
 ==========  =========================  ===================================
 
-The EFD reference values of a sweep are named ``efd/{J}/{subset}``.
+The EFD reference values of a sweep are named ``efd/{J}/{subset}``. The manoeuvres of a job's
+parameters are named ``manoeuvre/{manoeuvre}.{quantity}`` (full scale, with ``_lo``, ``_hi`` and
+``_margin``) and ``manoeuvre/recorded.{run}.{quantity}`` (with ``_measured``), see
+:func:`manoeuvre_metric_name`.
 """
 
 from __future__ import annotations
@@ -92,6 +95,12 @@ class JobOutcome:
     #: ``markdown`` (the table) and ``params`` ("cmaes" or "polished"); ``{"error": ...}`` when
     #: they could not be computed; None for an outcome from before they existed
     uncertainty: dict[str, Any] | None = None
+    #: the standard manoeuvres and the test set's turning and zigzag runs of the same
+    #: parameters, with intervals from draws of ``uncertainty``: ``metrics``
+    #: (:func:`~sweep.data.manoeuvre_tables.manoeuvre_metrics`), ``markdown`` (the tables),
+    #: ``samples``, ``seed``, ``seconds``, ``params``; ``{"error": ...}`` when they could not be
+    #: computed; None without them
+    manoeuvres: dict[str, Any] | None = None
 
 
 def _plain(value: Any) -> Any:
@@ -152,6 +161,17 @@ def metric_name(kind: str, objective: str, subset: str) -> str:
     ):
         raise ValueError(f"no metric {kind}/{objective}/{subset}")
     return f"{kind}/{objective}/{subset}"
+
+
+#: prefix of a job's manoeuvre metrics in tracking
+MANOEUVRE_PREFIX = "manoeuvre/"
+
+
+def manoeuvre_metric_name(key: str) -> str:
+    """The tracking name of a manoeuvre metric: ``"manoeuvre.turning.advance"`` ->
+    "manoeuvre/turning.advance", ``"recorded.Test-T.advance_hi"`` ->
+    "manoeuvre/recorded.Test-T.advance_hi"."""
+    return MANOEUVRE_PREFIX + key.removeprefix("manoeuvre.")
 
 
 def complete_subsets(values: Mapping[str, float]) -> dict[str, float]:

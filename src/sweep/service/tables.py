@@ -27,18 +27,23 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from sweep.data.manoeuvre_tables import UNITS
+from sweep.data.manoeuvres import QUANTITIES, QUANTITY
 from sweep.service.outcome import (
     COLUMNS,
+    MANOEUVRE_PREFIX,
     OBJECTIVE_NAMES,
     SUBSETS,
     TRAIN_NAMES,
     JobOutcome,
     ScoreTable,
     complete_subsets,
+    manoeuvre_metric_name,
 )
 
 __all__ = [
     "EFD_ROW",
+    "MANOEUVRE_TABLE",
     "POLISHED_SUFFIX",
     "best_case",
     "case_name",
@@ -46,8 +51,11 @@ __all__ = [
     "display_table",
     "format_table",
     "job_note",
+    "manoeuvre_markdown",
+    "manoeuvre_table",
     "summary_tables",
     "sweep_note",
+    "write_manoeuvre_table",
     "write_tables",
 ]
 
@@ -272,6 +280,149 @@ def write_tables(
         )
         files.update({p.name: p for p in paths.values()})
     return files
+
+
+# ---------------------------------------------------------------- the manoeuvres of a sweep
+
+#: name of the manoeuvre table among a sweep's summary tables (``summary/manoeuvres.json``)
+MANOEUVRE_TABLE = "manoeuvres"
+#: the statistics of a case's column group in the manoeuvre table
+MANOEUVRE_STATS = ("mean", "std", "lo", "hi", "n")
+#: the column of the recorded runs' measurements
+MEASURED = "measured"
+
+
+def _manoeuvre_values(outcome: JobOutcome | Mapping[str, Any]) -> dict[str, float]:
+    """A job's manoeuvre metrics (``manoeuvre/...``), from an outcome or a tracker record."""
+    if isinstance(outcome, JobOutcome):
+        man = outcome.manoeuvres or {}
+        raw = man.get("metrics", {}) if "error" not in man else {}
+        return {manoeuvre_metric_name(k): float(v) for k, v in raw.items()}
+    flat = {**outcome, **(outcome.get("metrics") or {})}
+    return {str(k): float(v) for k, v in flat.items() if str(k).startswith(MANOEUVRE_PREFIX)}
+
+
+def _quantity_rows(names: Iterable[str]) -> list[tuple[str, str, str, str]]:
+    """(key, manoeuvre, quantity, unit) of the standard quantities, then of the recorded runs'
+    (``recorded.<run>.<quantity>``) present in ``names`` (metric names without the prefix)."""
+    rows = [(q.key, q.manoeuvre, q.label, UNITS[q.kind]) for q in QUANTITIES]
+    runs: dict[str, list[str]] = {}
+    for name in names:
+        if name.startswith("recorded.") and not name.endswith(("_lo", "_hi", "_measured")):
+            run, _, key = name.removeprefix("recorded.").rpartition(".")
+            runs.setdefault(run, []).append(key)
+    order = {q.key.partition(".")[2]: i for i, q in enumerate(QUANTITIES)}
+    for run in sorted(runs):
+        for key in sorted(runs[run], key=lambda k: order.get(k, len(order))):
+            q = QUANTITY.get(f"turning.{key}") or QUANTITY.get(f"zigzag10.{key}")
+            if q is not None:
+                what = "turning" if q.key.startswith("turning") else "zigzag"
+                rows.append((f"recorded.{run}.{key}", f"{run} ({what})", q.label, UNITS[q.kind]))
+    return rows
+
+
+def manoeuvre_table(
+    outcomes: Sequence[JobOutcome] | Sequence[Mapping[str, Any]],
+    efd: Mapping[str, float] | None = None,
+) -> pd.DataFrame:
+    """The manoeuvres of a sweep's models: one row per quantity (the standard manoeuvres at
+    full scale, then each recorded run of the test set at model scale; index: the quantity's
+    key), columns ``manoeuvre``, ``quantity``, ``unit``, ``measured`` (the recorded runs'
+    measurements), ``EFD`` (the EFD model's point value: it has no identification
+    uncertainty), then per case (objective and training set, as in :func:`summary_tables`;
+    the job's final parameters, the refined ones with ``cmaes.polish``) the mean and standard
+    deviation over its seeds (ddof=1), the means over its seeds of each job's interval (5-95 %
+    over the draws of its parameters' intervals), ``lo`` and ``hi``, and ``n`` (seeds with the
+    quantity). Jobs the paper's post-filter rejected are left out. ``efd``: the EFD model's
+    ``manoeuvre/...`` metrics (None: no EFD column). Empty without manoeuvres."""
+    records = [(_record(o), _manoeuvre_values(o)) for o in outcomes]
+    records = [(r, v) for r, v in records if v and not r["rejected"]]
+    if not records:
+        return pd.DataFrame()
+    names = {k.removeprefix(MANOEUVRE_PREFIX) for _, v in records for k in v}
+    quantities = _quantity_rows(names)
+    every = {**(efd or {}), **{k: x for _, v in records for k, x in v.items()}}
+    table = pd.DataFrame(
+        {
+            "manoeuvre": [m for _, m, _, _ in quantities],
+            "quantity": [q for _, _, q, _ in quantities],
+            "unit": [u for _, _, _, u in quantities],
+            MEASURED: [
+                every.get(f"{MANOEUVRE_PREFIX}{k}_measured", math.nan) for k, *_ in quantities
+            ],
+        },
+        index=pd.Index([k for k, *_ in quantities], name="key"),
+    )
+    if efd is not None:
+        table[EFD_ROW] = [float(efd.get(MANOEUVRE_PREFIX + k, math.nan)) for k, *_ in quantities]
+    for objective, train, _ in _ordered_cases(r for r, _ in records):
+        group = [v for r, v in records if (r["objective"], r["train"]) == (objective, train)]
+        case = case_name(objective, train)
+        for stat in MANOEUVRE_STATS:
+            table[f"{case} {stat}"] = [
+                _seed_stat(group, MANOEUVRE_PREFIX + k, stat) for k, *_ in quantities
+            ]
+    keep = table.drop(columns=["manoeuvre", "quantity", "unit"]).notna().any(axis=1)
+    return table[keep]
+
+
+def _seed_stat(group: Sequence[Mapping[str, float]], name: str, stat: str) -> float:
+    """``stat`` of the metric ``name`` over the jobs of one case (NaN when none has it)."""
+    key = {"lo": f"{name}_lo", "hi": f"{name}_hi"}.get(stat, name)
+    values = np.array([v[key] for v in group if key in v], dtype=np.float64)
+    if stat == "n":
+        return float(values.size)
+    if stat == "std":
+        return float(values.std(ddof=1)) if values.size >= 2 else math.nan
+    return float(values.mean()) if values.size else math.nan
+
+
+def _manoeuvre_cell(row: pd.Series, case: str) -> str:
+    mean, std = row.get(f"{case} mean", math.nan), row.get(f"{case} std", math.nan)
+    lo, hi = row.get(f"{case} lo", math.nan), row.get(f"{case} hi", math.nan)
+    if not np.isfinite(mean):
+        return "-"
+    text = f"{mean:.2f}" + (f" ({std:.2f})" if np.isfinite(std) else "")
+    return text + (f" [{lo:.2f}, {hi:.2f}]" if np.isfinite(lo) and np.isfinite(hi) else "")
+
+
+def manoeuvre_markdown(table: pd.DataFrame) -> str:
+    """The manoeuvre table as Markdown: per case "mean (std) [lo, hi]" beside the measurement
+    and EFD."""
+    if table.empty:
+        return "(no manoeuvres)\n"
+    cases = [c.removesuffix(" mean") for c in table.columns if str(c).endswith(" mean")]
+    fixed = [c for c in (MEASURED, EFD_ROW) if c in table.columns]
+    head = "| manoeuvre | quantity | unit | " + " | ".join(fixed + cases) + " |"
+    lines = [head, "|---|---|---|" + "---:|" * (len(fixed) + len(cases))]
+    for _, row in table.iterrows():
+        cells = [str(row["manoeuvre"]), str(row["quantity"]), str(row["unit"])]
+        cells += [_text_value(row[c]) for c in fixed]
+        cells += [_manoeuvre_cell(row, case) for case in cases]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _text_value(value: Any) -> str:
+    x = float(value)
+    return f"{x:.2f}" if np.isfinite(x) else "-"
+
+
+def write_manoeuvre_table(table: pd.DataFrame, out_dir: str | Path) -> dict[str, Path]:
+    """manoeuvres.csv and manoeuvres.md (with its caption); returns {file name: path}."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    csv, md = out / f"{MANOEUVRE_TABLE}.csv", out / f"{MANOEUVRE_TABLE}.md"
+    table.to_csv(csv)
+    md.write_text(
+        "Manoeuvres of the identified models: mean (standard deviation) over seeds and [the "
+        "means over seeds of each model's 5-95 % interval over draws of its parameters' "
+        "intervals]; the standard manoeuvres at full scale, the test set's recorded runs at "
+        "model scale (lengths in ship lengths, times in seconds, angles in degrees, speed loss "
+        "in per cent). EFD: point values (it has no identification uncertainty).\n\n"
+        + manoeuvre_markdown(table)
+    )
+    return {csv.name: csv, md.name: md}
 
 
 # ---------------------------------------------------------------- run descriptions (MLflow notes)

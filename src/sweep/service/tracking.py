@@ -5,10 +5,12 @@ reference metrics ``efd/{J}/{subset}`` and the sweep config; every job is a *chi
 ``mlflow.parentRunId``) with tags objective, train, seed, job_key, config_hash, the test metrics
 ``test/{J}/{subset}``, best_f, evaluations, seconds, rejected (0/1), restarts, the per-generation
 history as stepped metrics ``history/...``, ``fraction_determined`` (the share of the parameters
-the training data determine, :mod:`sweep.identification.uncertainty`) and the artifacts
-best_params.json, best_params.csv, history.csv, restarts.json, config.json, uncertainty.md and
-uncertainty.json (the intervals), and plots/. A job that raised is a child run with status
-FAILED, tag ``error`` and artifact error.txt.
+the training data determine, :mod:`sweep.identification.uncertainty`) and the manoeuvres
+of its final parameters ``manoeuvre/...`` (:func:`~sweep.service.outcome.manoeuvre_metric_name`,
+with their intervals), and the artifacts best_params.json, best_params.csv, history.csv,
+restarts.json, config.json, uncertainty.md and uncertainty.json (the intervals), manoeuvres.md
+(the manoeuvre tables), and plots/ (with plots/manoeuvres.png). A job that raised is a child
+run with status FAILED, tag ``error`` and artifact error.txt.
 
 Resume: :meth:`Tracker.start_sweep` reuses a non-deleted parent run of the same name, and
 :meth:`Tracker.find_finished` finds a job's FINISHED child run by its job_key. A finished run of
@@ -58,6 +60,7 @@ from sweep.service.outcome import (
     JobOutcome,
     ScoreTable,
     config_hash,
+    manoeuvre_metric_name,
     metric_name,
     source_version,
 )
@@ -337,6 +340,8 @@ def outcome_tags(outcome: JobOutcome, parent_id: str) -> dict[str, str]:
         tags["checkpoint.recovery"] = outcome.checkpoint_recovery
     if outcome.uncertainty and "error" in outcome.uncertainty:
         tags["uncertainty.error"] = str(outcome.uncertainty["error"])[:MAX_ERROR_TAG]
+    if outcome.manoeuvres and "error" in outcome.manoeuvres:
+        tags["manoeuvres.error"] = str(outcome.manoeuvres["error"])[:MAX_ERROR_TAG]
     return tags
 
 
@@ -357,6 +362,10 @@ def outcome_metrics(outcome: JobOutcome) -> dict[str, float]:
             fraction_determined=float(unc["fraction_determined"]),
             uncertainty_seconds=float(unc["seconds"]),
         )
+    man = outcome.manoeuvres
+    if man and "error" not in man:
+        metrics.update({manoeuvre_metric_name(k): float(v) for k, v in man["metrics"].items()})
+        metrics["manoeuvre_seconds"] = float(man["seconds"])
     metrics.update(
         best_f=float(outcome.f),
         evaluations=float(outcome.evaluations),
@@ -417,7 +426,23 @@ def write_job_artifacts(outcome: JobOutcome, out: Path) -> list[Path]:
         path.write_text(json.dumps(data, indent=2, sort_keys=True, default=str) + "\n")
         paths.append(path)
     paths += _uncertainty_artifacts(outcome, out)
+    paths += _manoeuvre_artifacts(outcome, out)
     return paths
+
+
+def _manoeuvre_artifacts(outcome: JobOutcome, out: Path) -> list[Path]:
+    """manoeuvres.md (the standard manoeuvres and the test set's turning and zigzag runs of the
+    job's final parameters, with intervals), or manoeuvres_error.txt; nothing without them."""
+    man = outcome.manoeuvres
+    if not man:
+        return []
+    if "error" in man:
+        path = out / "manoeuvres_error.txt"
+        path.write_text(str(man["error"]) + "\n")
+        return [path]
+    path = out / "manoeuvres.md"
+    path.write_text(f"# Manoeuvres of {outcome.job_key} ({man['params']})\n\n{man['markdown']}")
+    return [path]
 
 
 def _uncertainty_artifacts(outcome: JobOutcome, out: Path) -> list[Path]:

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/coverage.py [--cases 12] [--families known,planted] [--objective J2]
+    python benchmarks/interval_coverage.py [--cases 12] [--families known,planted] [--objective J2]
                                   [--train R] [--level 0.9] [--json OUT]
 
 Each case draws "true" parameters, simulates the training runs' 100-s windows with them (from

@@ -467,6 +467,7 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
         "settings": asdict(d.settings),
         "seconds": d.seconds,
         "stage_seconds": d.extra.get("stage_seconds", {}),
+        "trust": d.extra.get("trust"),
         "params_before": d.before.params.to_dict(),
         "params_after": d.after.params.to_dict(),
     }
@@ -982,6 +983,25 @@ def _ranges_md(d: Diagnosis) -> list[str]:
     return md
 
 
+def _trust_md(d: Diagnosis) -> list[str]:
+    """How well the training windows determine the models before and after, and their standard
+    manoeuvres with intervals (:mod:`sweep.diagnose.trust`)."""
+    trust = d.extra.get("trust")
+    if not trust:
+        return []
+    from sweep.diagnose.trust import trust_markdown
+
+    return [
+        "## How sure: the models before and after",
+        "",
+        "Parameter intervals from the training windows (guide: uncertainty) and the standard "
+        "manoeuvres they leave (guide: manoeuvres), full scale:",
+        "",
+        trust_markdown(trust),
+        "",
+    ]
+
+
 def _procedure_md(d: Diagnosis) -> list[str]:
     s = d.settings
     return [
@@ -1034,6 +1054,7 @@ def report_md(
         *_test_md(d, test),
         *_ranges_md(d),
         *_shape_md(d),
+        *_trust_md(d),
         *_procedure_md(d),
     ]
     return "\n".join(md)

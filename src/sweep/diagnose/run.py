@@ -22,6 +22,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from threadpoolctl import threadpool_limits
 
 from mmg import Parameters
@@ -44,6 +45,7 @@ from sweep.diagnose.proposals import Proposals, propose
 from sweep.diagnose.scoring import CandidateScore
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.shaping import ShapeProposal, propose_shape
+from sweep.diagnose.trust import trust_of
 from sweep.diagnose.verdict import acceptance_threshold, decide
 
 
@@ -189,10 +191,21 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
     clock.lap("re-identification")
     tested = carry_over(ctx, final, cal.noise)
     clock.lap("test recordings")
+    trust = {
+        "before": trust_of(
+            tested.final.before.params, ctx.windows, s.objective, np.random.default_rng(s.seed + 23)
+        )
+    }
+    if tested.final.verdict.effect:
+        trust["after"] = trust_of(
+            tested.final.after.params, ctx.windows, s.objective, np.random.default_rng(s.seed + 23)
+        )
+    clock.lap("trust")
     ctx.log(f"time per stage: {clock.text()}")
     out = report(ctx, t0, base, cal, base_retry, location, proposals, cands, tested)
     out.shape = shape
     out.extra["stage_seconds"] = clock.seconds
+    out.extra["trust"] = trust
     return out
 
 

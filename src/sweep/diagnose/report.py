@@ -207,11 +207,19 @@ def explainable_text(d: Diagnosis) -> str:
         )
     share = e["named_share"]
     kept = f"; the library's terms keep {100 * share:.0f} % of it" if share is not None else ""
-    return (
+    text = (
         f" A flexible smooth correction (learned shapes, {e['shape']}) takes "
         f"{100 * e['flexible_heldout_gain']:.0f} % off the held-out runs' J when linearised"
         f"{kept}."
     )
+    fitted = next((c for c in d.candidates if c.effect == e["shape"]), None)
+    if fitted is not None:
+        text += (
+            f" Fitted by output error with the 57 parameters it changed the held-out runs' "
+            f"summed J by {100 * -fitted.improvement_total:+.0f} %"
+            + ("." if fitted.carries_over else ": the linearised gain does not carry over.")
+        )
+    return text
 
 
 def _best_text(d: Diagnosis) -> str:

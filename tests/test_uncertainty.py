@@ -104,6 +104,25 @@ def test_samples_follow_the_interval_model_and_stay_in_the_box(cases):
     assert len(params) == 3 and all(isinstance(p, Parameters) for p in params)
 
 
+def test_a_parameter_at_a_bound_stays_there_and_the_others_follow_it(cases):
+    """Drawn freely, a parameter at a bound is clipped onto it half the time and pushes every
+    draw one way; held at its estimate, the others are drawn given it (conditional covariance),
+    so a parameter correlated with it spreads less than on its own."""
+    import dataclasses
+
+    _, u, _ = cases[0]
+    j = int(np.argmax(u.sd))  # the least determined: pretend it sits at a bound
+    status = list(u.status)
+    status[j] = AT_BOUND
+    held = dataclasses.replace(u, status=status)
+    draws = held.sample(2000, np.random.default_rng(3))
+    assert np.all(draws[:, j] == u.estimate[j])
+    free = u.sample(2000, np.random.default_rng(3))
+    others = [i for i in range(57) if i != j]
+    ratio = draws[:, others].std(axis=0) / free[:, others].std(axis=0)
+    assert np.median(ratio) < 1.0  # (a parameter clipped onto the box can spread either way)
+
+
 def test_cluster_covariance_is_calibrated_on_a_linear_model_with_coloured_noise():
     """A linear output-error problem (10 clusters of 300 samples, AR(1) noise correlated over
     30 samples, 4 parameters): the 90 % intervals from the CR2 sandwich cover the truth in

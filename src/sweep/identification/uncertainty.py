@@ -177,10 +177,27 @@ class Uncertainty:
         normalised coordinates: each parameter's draws fall in its interval at the interval's
         level), clipped to the search box, in parameter units, laid out as
         :func:`sweep.identification.vector.full_vector`. Quantities computed from the draws
-        (a manoeuvre's overshoot, ...) get their intervals from the draws' quantiles."""
+        (a manoeuvre's overshoot, ...) get their intervals from the draws' quantiles.
+
+        A parameter at a bound stays at its estimate, and the others are drawn from their
+        distribution given it (the conditional covariance): drawn freely, half of its draws
+        were clipped onto the bound and the rest could only move inward, which pushed the
+        manoeuvres of every draw one way (the shipped model's crash stop fell outside its own
+        interval)."""
         width = self.box_upper - self.box_lower
         z0 = (self.estimate - self.box_lower) / width
-        w, V = np.linalg.eigh(self.cov)
+        held = np.array([st == AT_BOUND for st in self.status])
+        cov = np.array(self.cov, dtype=np.float64)
+        free = ~held
+        if held.any() and free.any():
+            S_fb = cov[np.ix_(free, held)]
+            S_bb = cov[np.ix_(held, held)]
+            cond = cov[np.ix_(free, free)] - S_fb @ np.linalg.pinv(S_bb) @ S_fb.T
+            cov = np.zeros_like(cov)
+            cov[np.ix_(free, free)] = 0.5 * (cond + cond.T)
+        elif held.all():
+            cov = np.zeros_like(cov)
+        w, V = np.linalg.eigh(cov)
         root = V * np.sqrt(np.clip(w, 0.0, None))
         scale = np.sqrt(self.dof / rng.chisquare(self.dof, n))
         z = z0[None, :] + scale[:, None] * (rng.standard_normal((n, z0.size)) @ root.T)

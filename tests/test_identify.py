@@ -52,6 +52,11 @@ def test_command_writes_outputs_and_resumes(data_dir, tmp_path, capsys):
     history = (out / "history.csv").read_text().splitlines()
     assert history[0].startswith("restart,popsize,generation,evaluations,best_f")
     assert len(history) == 1 + 10
+    # how well the recording determines each parameter, beside the parameters
+    intervals = json.loads((out / "uncertainty.json").read_text())
+    assert len(intervals["parameters"]) == 57 and 0.0 <= intervals["fraction_determined"] <= 1.0
+    assert "determined" in (out / "uncertainty.md").read_text()
+    assert "intervals:" in capsys.readouterr().out
     # a second run finds the finished checkpoint and returns the same result at once
     assert main(args) == 0
     again = json.loads((out / "result.json").read_text())

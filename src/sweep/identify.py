@@ -8,8 +8,10 @@ Library: :func:`identify`. Command line::
 
 writes ``DIR/best_params.json`` (loadable by ``python -m sweep.evaluate --params``),
 ``DIR/history.csv`` (one row per generation), ``DIR/result.json`` (restarts, stop reasons,
-evaluations, wall time, post-filter) and ``DIR/checkpoint.pkl``; run the same command again to
-resume an interrupted job from its checkpoint.
+evaluations, wall time, post-filter), ``DIR/uncertainty.md`` and ``DIR/uncertainty.json`` (how
+well the recordings determine each parameter: :mod:`sweep.identification.uncertainty`) and
+``DIR/checkpoint.pkl``; run the same command again to resume an interrupted job from its
+checkpoint.
 """
 
 from __future__ import annotations
@@ -104,6 +106,29 @@ def write_outputs(
     return summary
 
 
+def write_uncertainty(
+    out: Path, best: Parameters, recs: Sequence[Recording], objective: str
+) -> None:
+    """``uncertainty.md`` and ``uncertainty.json`` of ``best`` on ``recs`` in ``out``, and one
+    line on stdout; a failure is written to ``uncertainty_error.txt`` and said, not raised
+    (the identification's result stands)."""
+    from sweep.identification.uncertainty import parameter_uncertainty
+
+    try:
+        u = parameter_uncertainty(best, recs, objective)
+    except Exception as exc:  # the intervals are an addition: never lose the job's result
+        (out / "uncertainty_error.txt").write_text(f"{type(exc).__name__}: {exc}\n")
+        print(f"intervals not computed: {type(exc).__name__}: {exc}")
+        return
+    (out / "uncertainty.md").write_text(u.to_markdown() + "\n")
+    (out / "uncertainty.json").write_text(json.dumps(u.as_dict(), indent=2, default=float) + "\n")
+    print(
+        f"intervals: {', '.join(f'{v} {k}' for k, v in u.counts.items())} of {len(u.names)} "
+        "parameters "
+        f"(fraction determined {u.fraction_determined:.2f}); {out / 'uncertainty.md'}"
+    )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m sweep.identify``: parse the arguments, run one job, write its files.
 
@@ -153,6 +178,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "commit": git_commit(),
     }
     summary = write_outputs(out, result, best, meta)
+    write_uncertainty(out, best, recs, args.objective)
     print(
         f"best {args.objective} = {result.f:.2f} after {result.evaluations} evaluations, "
         f"{len(result.restarts)} restarts, {result.seconds:.0f} s"

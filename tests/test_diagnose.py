@@ -234,7 +234,7 @@ def test_a_finding_fitted_in_one_regime_is_held_beyond_it_and_the_test_run_is_na
     assert not diverged
     case, out = tmp_path / "case", tmp_path / "out"
     write_case(case, recs[:4], recs[4:], spec, efd_parameters())
-    args = ("--no-tracking", "--no-discovery", "--no-shapes")
+    args: tuple[str, ...] = ("--no-tracking", "--no-discovery", "--no-shapes")
     args += ("--candidates", "propeller_walk,current")
     assert _diagnose(case, out, *args) == 0
     report = json.loads((out / "report.json").read_text())
@@ -248,7 +248,9 @@ def test_a_finding_fitted_in_one_regime_is_held_beyond_it_and_the_test_run_is_na
     held = get_effect(found)
     e = held.param_type(**report["fitted_effect_params"])
     p = efd_parameters()
-    at = [held.force(0.3, 0.0, 0.0, 0.0, 0.0, n, 0.0, 0.0, e, p.theta, p.ship) for n in (10, 17)]
+    assert held.force is not None
+    force = held.force
+    at = [force(0.3, 0.0, 0.0, 0.0, 0.0, n, 0.0, 0.0, e, p.theta, p.ship) for n in (10, 17)]
     assert at[0] == at[1] and abs(at[0][2]) > 0
     # the berthing run leaves the ranges: named with the variable and by how much
     named = {(d["recording"], d["variable"]) for d in report["departures"]}

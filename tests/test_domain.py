@@ -79,7 +79,8 @@ def _recording(name: str, u: np.ndarray, n_p: np.ndarray, r: float = 0.0) -> Rec
     x[:, 5] = r
     c = np.zeros((k, 2))
     c[:, 1] = n_p
-    return Recording(name=name, path=None, t=0.1 * np.arange(k), x=x, u=c, w=np.zeros((k, 2)))
+    t = 0.1 * np.arange(k, dtype=np.float64)
+    return Recording(name=name, path=None, t=t, x=x, u=c, w=np.zeros((k, 2)))
 
 
 def test_ranges_and_the_recordings_that_leave_them():

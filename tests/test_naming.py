@@ -35,5 +35,5 @@ def test_a_shape_of_no_simple_family_is_not_close_to_any():
     group = Group("Y", "beta", -1.0, 1.0, 16)
     rng = np.random.default_rng(1)
     c = rng.normal(size=16)  # a wiggle: no single family keeps 90 % of it
-    assert closest_forms(group, c)[0].r2 < CLOSE
+    assert closest_forms(group, [float(v) for v in c])[0].r2 < CLOSE
     assert closest_forms(Group("X", "1", multiplier="ast"), [0.1]) == []

@@ -65,16 +65,16 @@ def test_the_unforeseen_set_covers_every_kind_at_two_magnitudes_with_its_own_see
 
 
 def test_the_memory_and_controls_forms_act_on_the_rudder_as_documented():
-    rate = rudder_rate_inputs.py_func
+    rate = rudder_rate_inputs.py_func  # type: ignore[attr-defined]  # (numba's)
     e = RudderRateParams(R_d=0.5)
     assert rate(0.4, 5.0, 0.0, 5.0, 0.1, e) == (pytest.approx(0.05), 5.0)  # a step: slewed
     assert rate(0.03, 5.0, 0.0, 5.0, 0.1, e) == (pytest.approx(0.03), 5.0)  # slow: followed
-    play = rudder_play_inputs.py_func
+    play = rudder_play_inputs.py_func  # type: ignore[attr-defined]  # (numba's)
     p = RudderPlayParams(b_p=0.02)
     assert play(0.3, 5.0, 0.0, 5.0, 0.1, p) == (pytest.approx(0.28), 5.0)  # short of the log
     assert play(0.27, 5.0, 0.28, 5.0, 0.1, p) == (pytest.approx(0.28), 5.0)  # reversal < 2 b_p
     assert play(0.2, 5.0, 0.28, 5.0, 0.1, p) == (pytest.approx(0.22), 5.0)
-    band = dead_band_inputs.py_func
+    band = dead_band_inputs.py_func  # type: ignore[attr-defined]  # (numba's)
     d = DeadBandParams(b_d=0.02)
     assert band(0.01, 5.0, 0.0, 5.0, 0.1, d) == (0.0, 5.0)
     assert band(-0.3, 5.0, 0.0, 5.0, 0.1, d) == (pytest.approx(-0.28), 5.0)
@@ -82,7 +82,7 @@ def test_the_memory_and_controls_forms_act_on_the_rudder_as_documented():
 
 def test_the_drift_hinge_is_zero_below_its_angle_and_damps_beyond():
     p = efd_parameters()
-    hinge = drift_hinge_force.py_func
+    hinge = drift_hinge_force.py_func  # type: ignore[attr-defined]  # (numba's)
     e = DriftHingeParams(C_h=0.1, beta_h=math.radians(30.0), x_h=-0.25)
     beta = math.radians(20.0)
     u, v = math.cos(beta) * 0.2, -math.sin(beta) * 0.2

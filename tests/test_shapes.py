@@ -136,6 +136,7 @@ def test_the_hook_adds_the_scaled_shapes() -> None:
     def force(values: dict[str, float], u: float, v_m: float, r: float) -> np.ndarray:
         e = eff.param_type(**{n: values.get(n, 0.0) for n in eff.param_names})
         args = (12.0, 1.0, 2.0, u, v_m, r, 0.3, 0.1, 10.0, 1.0, 0.5, e, th, sh)
+        assert eff.force_at is not None
         return np.array(eff.force_at(*args))
 
     u, v_m, r = 0.5, -0.08, 0.02
@@ -168,15 +169,17 @@ def test_the_probe_gives_the_force_of_each_coefficient() -> None:
     assert probe.param_names == ("G", "C", "J", "A") and probe.neutral() == (0.0,) * 4
     rows = probe_rows(eff, 0.7)
     assert rows.shape == (22, 4) and rows[12].tolist() == [1.0, 2.0, 0.0, 0.7]
+    assert eff.force_at is not None and probe.force_at is not None
+    shape_force, probe_force = eff.force_at, probe.force_at
     for u, v_m in ((0.5, -0.08), (-0.3, 0.05)):
         args = (12.0, 1.0, 2.0, u, v_m, 0.02, 0.3, 0.1, 10.0, 1.0, 0.5)
         for i, row in enumerate(rows):
             values = np.zeros(22)
             values[i] = 0.7
-            want = eff.force_at(*args, eff.param_type(*values), p.theta, p.ship)
-            got = probe.force_at(*args, probe.param_type(*row), p.theta, p.ship)
+            want = shape_force(*args, eff.param_type(*values), p.theta, p.ship)
+            got = probe_force(*args, probe.param_type(*row), p.theta, p.ship)
             assert got == pytest.approx(want, rel=1e-12, abs=1e-300), (i, u)
-        nothing = probe.force_at(*args, probe.param_type(1.0, 2.0, 3.0, 0.0), p.theta, p.ship)
+        nothing = probe_force(*args, probe.param_type(1.0, 2.0, 3.0, 0.0), p.theta, p.ship)
         assert nothing == (0.0, 0.0, 0.0)
 
 
@@ -217,7 +220,8 @@ def test_candidate_groups_span_the_recorded_ranges() -> None:
     x[:, 5] = 0.01 * np.cos(k / 25.0)
     c = np.column_stack([0.3 * np.sin(k / 40.0), np.full(401, 10.0)])
     w = np.zeros((401, 2))
-    wins = [Recording(f"w{i}", None, 100.0 * i + 0.1 * k, x, c, w) for i in range(2)]
+    t = np.asarray(0.1 * k, dtype=np.float64)
+    wins = [Recording(f"w{i}", None, 100.0 * i + t, x, c, w) for i in range(2)]
     groups = candidate_groups(wins, p, products=(("U", "v"),), quadrants=("ast",), n=6)
     by = {(g.variable, g.multiplier): g for g in groups}
     assert ("n", "") not in by and ("beta", "") in by and ("t", "") in by
@@ -306,7 +310,7 @@ def test_the_selection_finds_a_planted_shape_and_nothing_in_noise(small_case) ->
     centres = g.lo + (np.arange(g.n) - 1.0) * (g.hi - g.lo) / (g.n - 3)
     values = np.zeros(len(eff.params))
     values[[eff.param_names.index(f"s0_N{j}") for j in range(6)]] = -0.01 * np.sin(3 * centres)
-    truth = with_effects(ship, (eff,), values)
+    truth = with_effects(ship, (eff,), [float(v) for v in values])
     rng = np.random.default_rng(8)
     sims = simulate_windows(truth, windows)
     data = [

@@ -32,7 +32,9 @@ def test_the_diagnosed_model_before_and_after(data_dir):
     single window is too few to judge and comes back as an error."""
     windows = cut_windows(list(load_split("R").load(str(data_dir)).values()))
     test = load_split("paper").load(str(data_dir))
-    runs = [find_manoeuvre(test["Test-T"], "Test-T")]
+    found = find_manoeuvre(test["Test-T"], "Test-T")
+    assert found is not None
+    runs = [found]
     out = {}
     before = load_parameters(str(DOCS / "params_before.json"))
     # the model with a yaw moment -U^2 sin 3 beta, at the value Train-R gave it

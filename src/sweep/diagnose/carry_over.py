@@ -54,11 +54,12 @@ class CarryOver:
 def bounded(ctx: Context, final: Final) -> tuple[Final, Ranges | None]:
     """The final model with its finding restricted to the box of the training recordings'
     states (``settings.outside``: held at its boundary or switched off outside; a finding
-    without a force or moment is unchanged), and the ranges of those recordings."""
+    without a force or moment is unchanged), and the ranges of those recordings (also without
+    a finding: where the model was fitted)."""
     name = final.verdict.effect
-    if not name:
-        return final, None
     ranges = ranges_of(ctx.windows, final.after.params.ship)
+    if not name:
+        return final, ranges
     effect = get_effect(name)
     if effect.force is None and effect.force_at is None:
         return final, ranges

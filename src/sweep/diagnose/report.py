@@ -948,12 +948,23 @@ def _ranges_md(d: Diagnosis) -> list[str]:
         "held": "held at its value on the boundary of that box",
         "off": "switched off",
     }[d.settings.outside]
+    if d.verdict_effect:
+        head = [
+            "## Where the finding holds",
+            "",
+            f"`{d.verdict_effect}` was fitted on training recordings that cover the ranges "
+            f"below. Beyond the box of their states it is {how} (`--outside "
+            f"{d.settings.outside}`): `{d.finding_name}`.",
+        ]
+    else:
+        head = [
+            "## Where the model was fitted",
+            "",
+            "No finding was accepted. The training recordings cover the ranges below; a model "
+            "identified on them is known only there, and a finding would act only in their box.",
+        ]
     md = [
-        "## Where the finding holds",
-        "",
-        f"`{d.verdict_effect}` was fitted on training recordings that cover the ranges below. "
-        f"Beyond the box of their states it is {how} (`--outside {d.settings.outside}`): "
-        f"`{d.finding_name}`.",
+        *head,
         "",
         "| variable | lowest | highest | unit |",
         "|---|---:|---:|---|",
@@ -974,7 +985,7 @@ def _ranges_md(d: Diagnosis) -> list[str]:
     elif d.test_before:
         md += ["No test recording leaves the fitted ranges.", ""]
     J = d.settings.objective
-    if d.test_before:
+    if d.test_before and d.verdict_effect:
         md += [
             f"{J} per test subset: the model before, with the finding as used (bounded), and "
             "with it extrapolated beyond the ranges:",

@@ -379,6 +379,18 @@ class Linearised:
         """(J of the control fits (D,), {candidate: (gain of its fits (D,), parameters)}) for
         residual vectors R (S, M, D), summed over the folds; the discovered candidate's gain
         is per number of terms (rows)."""
+        J0, out, _ = self._gains(R)
+        return J0, out
+
+    def _gains(
+        self, R: FloatArray
+    ) -> tuple[
+        FloatArray,
+        dict[str, tuple[FloatArray, int]],
+        tuple[list[tuple[FloatArray, FloatArray, FloatArray]], list[list[int]]],
+    ]:
+        """:meth:`gains`, and the library's fold parts and greedy paths (for the held-out
+        gains of the same terms)."""
         D = R.shape[-1]
         J0 = np.zeros(D)
         gains = {name: np.zeros(D) for name in self.cand}
@@ -394,11 +406,12 @@ class Linearised:
             if self.lib is not None:
                 lib_parts.append(_library_part(fold, self.lib, Rf))
         out = {name: (gains[name], k) for name, (_, _, k) in self.cand.items()}
+        paths: list[list[int]] = []
         if self.lib is not None:
-            lib_gain, _ = _greedy(lib_parts, self.library_terms, self.term_ids)
+            lib_gain, paths = _greedy(lib_parts, self.library_terms, self.term_ids)
             for t in range(self.library_terms):
                 out[f"discovered/{t + 1}"] = (lib_gain[t], t + 1)
-        return J0, out
+        return J0, out, (lib_parts, paths)
 
     def heldout(self, R: FloatArray, n_eff: float) -> HeldOut:
         """The dBIC of every candidate and, for each column's best candidate (the lowest dBIC,
@@ -409,9 +422,9 @@ class Linearised:
         A candidate's linearised fit on one fold is judged on the other fold's windows, both
         ways round, against the control fitted alike: its held-out gain [J] and the relative
         change of the held-out J of each run (:func:`sweep.diagnose.floor.run_of`)."""
-        J0, gains = self.gains(R)
+        J0, gains, (parts, paths) = self._gains(R)
         pairs = [self._pair(j, k, R) for j, k in ((0, 1), (1, 0))]
-        library = self._heldout_library(pairs, R) if self.lib is not None else {}
+        library = self._heldout_library(pairs, parts, paths) if self.lib is not None else {}
         dbic: dict[str, FloatArray] = {}
         held: dict[str, FloatArray] = {}  # per held-out window (W, D)
         for name, (gain, k) in gains.items():
@@ -531,15 +544,16 @@ class Linearised:
         return np.concatenate(out)
 
     def _heldout_library(
-        self, pairs: Sequence[dict[str, object]], R: FloatArray
+        self,
+        pairs: Sequence[dict[str, object]],
+        parts: Sequence[tuple[FloatArray, FloatArray, FloatArray]],
+        paths: Sequence[Sequence[int]],
     ) -> dict[int, FloatArray]:
         """{t: (W, D) held-out gain per held-out window of the first t library terms of each
         column's greedy path} (the terms :meth:`gains` chose in-sample), fitted on one fold,
         judged on the other."""
         assert self.lib is not None
-        parts = [_library_part(f, self.lib, f.resid(f.stack(R))) for f in self.folds]
-        _, paths = _greedy(parts, self.library_terms, self.term_ids)
-        D = R.shape[-1]
+        D = len(paths)
         out: dict[int, list[FloatArray]] = {t: [] for t in range(1, self.library_terms + 1)}
         for (j, _), pair in zip(((0, 1), (1, 0)), pairs, strict=True):
             H0, fk = pair["H0"], pair["fk"]
@@ -554,7 +568,7 @@ class Linearised:
             for t in out:
                 h = np.zeros((W, D))
                 for d in range(D):
-                    S = paths[d][:t]  # (a path that stopped early keeps its last terms)
+                    S = list(paths[d][:t])  # (a path that stopped early keeps its last terms)
                     if not S:
                         continue
                     a = -np.linalg.lstsq(C[:, S], Rp[:, d], rcond=None)[0] / n0[S]

@@ -61,7 +61,7 @@ from sweep.data.manoeuvre_tables import (
     standard_table,
 )
 from sweep.data.objective import OBJECTIVES, Objective
-from sweep.data.parameters import load_parameters
+from sweep.data.parameters import load_parameters, parameter_metadata
 from sweep.data.ranges import Ranges, departures
 from sweep.data.recordings import Recording, read_recordings
 from sweep.data.standard_manoeuvres import (
@@ -153,18 +153,6 @@ def load_samples(path: str) -> np.ndarray:
     if samples.ndim != 2 or samples.dtype.kind not in "fi":
         raise UserError(f"{p}: expected a numeric array (S, n) of parameter vectors")
     return np.asarray(samples, dtype=np.float64)
-
-
-def parameter_metadata(spec: str) -> dict[str, Any]:
-    """The ``metadata`` of a parameter file ({} for ``efd`` or a file without it)."""
-    path = Path(spec)
-    if spec.lower() == "efd" or not path.is_file():
-        return {}
-    try:
-        meta = json.loads(path.read_text()).get("metadata", {})
-    except (OSError, ValueError, AttributeError):
-        return {}
-    return meta if isinstance(meta, dict) else {}
 
 
 def interval_samples(

@@ -36,7 +36,7 @@ from pathlib import Path
 from mmg.params import Parameters
 from sweep.data.datasets import load_split
 from sweep.data.objective import OBJECTIVES
-from sweep.data.parameters import load_parameters
+from sweep.data.parameters import load_parameters, parameter_metadata
 from sweep.data.recordings import Recording, read_recordings
 from sweep.errors import USER_ERRORS, UserError
 from sweep.evaluate import effects_of
@@ -45,18 +45,6 @@ from sweep.identification.uncertainty import (
     UncertaintySettings,
     parameter_uncertainty,
 )
-
-
-def _metadata(spec: str) -> dict[str, object]:
-    """The ``metadata`` of a parameter file ({} for ``efd`` or a file without it)."""
-    path = Path(spec)
-    if spec.lower() == "efd" or not path.is_file():
-        return {}
-    try:
-        meta = json.loads(path.read_text()).get("metadata", {})
-    except (OSError, ValueError, AttributeError):
-        return {}
-    return meta if isinstance(meta, dict) else {}
 
 
 def _recordings(args: argparse.Namespace, meta: dict[str, object]) -> tuple[list[Recording], str]:
@@ -98,7 +86,7 @@ def run(argv: Sequence[str] | None = None) -> Uncertainty:
         raise UserError(f"--level {args.level}: give a coverage between 0 and 1, e.g. 0.9")
 
     params: Parameters = load_parameters(args.params)
-    meta = _metadata(args.params)
+    meta = parameter_metadata(args.params)
     objective = args.objective or meta.get("objective") or "J2"
     if objective not in OBJECTIVES:
         raise UserError(f"{args.params}: unknown objective {objective!r} in its metadata")

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import Any
 
 from mmg.params import Parameters, efd_parameters
 from sweep.errors import UserError
@@ -20,4 +22,17 @@ def load_parameters(spec: str) -> Parameters:
     return Parameters.load_json(path)
 
 
-__all__ = ["load_parameters"]
+def parameter_metadata(spec: str) -> dict[str, Any]:
+    """The ``metadata`` of a parameter file (what :meth:`mmg.Parameters.save_json` wrote beside
+    the values: objective, training set, seed, ...); {} for ``efd`` or a file without it."""
+    path = Path(spec)
+    if spec.lower() == "efd" or not path.is_file():
+        return {}
+    try:
+        meta = json.loads(path.read_text()).get("metadata", {})
+    except (OSError, ValueError, AttributeError):
+        return {}
+    return meta if isinstance(meta, dict) else {}
+
+
+__all__ = ["load_parameters", "parameter_metadata"]

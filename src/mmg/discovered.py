@@ -13,17 +13,14 @@ Files live in ``<kernel dir>/effects`` and are named by a hash of their text.
 from __future__ import annotations
 
 import hashlib
-import importlib.util
-import os
 import re
-import sys
-import threading
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from mmg._generated import generated_module
 from mmg.effect import DISCOVERED_PREFIX, Effect, EffectParam
 from mmg.library import T_REF, U_0, U_REF, Column, Term, shape_box, term
 
@@ -68,7 +65,6 @@ def {func}(t, x0, y0, u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh):
     return q * X, q * Y, q * Lp * N
 '''
 
-_lock = threading.Lock()
 #: the generated effects of this process by name (the newest of each name)
 _generated: dict[str, DiscoveredEffect] = {}
 
@@ -166,27 +162,10 @@ def discovered_effect(term_ids: Sequence[str], bound: float = DEFAULT_BOUND) -> 
         raise ValueError(f"repeated library term in {ids}")
     terms = [term(i) for i in ids]
     name = effect_name(ids)
-    from mmg.kernel import kernel_dir  # the generated kernels' directory, shared by workers
-
     probe = _source(name, terms, "KEY")
     key = hashlib.sha256(probe.encode()).hexdigest()[:16]
     module_name = f"mmg_effect_{key}"
-    with _lock:
-        module = sys.modules.get(module_name)
-        if module is None:
-            directory = kernel_dir() / "effects"
-            directory.mkdir(parents=True, exist_ok=True)
-            path = directory / f"{module_name}.py"
-            text = _source(name, terms, key)
-            if not path.exists() or path.read_text() != text:
-                tmp = path.with_suffix(f".{os.getpid()}.tmp")
-                tmp.write_text(text)
-                os.replace(tmp, path)  # atomic for concurrent workers
-            spec = importlib.util.spec_from_file_location(module_name, path)
-            assert spec is not None and spec.loader is not None
-            module = importlib.util.module_from_spec(spec)
-            sys.modules[module_name] = module
-            spec.loader.exec_module(module)
+    module = generated_module(module_name, _source(name, terms, key))
     params: list[EffectParam] = []
     for t in terms:
         params.append(EffectParam(t.coefficient, "-", 0.0, -bound, bound, t.force_formula()))

@@ -28,15 +28,12 @@ that are not forces (a current, the controls, the measurement) pass through unch
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import math
-import os
 import re
-import sys
-import threading
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from mmg._generated import generated_module
 from mmg.effect import Effect
 
 #: the variables of the box, in the order of a name's box
@@ -51,7 +48,6 @@ SEPARATOR = "@"
 _NAME = re.compile(r"^(?P<inner>.+)@(?P<mode>held|off)\((?P<box>[^()]*)\)$")
 _INTERVAL = re.compile(r"^(?P<var>[a-z_]+)=(?P<lo>[^:]+):(?P<hi>.+)$")
 
-_lock = threading.Lock()
 #: the wrapped effects of this process by name
 _made: dict[str, Effect] = {}
 
@@ -192,29 +188,6 @@ def _hook_source(hook: Any, position: bool, d: Domain, func: str, inner: str) ->
     )
 
 
-def _load(name: str, text: str, key: str) -> Any:
-    from mmg.kernel import kernel_dir  # the generated kernels' directory, shared by workers
-
-    module_name = f"mmg_domain_{key}"
-    with _lock:
-        module = sys.modules.get(module_name)
-        if module is not None:
-            return module
-        directory = kernel_dir() / "effects"
-        directory.mkdir(parents=True, exist_ok=True)
-        path = directory / f"{module_name}.py"
-        if not path.exists() or path.read_text() != text:
-            tmp = path.with_suffix(f".{os.getpid()}.tmp")
-            tmp.write_text(text)
-            os.replace(tmp, path)  # atomic for concurrent workers
-        spec = importlib.util.spec_from_file_location(module_name, path)
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[module_name] = module
-        spec.loader.exec_module(module)
-        return module
-
-
 @dataclass(frozen=True)
 class DomainEffect(Effect):
     """A wrapped effect: ``inner`` acting in ``domain``. It pickles as the two (its module lives
@@ -247,7 +220,7 @@ def within(effect: Effect, domain: Domain) -> Effect:
         key = hashlib.sha256((name + probe).encode()).hexdigest()[:16]
         func = f"{kind}_{key}"
         text = _hook_source(hook, position, d, func, effect.name).replace("{name}", name)
-        hooks[kind] = getattr(_load(name, text, key), func)
+        hooks[kind] = getattr(generated_module(f"mmg_domain_{key}", text), func)
     where = "held at the boundary of" if d.mode == "held" else "switched off outside"
     wrapped = DomainEffect(
         name=name,

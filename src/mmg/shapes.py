@@ -39,12 +39,8 @@ penalty of P-splines, per group).
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import math
-import os
 import re
-import sys
-import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -52,6 +48,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from mmg._generated import generated_module
 from mmg.effect import Effect, EffectParam
 from mmg.library import T_REF, U_0, U_REF
 
@@ -601,33 +598,15 @@ class ShapeEffect(Effect):
         return (rebuild, (self.name, tuple(tuple(p) for p in self.params)))
 
 
-_lock = threading.Lock()
 #: the shape effects of this process by name, with the default search intervals
 _generated: dict[str, ShapeEffect] = {}
 
 
 def _module(name: str, groups: Sequence[Group], probe: bool = False) -> tuple[Any, str]:
     """The generated module of ``groups`` (written and imported once per process), its key."""
-    from mmg.kernel import kernel_dir  # the generated kernels' directory, shared by workers
-
     key = hashlib.sha256(_source(name, groups, "KEY", probe).encode()).hexdigest()[:16]
     module_name = f"mmg_shape_{key}"
-    with _lock:
-        module = sys.modules.get(module_name)
-        if module is None:
-            directory = kernel_dir() / "effects"
-            directory.mkdir(parents=True, exist_ok=True)
-            path = directory / f"{module_name}.py"
-            text = _source(name, groups, key, probe)
-            if not path.exists() or path.read_text() != text:
-                tmp = path.with_suffix(f".{os.getpid()}.tmp")
-                tmp.write_text(text)
-                os.replace(tmp, path)  # atomic for concurrent workers
-            spec = importlib.util.spec_from_file_location(module_name, path)
-            assert spec is not None and spec.loader is not None
-            module = importlib.util.module_from_spec(spec)
-            sys.modules[module_name] = module
-            spec.loader.exec_module(module)
+    module = generated_module(module_name, _source(name, groups, key, probe))
     return module, key
 
 

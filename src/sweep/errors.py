@@ -10,7 +10,8 @@ nothing of ``sweep``, so that every layer can derive its errors from it.
 from __future__ import annotations
 
 import sys
-from collections.abc import Iterator
+import warnings
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 
 from mmg.params import ParameterError
@@ -34,4 +35,18 @@ def exit_on_user_error() -> Iterator[None]:
         raise SystemExit(2) from None
 
 
-__all__ = ["USER_ERRORS", "UserError", "exit_on_user_error"]
+def command_status(
+    run: Callable[[Sequence[str] | None], object], argv: Sequence[str] | None
+) -> int:
+    """A command's exit status: 0 when ``run(argv)`` returns, 2 with ``error: ...`` on stderr
+    for a user error (warnings shown once each)."""
+    warnings.simplefilter("default")
+    try:
+        run(argv)
+    except USER_ERRORS as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+__all__ = ["USER_ERRORS", "UserError", "command_status", "exit_on_user_error"]

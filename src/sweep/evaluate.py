@@ -41,7 +41,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -70,7 +69,7 @@ from sweep.data.standard_manoeuvres import (
     find_manoeuvre,
     predict_standard,
 )
-from sweep.errors import USER_ERRORS, UserError
+from sweep.errors import UserError, command_status
 from sweep.identification.uncertainty import NOT_OPTIMUM, parameter_uncertainty
 
 #: the paper's column order (Tables 6-8)
@@ -358,13 +357,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point: exit status 0, or 2 with a one-line message for a user mistake."""
-    warnings.simplefilter("default")
-    try:
-        run(argv)
-    except USER_ERRORS as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+    return command_status(run, argv)
 
 
 if __name__ == "__main__":

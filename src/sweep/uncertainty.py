@@ -29,7 +29,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -38,7 +37,7 @@ from sweep.data.datasets import load_split
 from sweep.data.objective import OBJECTIVES
 from sweep.data.parameters import load_parameters, parameter_metadata
 from sweep.data.recordings import Recording, read_recordings
-from sweep.errors import USER_ERRORS, UserError
+from sweep.errors import UserError, command_status
 from sweep.evaluate import effects_of
 from sweep.identification.uncertainty import (
     Uncertainty,
@@ -115,13 +114,7 @@ def run(argv: Sequence[str] | None = None) -> Uncertainty:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point: exit status 0, or 2 with a one-line message for a user mistake."""
-    warnings.simplefilter("default")
-    try:
-        run(argv)
-    except USER_ERRORS as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+    return command_status(run, argv)
 
 
 if __name__ == "__main__":

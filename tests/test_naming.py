@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mmg.shapes import Group, basis
-from sweep.diagnose.naming import CLOSE, closest_forms
+from mmg.shapes import Group, basis, curve
+from sweep.diagnose.naming import CLOSE, closest_forms, form_group
 
 
 def _coefficients(group: Group, f) -> list[float]:
@@ -37,3 +37,15 @@ def test_a_shape_of_no_simple_family_is_not_close_to_any():
     c = rng.normal(size=16)  # a wiggle: no single family keeps 90 % of it
     assert closest_forms(group, [float(v) for v in c])[0].r2 < CLOSE
     assert closest_forms(Group("X", "1", multiplier="ast"), [0.1]) == []
+
+
+def test_the_closest_form_becomes_a_group_with_the_same_curve():
+    """The named form as an effect's group (a, b with b times g_max) draws the closed form the
+    naming fitted: a + b g over the range, held beyond it."""
+    group = Group("N", "beta", -1.0, 1.4, 12, "Y_H")
+    best = closest_forms(group, _coefficients(group, lambda z: 0.02 * np.maximum(z - 0.2, 0.0)))[0]
+    named, ab = form_group(group, "N", best)
+    assert named.text == "N~beta[-1:1.4]:up(0.2)*Y_H"
+    z = np.linspace(-1.5, 2.0, 50)
+    want = best.a + best.b * np.maximum(np.clip(z, -1.0, 1.4) - 0.2, 0.0)
+    np.testing.assert_allclose(curve(named, ab, z), want, atol=1e-12)

@@ -49,13 +49,15 @@ def _null(threshold: float, heldout: float = 0.0, worst_run: float = 0.3) -> Acc
         heldout_quantile=heldout,
         worst_run_quantile=worst_run,
         noise_J=1.0,
-        run_noise={"run1": 1.0, "run2": 2.0},
     )
 
 
 def _score(
     effect: str, dbic: float, improvement: float, refined: bool = True, gain: float = 1.0
 ) -> CandidateScore:
+    """A score whose held-out runs follow its gain: two better and one unchanged for a gain,
+    two worse for a loss."""
+    sign = -1.0 if gain > 0 else 1.0
     return CandidateScore(
         effect=effect,
         description="",
@@ -67,6 +69,8 @@ def _score(
         delta_bic=dbic,
         refined=refined,
         heldout_gain=gain,
+        run_changes={"run1": 0.1 * sign, "run2": 0.05 * sign, "run3": 0.0},
+        worst_run_change=max(0.1 * sign, 0.0),
     )
 
 
@@ -103,7 +107,8 @@ def test_a_candidate_that_does_not_carry_over_to_held_out_runs_is_not_accepted(
     tmp_path: Path,
 ) -> None:
     """Passing dBIC is not enough: the fits must gain on the held-out runs more than the best
-    candidate's fits gain on noise alone (here 0.5), and a loss there never passes."""
+    candidate's fits gain on noise alone (here 0.5), make more held-out runs better than worse
+    and no run worse than the null's worst run (here +30 %); a loss there never passes."""
     lines: list[str] = []
     ctx = _context(tmp_path, lines)
     scores = [
@@ -121,11 +126,21 @@ def test_a_candidate_that_does_not_carry_over_to_held_out_runs_is_not_accepted(
     # the better fits do not carry over: the first accepted candidate in rank order is chosen
     assert (v.verdict, v.effect) == ("propeller_walk", "propeller_walk")
     assert "does not carry over" in lines[2]
-    # a gain in total that makes one held-out run worse than noise would is not accepted
-    scores[2].worst_run_change, scores[2].run_losses = 0.08, {"run1": -0.5, "run2": 0.8}
+    # a gain in total that makes one held-out run worse than noise would is not accepted ...
+    scores[2].worst_run_change = 0.45
+    scores[2].run_changes = {"run1": -0.5, "run2": 0.45, "run3": -0.1}
     v = decide(ctx, scores, leaders, _null(-10.0, heldout=0.5), significant=True)
     assert (v.verdict, v.effect) == ("unexplained", "")
-    assert "worst run +8.0 % (+40 % of its noise J): does not carry over" in lines[-1]
+    assert "2 of 3 runs better, worst run +45.0 %: does not carry over" in lines[-1]
+    # ... nor one that makes as many held-out runs worse as better
+    scores[2].worst_run_change = 0.08
+    scores[2].run_changes = {"run1": -0.5, "run2": 0.08, "run3": 0.0}
+    v = decide(ctx, scores, leaders, _null(-10.0, heldout=0.5), significant=True)
+    assert (v.verdict, v.effect) == ("unexplained", "")
+    assert "1 of 3 runs better, worst run +8.0 %: does not carry over" in lines[-1]
+    scores[2].run_changes = {"run1": -0.5, "run2": 0.08, "run3": -0.01}
+    v = decide(ctx, scores, leaders, _null(-10.0, heldout=0.5), significant=True)
+    assert (v.verdict, v.effect) == ("propeller_walk", "propeller_walk")
     # a negative null quantile does not let a held-out loss through
     v = decide(ctx, scores[1:2], ["current"], _null(-10.0, heldout=-5.0), significant=False)
     assert (v.verdict, v.effect) == ("none", "")
@@ -213,3 +228,37 @@ def test_the_settings_fingerprint_names_the_stored_stages_as_before() -> None:
     quick = DiagnoseSettings(candidates=("rudder_offset", "current"), base_budget=200)
     assert quick.fingerprint() == "76ffddc613fa"
     assert DiagnoseSettings(max_delta_bic=-5.0, tie_margin=0.2).fingerprint() == "2f9052432b11"
+
+
+SHAPE = "shape:N~beta[-0.6:0.6]/8"
+FORM = "shape:N~beta[-0.6:0.6]:up(0.3)"
+
+
+@pytest.mark.parametrize(
+    ("form_gain", "form_dbic", "chosen"),
+    [
+        (0.95, -80.0, FORM),  # keeps 95 % of the shape's held-out gain: the formula is stated
+        (0.80, -80.0, SHAPE),  # keeps 80 %: the shape itself is the finding
+        (0.95, 5.0, SHAPE),  # keeps enough but is not accepted on its own
+    ],
+)
+def test_a_learned_shape_is_stated_by_its_closed_form_when_that_keeps_its_gain(
+    tmp_path: Path, form_gain: float, form_dbic: float, chosen: str
+) -> None:
+    lines: list[str] = []
+    ctx = _context(tmp_path, lines)
+    scores = [
+        _score(SHAPE, -100.0, 0.5, gain=1.0),
+        _score(FORM, form_dbic, 0.45, gain=form_gain),
+        _score("propeller_walk", -20.0, 0.01, gain=0.01),
+    ]
+    v = decide(ctx, scores, [SHAPE, FORM, "propeller_walk"], _null(-10.0), significant=True)
+    assert (v.verdict, v.effect) == ("shape", chosen)
+    assert f"keeps {100 * form_gain:.0f} % of the learned shape's held-out gain" in lines[2]
+
+
+def test_a_closed_form_ahead_of_the_shape_is_chosen_as_any_candidate(tmp_path: Path) -> None:
+    ctx = _context(tmp_path, [])
+    scores = [_score(FORM, -120.0, 0.5, gain=0.5), _score(SHAPE, -100.0, 0.5, gain=1.0)]
+    v = decide(ctx, scores, [SHAPE, FORM], _null(-10.0), significant=True)
+    assert (v.verdict, v.effect) == ("shape", FORM)

@@ -16,14 +16,19 @@ from mmg import efd_parameters, get_effect
 from mmg.hull import hull_forces
 from mmg.params import N_THETA
 from mmg.shapes import (
+    Form,
     Group,
     basis,
     cardinal_bspline,
     curve,
     difference_penalty,
+    form_scale,
+    is_closed_form,
     parse,
+    parse_form,
     penalty,
     penalty_matrix,
+    probe_effect,
     probe_rows,
     shape_effect,
     shape_name,
@@ -346,3 +351,49 @@ def test_the_selection_finds_a_planted_shape_and_nothing_in_noise(small_case) ->
     quiet_lin = Linearised(ship, quiet_data, folds, ())
     quiet = ShapeColumns(quiet_lin, groups).select(quiet_lin.residuals(quiet_data), n_eff)
     assert quiet.groups == [] and quiet.dbic == 0.0
+
+
+FORM_SPEC = "shape:N~beta[-0.5:0.5]:up(0.1)*Y_H+Y~delta[-0.6:0.6]:step(0.1,0.05)+X~u[-0.2:1]:odd"
+
+
+def test_a_closed_form_group_round_trips_and_adds_a_plus_b_g() -> None:
+    """A closed-form group: two coefficients per component (a, b), f = a + b g / g_max with
+    z held within its range, in numpy and in the generated hook; named by its spec."""
+    groups = parse(FORM_SPEC)
+    assert shape_name(groups) == FORM_SPEC and is_closed_form(FORM_SPEC)
+    assert not is_closed_form(HOOK_SPEC) and not is_closed_form("rudder_offset")
+    assert groups[0] == Group("N", "beta", -0.5, 0.5, 2, "Y_H", "", "up(0.1)")
+    assert form_scale(groups[0]) == pytest.approx(0.4)
+    assert parse_form("step(0.1,0.05)") == Form("step", (0.1, 0.05))
+    eff = get_effect(FORM_SPEC)
+    assert eff.param_names == ("s0_N0", "s0_N1", "s1_Y0", "s1_Y1", "s2_X0", "s2_X1")
+    assert eff.description.startswith("closed form of a missing force")
+    assert pickle.loads(pickle.dumps(eff)) is eff
+    z = np.array([-2.0, 0.0, 0.3, 0.5, 3.0])
+    np.testing.assert_allclose(
+        curve(groups[0], [0.1, 0.8], z),
+        0.1 + 0.8 * np.maximum(np.clip(z, -0.5, 0.5) - 0.1, 0) / 0.4,
+    )
+    assert groups[0].closed("N", 0.1, 0.8) == "N += (0.1 + 2 max(beta - 0.1, 0)) Y_H L_pp  [N m]"
+    p = efd_parameters()
+    th, sh = p.theta, p.ship
+    q = 0.5 * sh.rho * sh.L_pp * sh.d
+    u, v_m, r, delta = 0.5, -0.15, 0.02, 0.3
+    e = eff.param_type(0.1, 0.8, -0.2, 0.5, 0.03, -0.4)
+    assert eff.force_at is not None
+    X, Y, N = eff.force_at(12.0, 1.0, 2.0, u, v_m, r, 0.3, delta, 10.0, 1.0, 0.5, e, th, sh)
+    beta = np.arctan2(-v_m, u)
+    Y_H = hull_forces(u, v_m, r, th, sh)[1]
+    assert pytest.approx((0.1 + 0.8 * max(beta - 0.1, 0.0) / 0.4) * Y_H * sh.L_pp, rel=1e-12) == N
+    assert pytest.approx(q * (u * u + v_m * v_m) * (0.03 - 0.4 * u * abs(u)), rel=1e-12) == X
+    assert Y != 0.0
+    with pytest.raises(ValueError, match="only splines have a probe"):
+        probe_effect(FORM_SPEC)
+    for bad, why in (
+        ("shape:N~beta[-0.5:0.5]:up(0.9)", "is 0 over"),
+        ("shape:N~beta[-0.5:0.5]:warp", "unknown closed form"),
+        ("shape:N~beta[-0.5:0.5]:step(0.1)", "takes 2 number"),
+        ("shape:N~beta[-0.5:0.5]:up(x)", "not numbers"),
+    ):
+        with pytest.raises(KeyError, match=why):
+            get_effect(bad)

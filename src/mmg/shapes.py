@@ -19,8 +19,15 @@ The effect's name is its spec (:func:`parse`, :func:`shape_name`), e.g.
 
     name   := "shape:" group ("+" group)*
     group  := comps "~" var "[" lo ":" hi "]/" n ["*" mult] ["@" scale]
+            | comps "~" var "[" lo ":" hi "]:" form ["*" mult] ["@" scale]
             | comps "~1" ["*" mult] ["@" scale]
     comps  := X, Y, N or several in this order (one shape per component)
+    form   := a closed form g of :data:`FORMS`, e.g. ``up(0.3)``, ``odd``, ``sin(2)``
+
+A group with a closed form (``N~beta[-0.6:0.6]:up(0.3)``) is f_C(z) = a_C + b_C g(z) / g_max:
+the name a learned shape is given afterwards (:mod:`sweep.diagnose.naming`), fitted as an
+ordinary effect with two coefficients per component (``s<g>_<C>0`` = a, ``s<g>_<C>1`` = b);
+g_max = max |g| over [lo, hi], so that b is the form's largest contribution over the range.
 
 ``~1`` is a constant (one coefficient per component): ``X~1*ast`` is a 0/1 group, a surge
 force present only going astern. The parameters are the spline coefficients, named
@@ -209,13 +216,106 @@ def _num(v: float) -> str:
 
 
 @dataclass(frozen=True)
+class Form:
+    """A closed form g(z) a group can take instead of a spline: ``key`` (of :data:`FORMS`) and
+    its numbers ``args`` (a corner c, a width w, a multiple k), in the variable's unit."""
+
+    key: str
+    args: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.key not in FORMS:
+            raise ValueError(f"unknown closed form {self.key!r}; known: {', '.join(FORMS)}")
+        want = FORMS[self.key][0]
+        if len(self.args) != want:
+            raise ValueError(f"closed form {self.key!r} takes {want} number(s), got {self.args}")
+        if not all(math.isfinite(a) for a in self.args):
+            raise ValueError(f"closed form {self.key!r}: its numbers must be finite")
+        if self.key == "step" and self.args[1] <= 0.0:
+            raise ValueError("closed form 'step': its width must be positive")
+
+    @property
+    def text(self) -> str:
+        """As a spec writes it: ``key`` or ``key(a,b)``."""
+        return self.key + (f"({','.join(_num(a) for a in self.args)})" if self.args else "")
+
+    def formula(self, z: str) -> str:
+        """g in the variable's symbol ``z``."""
+        return FORMS[self.key][1].format(z=z, a=[_num(a) for a in self.args])
+
+    def code(self, z: str) -> str:
+        """g in the generated hook, of the variable named ``z`` (branch-free)."""
+        return FORMS[self.key][2].format(z=z, a=[repr(float(a)) for a in self.args])
+
+    def __call__(self, z: Any) -> FloatArray:
+        """g at z (numpy, the same arithmetic as :meth:`code`)."""
+        x = np.asarray(z, dtype=np.float64)
+        a = self.args
+        values = {
+            "lin": lambda: x,
+            "sq": lambda: x * x,
+            "odd": lambda: x * np.abs(x),
+            "cube": lambda: x * x * x,
+            "abs": lambda: np.abs(x),
+            "up": lambda: np.maximum(x - a[0], 0.0),
+            "down": lambda: np.maximum(a[0] - x, 0.0),
+            "step": lambda: np.tanh((x - a[0]) / a[1]),
+            "sin": lambda: np.sin(a[0] * x),
+            "cos": lambda: np.cos(a[0] * x),
+        }
+        return np.asarray(values[self.key](), dtype=np.float64)
+
+
+#: closed forms g(z): key -> (how many numbers, formula, code); {z} the variable, {a[i]} its
+#: numbers. A naval architect's families: powers and their abs forms, hinges (a threshold),
+#: a smooth step (a saturation), harmonics (of an angle).
+FORMS: dict[str, tuple[int, str, str]] = {
+    "lin": (0, "{z}", "{z}"),
+    "sq": (0, "{z}^2", "{z} * {z}"),
+    "odd": (0, "{z}|{z}|", "{z} * abs({z})"),
+    "cube": (0, "{z}^3", "{z} * {z} * {z}"),
+    "abs": (0, "|{z}|", "abs({z})"),
+    "up": (1, "max({z} - {a[0]}, 0)", "max({z} - {a[0]}, 0.0)"),
+    "down": (1, "max({a[0]} - {z}, 0)", "max({a[0]} - {z}, 0.0)"),
+    "step": (2, "tanh(({z} - {a[0]}) / {a[1]})", "math.tanh(({z} - {a[0]}) / {a[1]})"),
+    "sin": (1, "sin({a[0]} {z})", "math.sin({a[0]} * {z})"),
+    "cos": (1, "cos({a[0]} {z})", "math.cos({a[0]} * {z})"),
+}
+#: points over [lo, hi] on which a closed form's largest |g| is taken
+FORM_GRID = 201
+
+_FORM = re.compile(r"^(?P<k>[a-z]+)(?:\((?P<a>[^)]*)\))?$")
+
+
+def parse_form(text: str) -> Form:
+    """The closed form of a spec's ``key`` or ``key(a,b)``; ValueError when malformed."""
+    m = _FORM.match(text.strip())
+    if m is None:
+        raise ValueError(f"closed form {text!r}: expected e.g. 'odd', 'up(0.3)', 'step(0.2,0.05)'")
+    try:
+        args = tuple(float(a) for a in m["a"].split(",")) if m["a"] else ()
+    except ValueError:
+        raise ValueError(f"closed form {text!r}: its numbers are not numbers") from None
+    return Form(m["k"], args)
+
+
+def form_scale(group: Group) -> float:
+    """g_max of a closed-form group: the largest |g| over its range (0 for a spline group)."""
+    if not group.form:
+        return 0.0
+    g = parse_form(group.form)(np.linspace(group.lo, group.hi, FORM_GRID))
+    return float(np.max(np.abs(g)))
+
+
+@dataclass(frozen=True)
 class Group:
     """One group of a shape effect: f_C(variable) for each component C in ``components``.
 
     ``variable`` is a key of :data:`VARIABLES` or ``"1"`` (a constant, ``n`` = 1);
     ``lo``, ``hi`` the knot range in the variable's unit, ``n`` the number of basis functions;
     ``multiplier`` "" or a key of :data:`VARIABLES`, :data:`INDICATORS` or :data:`FORCES`;
-    ``scale`` "" (the variable's default) or a key of :data:`SCALES`."""
+    ``scale`` "" (the variable's default) or a key of :data:`SCALES`; ``form`` "" (a spline)
+    or a closed form (:func:`parse_form`, ``n`` = 2: a + b g / g_max)."""
 
     components: str
     variable: str
@@ -224,6 +324,7 @@ class Group:
     n: int = 1
     multiplier: str = ""
     scale: str = ""
+    form: str = ""
 
     def __post_init__(self) -> None:
         c = self.components
@@ -232,7 +333,7 @@ class Group:
         if len(set(c)) != len(c):
             raise ValueError(f"components {c!r}: repeated")
         if self.variable == "1":
-            if self.n != 1:
+            if self.n != 1 or self.form:
                 raise ValueError("a constant group (~1) has one coefficient per component")
         elif self.variable not in VARIABLES:
             names = ", ".join(VARIABLES)
@@ -240,7 +341,16 @@ class Group:
         else:
             if not (math.isfinite(self.lo) and math.isfinite(self.hi) and self.lo < self.hi):
                 raise ValueError(f"{self.variable}: knot range [{self.lo}, {self.hi}] is empty")
-            if not MIN_BASIS <= self.n <= MAX_BASIS:
+            if self.form:
+                object.__setattr__(self, "form", parse_form(self.form).text)
+                if self.n != 2:
+                    raise ValueError(f"{self.variable}: a closed form has 2 coefficients (a, b)")
+                if form_scale(self) <= 0.0:
+                    raise ValueError(
+                        f"{self.variable}: the closed form {self.form} is 0 over "
+                        f"[{self.lo}, {self.hi}]"
+                    )
+            elif not MIN_BASIS <= self.n <= MAX_BASIS:
                 raise ValueError(f"{self.variable}: {self.n} basis functions, need 4 to 40")
         m = self.multiplier
         known = [k for k, v in VARIABLES.items() if v.factor] + [*INDICATORS, *FORCES]
@@ -259,6 +369,8 @@ class Group:
         """The group as a spec writes it (canonical)."""
         if self.variable == "1":
             out = f"{self.components}~1"
+        elif self.form:
+            out = f"{self.components}~{self.variable}[{_num(self.lo)}:{_num(self.hi)}]:{self.form}"
         else:
             out = f"{self.components}~{self.variable}[{_num(self.lo)}:{_num(self.hi)}]/{self.n}"
         if self.multiplier:
@@ -302,9 +414,23 @@ class Group:
         scale = SCALES[self.scale_name][0 if component == "X" else 1]
         return f"{component} += {q} {scale} {f}{mult}  [{unit}]"
 
+    def closed(self, component: str, a: float, b: float, g: int = 0) -> str:
+        """:meth:`formula` of a closed-form group with f written out for its coefficients
+        (a, b): f = a + (b / g_max) g(z)."""
+        if not self.form:
+            raise ValueError(f"{self.text} is a spline, not a closed form")
+        z = VARIABLES[self.variable].symbol
+        f = f"{z}"
+        form = parse_form(self.form).formula(f)
+        k = b / form_scale(self)
+        body = f"({a:.4g} {'-' if k < 0 else '+'} {abs(k):.4g} {form})"
+        arg = f"({z})"
+        return self.formula(component, g).replace(f"f_{component}{g}{arg}", body, 1)
+
 
 _GROUP = re.compile(
-    r"^(?P<c>[XYN]+)~(?:(?P<one>1)|(?P<v>\w+)\[(?P<lo>[^:\]]+):(?P<hi>[^\]]+)\]/(?P<n>\d+))"
+    r"^(?P<c>[XYN]+)~(?:(?P<one>1)|(?P<v>\w+)\[(?P<lo>[^:\]]+):(?P<hi>[^\]]+)\]"
+    r"(?:/(?P<n>\d+)|:(?P<f>[a-z]+(?:\([^)]*\))?)))"
     r"(?:\*(?P<m>\w+))?(?:@(?P<s>\w+))?$"
 )
 
@@ -324,8 +450,9 @@ def parse(spec: str) -> tuple[Group, ...]:
             lo, hi = (0.0, 0.0) if m["one"] else (float(m["lo"]), float(m["hi"]))
         except ValueError:
             raise ValueError(f"shape group {part!r}: the knot range is not two numbers") from None
+        n = 2 if m["f"] else int(m["n"] or 1)
         groups.append(
-            Group(m["c"], m["one"] or m["v"], lo, hi, int(m["n"] or 1), m["m"] or "", m["s"] or "")
+            Group(m["c"], m["one"] or m["v"], lo, hi, n, m["m"] or "", m["s"] or "", m["f"] or "")
         )
     if len({g.text for g in groups}) != len(groups):
         raise ValueError(f"repeated shape group in {spec!r}")
@@ -361,6 +488,9 @@ def basis(group: Group, z: Any) -> FloatArray:
     z = np.atleast_1d(np.asarray(z, dtype=np.float64))
     if group.variable == "1":
         return np.ones((z.size, 1))
+    if group.form:  # a + b g / g_max
+        g = parse_form(group.form)(np.clip(z, group.lo, group.hi)) / form_scale(group)
+        return np.column_stack([np.ones_like(z), g])
     h = (group.hi - group.lo) / (group.n - 3)
     s = (np.clip(z, group.lo, group.hi) - group.lo) / h
     return cardinal_bspline(s[:, None] - (np.arange(group.n)[None, :] - 1.0))
@@ -513,6 +643,10 @@ def _group_lines(g: int, group: Group) -> list[str]:
     lines = [f"    # {group.text}"]
     if group.variable == "1":
         b = ["1.0"]
+    elif group.form:  # f = a + b g(z) / g_max, z held at the ends of its range
+        code, lo, hi = VARIABLES[group.variable].code, float(group.lo), float(group.hi)
+        lines.append(f"    z = min(max({code}, {lo!r}), {hi!r})")
+        b = ["1.0", f"({parse_form(group.form).code('z')}) * {1.0 / form_scale(group)!r}"]
     else:
         lines.append(f"    s = {_clamped(group)}")
         for j in range(group.n):
@@ -634,13 +768,18 @@ def shape_effect(groups: Sequence[Group] | str, bound: float = DEFAULT_BOUND) ->
                         0.0,
                         -DEFAULT_BOUND,
                         DEFAULT_BOUND,
-                        f"coefficient {j} of {formula}",
+                        (f"{'ab'[j]} of {formula}" if g.form else f"coefficient {j} of {formula}"),
                     )
                     for j in range(g.n)
                 ]
         effect = ShapeEffect(
             name=name,
-            description="shapes of a missing force: " + "; ".join(g.text for g in gs),
+            description=(
+                "closed form of a missing force: "
+                if all(g.form or g.variable == "1" for g in gs)
+                else "shapes of a missing force: "
+            )
+            + "; ".join(g.text for g in gs),
             regime="shapes",
             params=tuple(params),
             param_type=getattr(module, f"ShapeParams_{key}"),
@@ -661,6 +800,8 @@ def probe_effect(groups: Sequence[Group] | str) -> Effect:
     basis function per lane; the shape effect itself evaluates all of them in every lane (30 x
     the base model's time for 460 coefficients). Named ``<shape effect's name>#probe``."""
     gs = parse(groups) if isinstance(groups, str) else tuple(groups)
+    if any(g.form for g in gs):
+        raise ValueError("a closed form is fitted directly; only splines have a probe")
     name = shape_name(gs) + PROBE_SUFFIX
     effect = _generated.get(name)
     if effect is None:
@@ -730,6 +871,18 @@ def generated_names() -> list[str]:
     return list(_generated)
 
 
+def is_closed_form(name: str) -> bool:
+    """Whether ``name`` is a shape effect of closed forms only (and constants): a learned
+    shape named afterwards."""
+    if not name.startswith(SHAPE_PREFIX):
+        return False
+    try:
+        groups = parse(name)
+    except ValueError:
+        return False
+    return any(g.form for g in groups) and all(g.form or g.variable == "1" for g in groups)
+
+
 def penalty_matrix(effect: Effect, order: int = 2) -> FloatArray:
     """(k, k) block-diagonal penalty of all the coefficients of a shape effect, in parameter
     order (:func:`penalty` of each group)."""
@@ -746,11 +899,14 @@ def penalty_matrix(effect: Effect, order: int = 2) -> FloatArray:
 __all__ = [
     "DEFAULT_BOUND",
     "FORCES",
+    "FORMS",
+    "FORM_GRID",
     "INDICATORS",
     "PROBE_SUFFIX",
     "SCALES",
     "SHAPE_PREFIX",
     "VARIABLES",
+    "Form",
     "Group",
     "ShapeEffect",
     "basis",
@@ -758,8 +914,11 @@ __all__ = [
     "cardinal_bspline",
     "curve",
     "difference_penalty",
+    "form_scale",
     "groups_of",
+    "is_closed_form",
     "parse",
+    "parse_form",
     "penalty",
     "penalty_matrix",
     "probe_effect",

@@ -121,6 +121,7 @@ def score(
     J_ho, J_ho_control = cand.J_heldout, control.J_heldout
     run, change, loss = worst_run(J_ho, J_ho_control, control.runs)
     losses = run_losses(J_ho, J_ho_control, control.runs)
+    changes = run_changes(J_ho, J_ho_control, control.runs)
     scored = CandidateScore(
         effect=eff.name,
         description=eff.description,
@@ -135,6 +136,7 @@ def score(
         worst_run_change=change,
         worst_run_loss=loss,
         run_losses=losses,
+        run_changes=changes,
         delta_bic=delta_bic(
             J_fit, sum(f.f for f in control.fits), len(eff.params) if k is None else k, n_eff
         ),
@@ -146,18 +148,36 @@ def score(
 def worst_run(
     J_effect: FloatArray, J_control: FloatArray, runs: Sequence[str]
 ) -> tuple[str, float, float]:
-    """The held-out run whose J the effect raises most, that run's relative change and its
-    loss [J] (J summed over the run's held-out windows; a diverged window counts as infinitely
-    worse)."""
+    """The held-out run whose J the effect raises most relative to the control's J of that run,
+    that relative change and the run's loss [J] (J summed over the run's held-out windows; a
+    diverged window counts as infinitely worse)."""
     worst, change, loss = "", -np.inf, -np.inf
+    for run, c in run_changes(J_effect, J_control, runs).items():
+        if c > change or not worst:
+            rows = [i for i, r in enumerate(runs) if r == run]
+            a, b = float(np.sum(J_effect[rows])), float(np.sum(J_control[rows]))
+            worst, change = run, c
+            loss = a - b if np.isfinite(a) else np.inf
+    return worst, float(change), float(loss)
+
+
+def run_changes(
+    J_effect: FloatArray, J_control: FloatArray, runs: Sequence[str]
+) -> dict[str, float]:
+    """{held-out run: relative change of its J against the control's} over the run's held-out
+    windows (infinite where a window diverged; 0 for a run the control fits exactly and the
+    effect does not change)."""
+    out = {}
     for run in dict.fromkeys(runs):
         rows = [i for i, r in enumerate(runs) if r == run]
         a, b = float(np.sum(J_effect[rows])), float(np.sum(J_control[rows]))
-        d = a - b if np.isfinite(a) else np.inf
-        if d > loss:
-            worst, loss = run, d
-            change = a / b - 1.0 if b > 0 and np.isfinite(a) else np.inf
-    return worst, float(change), float(loss)
+        if not np.isfinite(a):
+            out[run] = float("inf")
+        elif b > 0:
+            out[run] = a / b - 1.0
+        else:
+            out[run] = 0.0 if a <= 0 else float("inf")
+    return out
 
 
 def run_losses(

@@ -10,13 +10,12 @@ a + b g(z) by least squares on an even grid of z; the share of the shape's varia
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from mmg.shapes import VARIABLES, Group, curve
+from mmg.shapes import VARIABLES, Form, Group, curve, form_scale
 
 FloatArray = NDArray[np.float64]
 
@@ -29,53 +28,47 @@ GRID = 201
 @dataclass(frozen=True)
 class ClosedForm:
     """A closed form fitted to a shape: f(z) ~ a + b g(z), the share of the shape's variance it
-    keeps (``r2``), and its formula in the variable's symbol."""
+    keeps (``r2``), its formula in the variable's symbol and g as a spec writes it (``form``,
+    :func:`mmg.shapes.parse_form`)."""
 
     family: str
     formula: str
     a: float
     b: float
     r2: float
+    form: str = ""
 
 
-Basis = Callable[[FloatArray], FloatArray]
+#: the family of each closed form (:data:`mmg.shapes.FORMS`)
+FAMILY = {
+    "lin": "linear",
+    "sq": "square",
+    "odd": "odd square",
+    "cube": "cube",
+    "abs": "abs",
+    "up": "hinge",
+    "down": "hinge",
+    "step": "step",
+    "sin": "harmonic",
+    "cos": "harmonic",
+}
 
 
-def _hinge(c: float, sign: float) -> Basis:
-    return lambda x: np.maximum(sign * (x - c), 0.0)
+def _round(x: float) -> float:
+    """A corner or width to 3 significant digits (as the formula shows it)."""
+    return float(f"{x:.3g}")
 
 
-def _step(c: float, w: float) -> Basis:
-    return lambda x: np.tanh((x - c) / w)
-
-
-def _harmonic(f: Callable[[FloatArray], FloatArray], k: int) -> Basis:
-    return lambda x: f(k * x)
-
-
-def _families(
-    symbol: str, lo: float, hi: float, angle: bool
-) -> list[tuple[str, str, Callable[[FloatArray], FloatArray]]]:
-    """(family, formula of g, g) of every family over [lo, hi]."""
-    z = symbol
-    out: list[tuple[str, str, Callable[[FloatArray], FloatArray]]] = [
-        ("linear", z, lambda x: x),
-        ("square", f"{z}^2", lambda x: x * x),
-        ("odd square", f"{z}|{z}|", lambda x: x * np.abs(x)),
-        ("cube", f"{z}^3", lambda x: x**3),
-        ("abs", f"|{z}|", lambda x: np.abs(x)),
-    ]
+def families(lo: float, hi: float, angle: bool) -> list[Form]:
+    """Every closed form tried over [lo, hi]: powers and abs forms; hinges and steps at 20, 35,
+    50, 65 and 80 % of the range (a step 10 % of the range wide); for an angle, harmonics."""
+    out = [Form(k) for k in ("lin", "sq", "odd", "cube", "abs")]
     width = hi - lo
     for q in (0.2, 0.35, 0.5, 0.65, 0.8):
-        c = lo + q * width
-        w = 0.1 * width
-        out.append(("hinge", f"max({z} - {c:.3g}, 0)", _hinge(c, 1.0)))
-        out.append(("hinge", f"max({c:.3g} - {z}, 0)", _hinge(c, -1.0)))
-        out.append(("step", f"tanh(({z} - {c:.3g}) / {w:.3g})", _step(c, w)))
+        c = _round(lo + q * width)
+        out += [Form("up", (c,)), Form("down", (c,)), Form("step", (c, _round(0.1 * width)))]
     if angle:
-        for k in (1, 2, 3):
-            out.append(("harmonic", f"sin({k} {z})", _harmonic(np.sin, k)))
-            out.append(("harmonic", f"cos({k} {z})", _harmonic(np.cos, k)))
+        out += [Form(k, (float(m),)) for m in (1, 2, 3) for k in ("sin", "cos")]
     return out
 
 
@@ -91,13 +84,41 @@ def closest_forms(group: Group, coefficients: list[float], top: int = 3) -> list
     if total <= 0.0:
         return []
     out = []
-    for family, formula, g in _families(var.symbol, group.lo, group.hi, var.unit == "rad"):
-        G = np.column_stack([np.ones_like(z), g(z)])
+    for form in families(group.lo, group.hi, var.unit == "rad"):
+        g = form(z)
+        if float(np.ptp(g)) <= 0.0:
+            continue
+        G = np.column_stack([np.ones_like(z), g])
         coef, *_ = np.linalg.lstsq(G, f, rcond=None)
         r2 = 1.0 - float(((f - G @ coef) ** 2).sum()) / total
-        out.append(ClosedForm(family, formula, float(coef[0]), float(coef[1]), r2))
+        out.append(
+            ClosedForm(
+                FAMILY[form.key],
+                form.formula(var.symbol),
+                float(coef[0]),
+                float(coef[1]),
+                r2,
+                form.text,
+            )
+        )
     out.sort(key=lambda c: -c.r2)
     return out[:top]
 
 
-__all__ = ["CLOSE", "ClosedForm", "closest_forms"]
+def form_group(group: Group, component: str, closed: ClosedForm) -> tuple[Group, list[float]]:
+    """The closed-form group of one component of a spline ``group`` named by ``closed``, and
+    its coefficients (a, b) as the effect takes them (b times g_max: :func:`form_scale`)."""
+    named = Group(
+        component,
+        group.variable,
+        group.lo,
+        group.hi,
+        2,
+        group.multiplier,
+        group.scale,
+        closed.form,
+    )
+    return named, [closed.a, closed.b * form_scale(named)]
+
+
+__all__ = ["CLOSE", "FAMILY", "ClosedForm", "closest_forms", "families", "form_group"]

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from mmg import Parameters, get_effect, simulate_batch
+from mmg.shapes import SHAPE_PREFIX, is_closed_form
 from sweep.data.recordings import Recording
 from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
@@ -130,9 +131,14 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
             entry: dict[str, Any] = {
                 "group": group.text,
                 "component": comp,
-                "formula": group.formula(comp, g),
+                "formula": (
+                    group.closed(comp, coef[0], coef[1], g)
+                    if group.form
+                    else group.formula(comp, g)
+                ),
                 "variable": group.variable,
                 "coefficients": coef,
+                "closed_form": bool(group.form),
             }
             if group.variable != "1":
                 var = VARIABLES[group.variable]
@@ -144,13 +150,54 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
                         "meaning": var.meaning,
                         "z": [float(v) for v in z],
                         "f": [float(v) for v in curve(group, coef, z)],
+                        "band": _band(d, group, names, z),
                     }
                 )
-                forms = closest_forms(group, coef)
+                forms = [] if group.form else closest_forms(group, coef)
                 entry["closest"] = [asdict(c) for c in forms]
-                entry["named"] = bool(forms) and forms[0].r2 >= CLOSE
+                entry["named"] = bool(group.form) or (bool(forms) and forms[0].r2 >= CLOSE)
             groups.append(entry)
-    return {"effect": d.verdict_effect, "groups": groups}
+    return {
+        "effect": d.verdict_effect,
+        "closed_form": is_closed_form(d.verdict_effect),
+        "kept": _kept(d),
+        "groups": groups,
+    }
+
+
+def _band(d: Diagnosis, group: Any, names: list[str], z: Any) -> list[float] | None:
+    """The half-width of the shape's confidence band at z (the intervals' level, from the
+    covariance of the model after: :func:`sweep.diagnose.trust.trust_of`), None where it was
+    not computed."""
+    from mmg.shapes import basis
+
+    cov = (d.extra.get("trust") or {}).get("after", {}).get("effect_covariance")
+    if not cov or any(n not in cov["names"] for n in names):
+        return None
+    ix = [cov["names"].index(n) for n in names]
+    C = np.array([[cov["matrix"][i][j] for j in ix] for i in ix], dtype=float)
+    if not np.all(np.isfinite(C)):
+        return None
+    B = basis(group, z)
+    var = np.einsum("zi,ij,zj->z", B, C, B)
+    return [float(v) for v in float(cov["quantile"]) * np.sqrt(np.clip(var, 0.0, None))]
+
+
+def _kept(d: Diagnosis) -> float | None:
+    """The share of the learned shape's held-out gain the closed form named after it keeps
+    (None without both candidates)."""
+    shape = next(
+        (
+            c
+            for c in d.candidates
+            if c.effect.startswith(SHAPE_PREFIX) and not is_closed_form(c.effect)
+        ),
+        None,
+    )
+    form = next((c for c in d.candidates if is_closed_form(c.effect)), None)
+    if shape is None or form is None or shape.heldout_gain <= 0:
+        return None
+    return form.heldout_gain / shape.heldout_gain
 
 
 def _shape_text(d: Diagnosis) -> str:
@@ -161,6 +208,12 @@ def _shape_text(d: Diagnosis) -> str:
             parts.append(f"{g['formula']} = {g['coefficients'][0]:.3g}")
             continue
         lo, hi = g["range"]
+        if g["closed_form"]:
+            parts.append(
+                f"{g['formula']}, with the {g['meaning']} held within [{lo:.3g}, {hi:.3g}] "
+                f"{g['unit']}"
+            )
+            continue
         text = (
             f"{g['formula']}, a smooth function of the {g['meaning']} learnt over "
             f"[{lo:.3g}, {hi:.3g}] {g['unit']} (held at its end values beyond)"
@@ -169,6 +222,17 @@ def _shape_text(d: Diagnosis) -> str:
             c = g["closest"][0]
             text += f"; close to {c['a']:.3g} + {c['b']:.3g} {c['formula']} (R^2 {c['r2']:.2f})"
         parts.append(text)
+    if entry["closed_form"]:
+        kept = entry["kept"]
+        share = (
+            f"; it keeps {100 * kept:.0f} % of the learned shape's held-out gain"
+            if kept is not None
+            else ""
+        )
+        return (
+            "Missing physics, named after its learned shape (no library term or catalog "
+            "effect): " + "; ".join(parts) + share + ". See shapes.png. "
+        )
     return (
         "Missing physics, learned as a shape (no library term or catalog effect): "
         + "; ".join(parts)
@@ -291,8 +355,11 @@ def _found_statement(d: Diagnosis) -> str:
     values = ", ".join(f"{k} = {v:.4g} {units[k]}" for k, v in after.items())
     if d.verdict == "shape":
         text = _shape_text(d)
-        dof = sum(d.shape.selection.edf) if d.shape is not None else float("nan")
-        values = f"{len(after)} spline coefficients ({dof:.1f} effective degrees of freedom)"
+        if is_closed_form(d.verdict_effect):
+            values = f"{len(after)} coefficients (a level a and an amplitude b per group)"
+        else:
+            dof = sum(d.shape.selection.edf) if d.shape is not None else float("nan")
+            values = f"{len(after)} spline coefficients ({dof:.1f} effective degrees of freedom)"
     elif d.verdict == "discovered":
         entry = discovered_entry(d)
         like = entry["resembles"]
@@ -799,19 +866,55 @@ def plot_shapes(d: Diagnosis, path: Path) -> None:
         lo, hi = g["range"]
         pad = 0.15 * (hi - lo)
         z = np.linspace(lo - pad, hi + pad, 300)
-        ax.plot(z, curve(groups[g["group"]], g["coefficients"], z), "C0")
+        group = groups[g["group"]]
+        f = curve(group, g["coefficients"], z)
+        ax.plot(z, f, "C0")
+        names = [f"s{list(groups).index(g['group'])}_{g['component']}{j}" for j in range(group.n)]
+        band = _band(d, group, names, z)
+        if band is not None:
+            level = (d.extra.get("trust") or {}).get("after", {}).get("level", 0.9)
+            half = np.asarray(band)
+            ax.fill_between(
+                z, f - half, f + half, color="C0", alpha=0.25, lw=0, label=f"{level:.0%} band"
+            )
         ax.axvspan(lo, hi, color="C0", alpha=0.08, label="learnt over")
-        if g.get("closest"):
+        learned = _learned_curve(d, group, g["component"], z) if group.form else None
+        if learned is not None:
+            ax.plot(z, learned, "C1--", lw=1, label="learned shape")
+        if g.get("closed_form"):
+            ax.set_title(g["formula"], fontsize=7)
+        elif g.get("closest"):
             c = g["closest"][0]
             ax.set_title(f"closest: {c['formula']} (R^2 {c['r2']:.2f})", fontsize=8)
         ax.axhline(0.0, color="k", lw=0.5)
         ax.set_xlabel(f"{g['variable']} [{g['unit']}]")
         ax.set_ylabel(f"f_{g['component']} [-]")
         ax.legend(fontsize=7)
-    fig.suptitle(f"learned shape(s): {entry['effect']}", fontsize=8)
+    title = "named after its learned shape" if entry["closed_form"] else "learned shape(s)"
+    fig.suptitle(f"{title}: {entry['effect']}", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _learned_curve(d: Diagnosis, form: Any, component: str, z: Any) -> Any:
+    """The learned spline shape a closed-form group was named after (the same component,
+    variable, multiplier and scaling), as the candidate's fit gave it, at z; None if absent."""
+    from mmg.shapes import curve, parse
+
+    for c in d.candidates:
+        if not c.effect.startswith(SHAPE_PREFIX) or is_closed_form(c.effect):
+            continue
+        for k, g in enumerate(parse(c.effect)):
+            same = (g.variable, g.multiplier, g.scale_name) == (
+                form.variable,
+                form.multiplier,
+                form.scale_name,
+            )
+            if same and not g.form and component in g.components:
+                coef = [c.params.get(f"s{k}_{component}{j}", 0.0) for j in range(g.n)]
+                return curve(g, coef, z)
+    return None
 
 
 def _shape_md(d: Diagnosis) -> list[str]:
@@ -838,8 +941,12 @@ def _shape_md(d: Diagnosis) -> list[str]:
         if g["variable"] == "1":
             md += [f"value {g['coefficients'][0]:.4g}", ""]
             continue
-        md += [f"| {g['variable']} [{g['unit']}] | f |", "|---:|---:|"]
-        md += [f"| {z:.4g} | {f:.4g} |" for z, f in zip(g["z"], g["f"], strict=True)]
+        band = g.get("band") or [float("nan")] * len(g["z"])
+        md += [f"| {g['variable']} [{g['unit']}] | f | +- (band) |", "|---:|---:|---:|"]
+        md += [
+            f"| {z:.4g} | {f:.4g} | {'-' if not np.isfinite(b) else f'{b:.2g}'} |"
+            for z, f, b in zip(g["z"], g["f"], band, strict=True)
+        ]
         md += ["", "Closest closed forms (a + b g, share of the shape's variance kept):", ""]
         md += [
             f"- {c['a']:.3g} + {c['b']:.3g} {c['formula']}: R^2 {c['r2']:.2f}" for c in g["closest"]
@@ -893,15 +1000,16 @@ def _candidates_md(d: Diagnosis) -> list[str]:
         "## Candidates (fitted jointly with the 57 base parameters)",
         "",
         "| effect | dBIC | held-out improvement (typical) | (summed J) | held-out gain "
-        "| carries over | accepted | fitted parameters |",
-        "|---|---:|---:|---:|---:|:-:|:-:|---|",
+        "| runs better | worst run | carries over | accepted | fitted parameters |",
+        "|---|---:|---:|---:|---:|---:|---:|:-:|:-:|---|",
     ]
     for c in d.candidates:
         vals = ", ".join(f"{k} = {v:.4g}" for k, v in c.params.items())
         md.append(
             f"| {c.effect}{' *' if c.refined else ''} | {c.delta_bic:.1f} | "
             f"{100 * c.improvement:+.1f} % | {100 * c.improvement_total:+.1f} % | "
-            f"{c.heldout_gain:.4g} | {'yes' if c.carries_over else 'no'} | "
+            f"{c.heldout_gain:.4g} | {c.runs_better} of {len(c.run_changes)} | "
+            f"{100 * c.worst_run_change:+.0f} % | {'yes' if c.carries_over else 'no'} | "
             f"{'yes' if c.accepted else 'no'} | {vals} |"
         )
     held = (d.extra.get("acceptance") or {}).get("heldout")
@@ -913,10 +1021,10 @@ def _candidates_md(d: Diagnosis) -> list[str]:
             f"half's whole runs (held-out gain, both ways round): the {100 * held['q']:.0f} % "
             f"quantile of the best candidate's held-out gain on noise-only copies of the "
             f"training windows, {100 * held['quantile']:.1f} % of the noise's J "
-            f"({held.get('noise_J', float('nan')):.3g}), and at least 0; and make no held-out "
-            f"run worse by more than {100 * held.get('worst_run_limit', 0.0):.0f} % of that "
-            "run's noise J (the same quantile of the best catalog candidate's worst held-out "
-            "run).",
+            f"({held.get('noise_J', float('nan')):.3g}), and at least 0; make more held-out runs "
+            f"better than worse; and make no held-out run's {d.settings.objective} worse by more "
+            f"than {100 * held.get('worst_run_limit', 0.0):.0f} % of the control's (the same "
+            "quantile of the best catalog candidate's worst held-out run, relative).",
         ]
     return [*md, "", "![candidates](candidates.png)", ""]
 

@@ -181,7 +181,9 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
     extra = proposals.effects
     if shape is not None and shape.proposed:
         extra = (*extra, shape.effect)
-        precompile(tasks([(shape.effect,)]), log=ctx.log)
+        named = () if shape.form is None else (shape.form,)
+        extra = (*extra, *named)
+        precompile(tasks([(shape.effect,), *((e,) for e in named)]), log=ctx.log)
     clock.lap("shapes")
     threshold = acceptance_threshold(s, cal.null)
     cands = refine(ctx, base, fit_candidates(ctx, base, extra), threshold)

@@ -51,18 +51,28 @@ class CandidateScore:
     improvement_total: float = 0.0  # relative change of the summed held-out J
     #: what the fits take off the control's summed J on the held-out runs [J] (positive: better)
     heldout_gain: float = 0.0
-    #: the held-out run the fits make worst, by how much (relative change of its J) and its
-    #: loss [J]
+    #: the held-out run the fits make relatively worst, by how much (relative change of its J
+    #: against the control's) and its loss [J]
     worst_run: str = ""
     worst_run_change: float = 0.0
     worst_run_loss: float = 0.0
-    #: {held-out run: J with the effect minus the control's} and the largest of them as a share
-    #: of that run's noise J (:meth:`sweep.diagnose.threshold.AcceptanceNull.run_excess`)
+    #: per held-out run: J with the effect minus the control's [J], and that relative to the
+    #: control's J of the run (positive: worse)
     run_losses: dict[str, float] = field(default_factory=dict)
-    worst_run_excess: float = 0.0
-    #: the held-out gain exceeds the null's and no held-out run gets worse than the null allows
-    #: (:mod:`sweep.diagnose.threshold`)
+    run_changes: dict[str, float] = field(default_factory=dict)
+    #: the held-out gain exceeds the null's, more held-out runs get better than worse, and none
+    #: gets worse than the null allows (:mod:`sweep.diagnose.threshold`)
     carries_over: bool = False
+
+    @property
+    def runs_better(self) -> int:
+        """How many held-out runs the fits make better."""
+        return sum(v < 0.0 for v in self.run_changes.values())
+
+    @property
+    def runs_worse(self) -> int:
+        """How many held-out runs the fits make worse."""
+        return sum(v > 0.0 for v in self.run_changes.values())
 
 
 def generated(effect: str) -> bool:

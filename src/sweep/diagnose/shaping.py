@@ -1,7 +1,9 @@
 """The learned shape of the missing force as a candidate: the groups of penalised splines chosen
 on the base's trajectory residuals (:mod:`sweep.diagnose.shapes`), proposed only beyond the null
 of the same selection on noise-only copies of the training windows; its smoothness penalty and
-effective degrees of freedom go with it into the fold fits and the verdict.
+effective degrees of freedom go with it into the fold fits and the verdict. With it goes its
+name: each group's closest closed form (:mod:`sweep.diagnose.naming`), one effect of two
+coefficients per group, fitted as an ordinary candidate.
 
 The procedure is described in the user guide (docs/guide/diagnosis.md).
 """
@@ -9,15 +11,17 @@ The procedure is described in the user guide (docs/guide/diagnosis.md).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 
 from mmg import Effect, Parameters
+from mmg.shapes import DEFAULT_BOUND, Group, shape_effect
 from sweep.diagnose.calibration import Calibration
 from sweep.diagnose.context import Context
 from sweep.diagnose.discover import null_sets
+from sweep.diagnose.naming import ClosedForm, closest_forms, form_group
 from sweep.diagnose.shapes import (
     SHIP_VARIABLES,
     ShapeColumns,
@@ -37,6 +41,11 @@ class ShapeProposal:
     threshold: float
     proposed: bool
     seconds: float
+    #: the shape named: per group of the selection its closest closed form (None: a constant
+    #: or flat group), and the effect of those forms with its starting coefficients
+    named: list[ClosedForm | None] | None = None
+    form: Effect | None = None
+    form_start: list[float] | None = None
 
     @property
     def effect(self) -> Effect:
@@ -69,7 +78,39 @@ class ShapeProposal:
             "null": {"draws": len(self.null), "median": float(np.median(null))},
             "proposed": self.proposed,
             "seconds": self.seconds,
+            "form": self.form.name if self.form is not None else None,
+            "named": [None if c is None else asdict(c) for c in (self.named or [])],
         }
+
+
+def named_form(
+    selection: ShapeSelection,
+) -> tuple[list[ClosedForm | None], Effect | None, list[float]]:
+    """Each chosen group's closest closed form, and the effect of those forms (constant groups
+    kept as they are) with its coefficients fitted to the shapes (None if nothing is left)."""
+    named: list[ClosedForm | None] = []
+    groups: list[Group] = []
+    start: list[float] = []
+    for group, coef in zip(selection.groups, selection.coefficients, strict=True):
+        n = group.n
+        for i, comp in enumerate(group.components):
+            c = coef[i * n : (i + 1) * n]
+            if group.variable == "1":
+                named.append(None)
+                groups.append(Group(comp, "1", multiplier=group.multiplier, scale=group.scale))
+                start += c
+                continue
+            best = closest_forms(group, c, top=1)
+            named.append(best[0] if best else None)
+            if best:
+                g, ab = form_group(group, comp, best[0])
+                if g.text not in {h.text for h in groups}:
+                    groups.append(g)
+                    start += ab
+    if not any(g.form for g in groups):
+        return named, None, []
+    start = [float(np.clip(v, -DEFAULT_BOUND, DEFAULT_BOUND)) for v in start]
+    return named, shape_effect(groups), start
 
 
 def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapeProposal | None:
@@ -97,12 +138,23 @@ def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapePr
         f"dBIC {selection.dbic:.1f} against the null's {s.alpha:.0%} quantile {threshold:.1f} "
         f"-> {'proposed' if proposed else 'not proposed'}"
     )
-    out = ShapeProposal(selection, null, threshold, proposed, time.perf_counter() - t0)
+    named, form, start = named_form(selection) if proposed else ([], None, [])
+    if form is not None:
+        ctx.log(
+            "shapes named: "
+            + "; ".join(f"{c.formula} (R^2 {c.r2:.2f})" for c in named if c is not None)
+            + f" -> candidate {form.name}"
+        )
+    out = ShapeProposal(
+        selection, null, threshold, proposed, time.perf_counter() - t0, named, form, start
+    )
     if proposed:
         ctx.penalties[out.effect.name] = out.penalty()
         ctx.dof[out.effect.name] = out.dof
         ctx.starts[out.effect.name] = selection.values()
+    if form is not None:
+        ctx.starts[form.name] = start
     return out
 
 
-__all__ = ["ShapeProposal", "propose_shape"]
+__all__ = ["ShapeProposal", "named_form", "propose_shape"]

@@ -62,7 +62,7 @@ def trust_of(
     - ``flat_directions``: the parameters that trade off (``names``, ``sentence``,
       ``collinearity``; None for a direction the data do not see at all);
     - ``effects``: the intervals of the effects' parameters (name, estimate, lower, upper,
-      status);
+      status); ``effect_covariance``: their covariance (names, matrix, quantile);
     - ``manoeuvres``: the standard manoeuvres at full scale (key, manoeuvre, quantity, unit,
       value, lo, hi, samples and, for the IMO criteria, limit, margin and verdict), intervals
       over ``draws`` vectors drawn with ``rng`` from the parameters' intervals;
@@ -102,6 +102,7 @@ def trust_of(
         "effects": _rows(
             u.rows()[base:], ("name", "estimate", "lower", "upper", "half_width_share", "status")
         ),
+        "effect_covariance": _effect_covariance(u, base),
         "manoeuvres": _rows(
             standard_table(pred),
             (*standard_keys, "limit", "margin", "margin_interval", "verdict"),
@@ -112,6 +113,19 @@ def trust_of(
         ),
         "draws": 0 if samples is None else int(samples.shape[0]),
         "seconds": time.perf_counter() - t0,
+    }
+
+
+def _effect_covariance(u: Any, base: int) -> dict[str, Any]:
+    """The covariance of the effects' parameters in their units (``names``: the parameters'
+    own names, ``matrix``) and the intervals' half-width in standard deviations
+    (``quantile``): what a learned shape's confidence band is drawn from."""
+    width = np.asarray(u.box_upper - u.box_lower)[base:]
+    C = np.asarray(u.cov)[base:, base:] * np.outer(width, width)
+    return {
+        "names": [n.rsplit(".", 1)[-1] for n in u.names[base:]],
+        "matrix": [[_plain(v) for v in row] for row in C],
+        "quantile": _plain(u.quantile),
     }
 
 

@@ -10,11 +10,15 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from mmg.effect import DISCOVERED_PREFIX
-from mmg.shapes import SHAPE_PREFIX
+from mmg.shapes import SHAPE_PREFIX, is_closed_form
 from sweep.diagnose.context import Context
 from sweep.diagnose.scoring import CandidateScore, rank
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.threshold import CEILING, AcceptanceNull
+
+#: a learned shape is stated by the closed form it was named after when that form is accepted
+#: too and keeps at least this share of the shape's held-out gain
+KEEP = 0.9
 
 
 @dataclass(frozen=True)
@@ -59,9 +63,9 @@ def _log_threshold(ctx: Context, null: AcceptanceNull, threshold: float) -> None
         f"carrying over: a held-out gain above {null.heldout_threshold:.4g} (the "
         f"{1 - s.alpha:.0%} quantile of the best candidate's held-out gain over {null.draws} "
         f"noise-only copies, {100 * null.heldout_quantile:.1f} % of the noise's J "
-        f"{null.noise_J:.3g}, at least 0), and no held-out run worse by more than "
-        f"{100 * null.worst_run_limit:.0f} % of its noise J (the same quantile of the best catalog "
-        "candidate's worst held-out run)"
+        f"{null.noise_J:.3g}, at least 0), more held-out runs better than worse, and no "
+        f"held-out run's J worse by more than {100 * null.worst_run_limit:.0f} % (the same "
+        "quantile of the best catalog candidate's worst held-out run)"
     )
 
 
@@ -81,9 +85,8 @@ def decide(
     _log_threshold(ctx, null, threshold)
     refined = s.refine_top > 0 and s.refine_iterations > 0
     for c in scores:
-        c.worst_run_excess = null.run_excess(c.run_losses)
-        c.carries_over = (
-            c.heldout_gain > null.heldout_threshold and c.worst_run_excess <= null.worst_run_limit
+        c.carries_over = null.carries_over(
+            c.heldout_gain, c.runs_better, c.runs_worse, c.worst_run_change
         )
         c.accepted = (
             c.refined == refined
@@ -96,16 +99,36 @@ def decide(
     # the first accepted in that order: a better fit that does not carry over to the held-out
     # runs does not hide one that does
     effect = next((c.effect for c in ranked if c.accepted), "")
+    effect = _named(ctx, ranked, effect)
     verdict = verdict_name(effect, significant)
     ctx.log(
         "ranking: "
         + ", ".join(
             f"{c.effect} dBIC {c.delta_bic:.0f} ({100 * c.improvement:+.1f}% held out, gain "
-            f"{c.heldout_gain:.3g}, worst run {100 * c.worst_run_change:+.1f} % "
-            f"({100 * c.worst_run_excess:+.0f} % of its noise J)"
+            f"{c.heldout_gain:.3g}, {c.runs_better} of {len(c.run_changes)} runs better, "
+            f"worst run {100 * c.worst_run_change:+.1f} %"
             f"{'' if c.carries_over else ': does not carry over'})"
             for c in ranked
         )
         + f" -> verdict: {verdict}"
     )
     return Verdict(ranked, verdict, effect)
+
+
+def _named(ctx: Context, scores: Sequence[CandidateScore], effect: str) -> str:
+    """The chosen effect, or the closed form a chosen learned shape was named after when that
+    form is accepted and keeps :data:`KEEP` of the shape's held-out gain; logged."""
+    if not effect.startswith(SHAPE_PREFIX) or is_closed_form(effect):
+        return effect
+    shape = next(c for c in scores if c.effect == effect)
+    form = next((c for c in scores if is_closed_form(c.effect)), None)
+    if form is None:
+        return effect
+    kept = form.heldout_gain / shape.heldout_gain if shape.heldout_gain > 0 else 0.0
+    use = form.accepted and kept >= KEEP
+    ctx.log(
+        f"the closed form {form.effect} keeps {100 * kept:.0f} % of the learned shape's held-out "
+        f"gain{'' if form.accepted else ' and is not accepted'}: the finding is "
+        + ("the closed form" if use else "the shape")
+    )
+    return form.effect if use else effect

@@ -28,10 +28,10 @@ Two sets, each reported in its own rows (``--set``, default ``twin``):
 
 Per row: cases **explained** (an accepted finding, the re-identified base's test J2 above 1.5 x
 the true model's and the model with the finding within 1.5 x), **named** (the verdict names the
-planted family; ``discovered`` for a form outside the catalog), **flagged** (``unexplained``),
-false alarms on the no-effect cases, and **harm** (:mod:`benchmarks.harm`): accepted findings
-that make the test J2 worse by more than 5 % in total, and per test recording by more than 10 %
-(and 5 %).
+planted family; ``discovered`` or ``shape`` for a form outside the catalog), **flagged**
+(``unexplained``), false alarms on the no-effect cases, and **harm** (:mod:`benchmarks.harm`):
+accepted findings that make the test J2 worse by more than 5 % in total, and per test recording
+by more than 10 % (and 5 %).
 
 ``--weak`` sets each case's magnitude (by bisection on the scale, same ship, windows and noise)
 so that the effect raises the true ship's test J2 by only 20-35 % over the true model's, the
@@ -402,7 +402,7 @@ def run_case(
         "values": spec.values,
         "family": spec.family,
         "verdict": d.verdict,
-        "correct": d.verdict == spec.expected,
+        "correct": names_family(d.verdict, spec.family),
         "diverged_truth": diverged,
         "candidates": [asdict(c) for c in d.candidates],
         "after_effect_params": {n: dict(v) for n, v in d.after.params.effects},
@@ -431,7 +431,14 @@ def _classified(r: dict[str, Any]) -> dict[str, Any]:
     """A result with its family and correctness from the current classification of its form
     (results stored before a form was reclassified, e.g. as ``in_form``, read the same)."""
     family = FAMILY[r["form"]]
-    return {**r, "family": family, "correct": r["verdict"] == expected_verdict(family)}
+    return {**r, "family": family, "correct": names_family(r["verdict"], family)}
+
+
+def names_family(verdict: str, family: str) -> bool:
+    """Whether ``verdict`` names the planted ``family``: its expected verdict, or, for a form
+    outside the catalog (``discovered``), a learned shape too (a shape verdict did not exist
+    before the shapes, so no earlier result changes its label)."""
+    return verdict == expected_verdict(family) or (family == "discovered" and verdict == "shape")
 
 
 #: a case is explained when the re-identified base's test J2 is above this many times the true
@@ -574,7 +581,7 @@ def summarise(results: list[dict[str, Any]]) -> str:
     if unlisted:
         n_explained = sum(explained(r) for r in unlisted)
         former = sum(explained_former(r) for r in unlisted)
-        flagged = sum(r["verdict"] in ("discovered", "unexplained") for r in unlisted)
+        flagged = sum(r["verdict"] in ("discovered", "shape", "unexplained") for r in unlisted)
         lines.append(
             f"unlisted cases explained (accepted, base's test J2 > 1.5 x the true model's, after "
             f"within 1.5 x): {n_explained}/{len(unlisted)} (by the former criterion, discovered "

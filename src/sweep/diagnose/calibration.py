@@ -91,6 +91,7 @@ def calibrate(ctx: Context, params: Parameters) -> Calibration:
     lin = linearise(ctx, params)
     null = null_of(ctx, lin, noise)
     misfit = misfit_of(ctx, floor, null)
-    # the scale of the held-out gain's threshold: the noise's J of a fitted model
+    # the scale of the carrying-over thresholds: the noise's J of a fitted model
     null.noise_J = misfit.floor
+    null.run_noise = {str(r["run"]): float(r["floor"]) for r in misfit.per_run}
     return Calibration(noise, lin, null, misfit)

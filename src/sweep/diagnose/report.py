@@ -1000,8 +1000,9 @@ def _candidates_md(d: Diagnosis) -> list[str]:
         "## Candidates (fitted jointly with the 57 base parameters)",
         "",
         "| effect | dBIC | held-out improvement (typical) | (summed J) | held-out gain "
-        "| runs better | worst run | carries over | accepted | fitted parameters |",
-        "|---|---:|---:|---:|---:|---:|---:|:-:|:-:|---|",
+        "| runs better | worst run | largest run loss / its noise J | carries over | accepted "
+        "| fitted parameters |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|:-:|:-:|---|",
     ]
     for c in d.candidates:
         vals = ", ".join(f"{k} = {v:.4g}" for k, v in c.params.items())
@@ -1009,7 +1010,8 @@ def _candidates_md(d: Diagnosis) -> list[str]:
             f"| {c.effect}{' *' if c.refined else ''} | {c.delta_bic:.1f} | "
             f"{100 * c.improvement:+.1f} % | {100 * c.improvement_total:+.1f} % | "
             f"{c.heldout_gain:.4g} | {c.runs_better} of {len(c.run_changes)} | "
-            f"{100 * c.worst_run_change:+.0f} % | {'yes' if c.carries_over else 'no'} | "
+            f"{100 * c.worst_run_change:+.0f} % | {c.worst_run_excess:.2f} | "
+            f"{'yes' if c.carries_over else 'no'} | "
             f"{'yes' if c.accepted else 'no'} | {vals} |"
         )
     held = (d.extra.get("acceptance") or {}).get("heldout")
@@ -1021,10 +1023,10 @@ def _candidates_md(d: Diagnosis) -> list[str]:
             f"half's whole runs (held-out gain, both ways round): the {100 * held['q']:.0f} % "
             f"quantile of the best candidate's held-out gain on noise-only copies of the "
             f"training windows, {100 * held['quantile']:.1f} % of the noise's J "
-            f"({held.get('noise_J', float('nan')):.3g}), and at least 0; make more held-out runs "
-            f"better than worse; and make no held-out run's {d.settings.objective} worse by more "
-            f"than {100 * held.get('worst_run_limit', 0.0):.0f} % of the control's (the same "
-            "quantile of the best catalog candidate's worst held-out run, relative).",
+            f"({held.get('noise_J', float('nan')):.3g}), and at least 0; and make no held-out "
+            f"run worse by more than {100 * held.get('worst_run_limit', 0.0):.0f} % of that "
+            "run's noise J (the same quantile of the best catalog candidate's worst held-out "
+            "run).",
         ]
     return [*md, "", "![candidates](candidates.png)", ""]
 

@@ -60,8 +60,11 @@ class CandidateScore:
     #: control's J of the run (positive: worse)
     run_losses: dict[str, float] = field(default_factory=dict)
     run_changes: dict[str, float] = field(default_factory=dict)
-    #: the held-out gain exceeds the null's, more held-out runs get better than worse, and none
-    #: gets worse than the null allows (:mod:`sweep.diagnose.threshold`)
+    #: the largest loss of a held-out run as a share of that run's noise J
+    #: (:meth:`sweep.diagnose.threshold.AcceptanceNull.run_excess`)
+    worst_run_excess: float = 0.0
+    #: the held-out gain exceeds the null's and no held-out run gets worse than the null allows
+    #: (:mod:`sweep.diagnose.threshold`)
     carries_over: bool = False
 
     @property

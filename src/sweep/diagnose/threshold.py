@@ -8,16 +8,16 @@ linearised (:class:`sweep.diagnose.linearised.Linearised`), never above :data:`C
 It must also carry over: its fits on one fold must take more off the control's J on the other
 fold's whole runs than the best candidate's fits do on the same noise-only copies in all but a
 share ``alpha`` of them (the held-out gain's null, :attr:`AcceptanceNull.heldout_threshold`,
-never below zero); it must make more held-out runs better than worse; and it must make no
-held-out run worse, relative to the control's J of that run, than the best candidate's fits
+never below zero), and it must make no held-out run worse by more than the best candidate's fits
 make their worst held-out run on the same copies in all but a share ``alpha`` of them
-(:attr:`AcceptanceNull.worst_run_limit`; the best catalog candidate's, as the library's greedy
-selection on noise is not what a proposal fits).
+(:attr:`AcceptanceNull.worst_run_limit`, in units of that run's noise J; the best catalog
+candidate's, as the library's greedy selection on noise is not what a proposal fits).
 The procedure is described in the user guide (docs/guide/diagnosis.md).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -50,19 +50,20 @@ class AcceptanceNull:
     #: J (noise alone: the noise's J), and its 1 - alpha quantile
     heldout_best: list[float] = field(default_factory=list)
     heldout_quantile: float = 0.0
-    #: the largest relative loss of one held-out run by each draw's best catalog candidate
-    #: (its J with the candidate over the control's J of that run, minus 1), and its 1 - alpha
+    #: the largest loss of one held-out run by each draw's best catalog candidate relative to
+    #: the control's held-out J of that run (noise alone: that run's noise J), and its 1 - alpha
     #: quantile
     worst_run: list[float] = field(default_factory=list)
     worst_run_quantile: float = 0.0
-    #: the noise's J of a fitted model on all training windows
-    #: (:class:`sweep.diagnose.floor.MisfitTest`): the scale of the held-out gain's threshold
+    #: the noise's J of a fitted model on all training windows and on each run
+    #: (:class:`sweep.diagnose.floor.MisfitTest`): the scale of the two thresholds
     noise_J: float = 0.0
+    run_noise: dict[str, float] = field(default_factory=dict)
 
     @property
     def worst_run_limit(self) -> float:
-        """The relative loss of one held-out run's J a candidate may not exceed: the null's
-        quantile, at least 0."""
+        """The loss of one held-out run a candidate may not exceed, as a share of that run's
+        noise J: the null's quantile, at least 0."""
         return max(self.worst_run_quantile, 0.0)
 
     @property
@@ -71,16 +72,22 @@ class AcceptanceNull:
         J on the training windows, at least 0."""
         return max(self.heldout_quantile, 0.0) * self.noise_J
 
-    def carries_over(
-        self, heldout_gain: float, runs_better: int, runs_worse: int, worst_change: float
-    ) -> bool:
+    def run_excess(self, run_losses: dict[str, float]) -> float:
+        """The largest loss of a held-out run as a share of that run's noise J (0 without
+        runs; infinite for a loss on a run whose noise J is unknown)."""
+        out = 0.0 if not run_losses else -math.inf
+        for run, loss in run_losses.items():
+            n = self.run_noise.get(run, 0.0)
+            out = max(out, loss / n if n > 0 else (math.inf if loss > 0 else 0.0))
+        return out
+
+    def carries_over(self, heldout_gain: float, run_losses: dict[str, float]) -> bool:
         """Whether a candidate's fits carry over to the held-out runs: a held-out gain above
-        :attr:`heldout_threshold`, more runs better than worse, and no run's J worse by more
-        than :attr:`worst_run_limit` (relative)."""
+        :attr:`heldout_threshold` and no run's loss beyond :attr:`worst_run_limit` times its
+        noise J (:meth:`run_excess`)."""
         return (
             heldout_gain > self.heldout_threshold
-            and runs_better > runs_worse
-            and worst_change <= self.worst_run_limit
+            and self.run_excess(run_losses) <= self.worst_run_limit
         )
 
     def as_dict(self) -> dict[str, Any]:

@@ -63,9 +63,9 @@ def _log_threshold(ctx: Context, null: AcceptanceNull, threshold: float) -> None
         f"carrying over: a held-out gain above {null.heldout_threshold:.4g} (the "
         f"{1 - s.alpha:.0%} quantile of the best candidate's held-out gain over {null.draws} "
         f"noise-only copies, {100 * null.heldout_quantile:.1f} % of the noise's J "
-        f"{null.noise_J:.3g}, at least 0), more held-out runs better than worse, and no "
-        f"held-out run's J worse by more than {100 * null.worst_run_limit:.0f} % (the same "
-        "quantile of the best catalog candidate's worst held-out run)"
+        f"{null.noise_J:.3g}, at least 0), and no held-out run worse by more than "
+        f"{100 * null.worst_run_limit:.0f} % of its noise J (the same quantile of the best catalog "
+        "candidate's worst held-out run)"
     )
 
 
@@ -85,9 +85,8 @@ def decide(
     _log_threshold(ctx, null, threshold)
     refined = s.refine_top > 0 and s.refine_iterations > 0
     for c in scores:
-        c.carries_over = null.carries_over(
-            c.heldout_gain, c.runs_better, c.runs_worse, c.worst_run_change
-        )
+        c.worst_run_excess = null.run_excess(c.run_losses)
+        c.carries_over = null.carries_over(c.heldout_gain, c.run_losses)
         c.accepted = (
             c.refined == refined
             and c.improvement >= s.min_improvement
@@ -106,7 +105,8 @@ def decide(
         + ", ".join(
             f"{c.effect} dBIC {c.delta_bic:.0f} ({100 * c.improvement:+.1f}% held out, gain "
             f"{c.heldout_gain:.3g}, {c.runs_better} of {len(c.run_changes)} runs better, "
-            f"worst run {100 * c.worst_run_change:+.1f} %"
+            f"worst run {100 * c.worst_run_change:+.1f} %, largest loss of a run "
+            f"{100 * c.worst_run_excess:+.0f} % of its noise J"
             f"{'' if c.carries_over else ': does not carry over'})"
             for c in ranked
         )

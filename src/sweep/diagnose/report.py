@@ -1023,10 +1023,12 @@ def _candidates_md(d: Diagnosis) -> list[str]:
             f"half's whole runs (held-out gain, both ways round): the {100 * held['q']:.0f} % "
             f"quantile of the best candidate's held-out gain on noise-only copies of the "
             f"training windows, {100 * held['quantile']:.1f} % of the noise's J "
-            f"({held.get('noise_J', float('nan')):.3g}), and at least 0; and make no held-out "
-            f"run worse by more than {100 * held.get('worst_run_limit', 0.0):.0f} % of that "
-            "run's noise J (the same quantile of the best catalog candidate's worst held-out "
-            "run).",
+            f"({held.get('noise_J', float('nan')):.3g}), and at least 0; make more held-out runs "
+            f"better than worse; and make no held-out run worse by more than "
+            f"{100 * held.get('worst_run_limit', 0.0):.0f} % (the same quantile of the best "
+            "catalog candidate's worst held-out run) of the control's J of that run for a catalog "
+            "effect, of that run's noise J for library terms and learned shapes (chosen on all "
+            "training windows, so their held-out gains are biased in their favour).",
         ]
     return [*md, "", "![candidates](candidates.png)", ""]
 

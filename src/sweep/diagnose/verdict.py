@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from mmg.effect import DISCOVERED_PREFIX
 from mmg.shapes import SHAPE_PREFIX, is_closed_form
 from sweep.diagnose.context import Context
-from sweep.diagnose.scoring import CandidateScore, rank
+from sweep.diagnose.scoring import CandidateScore, generated, rank
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.threshold import CEILING, AcceptanceNull
 
@@ -63,9 +63,10 @@ def _log_threshold(ctx: Context, null: AcceptanceNull, threshold: float) -> None
         f"carrying over: a held-out gain above {null.heldout_threshold:.4g} (the "
         f"{1 - s.alpha:.0%} quantile of the best candidate's held-out gain over {null.draws} "
         f"noise-only copies, {100 * null.heldout_quantile:.1f} % of the noise's J "
-        f"{null.noise_J:.3g}, at least 0), and no held-out run worse by more than "
-        f"{100 * null.worst_run_limit:.0f} % of its noise J (the same quantile of the best catalog "
-        "candidate's worst held-out run)"
+        f"{null.noise_J:.3g}, at least 0), more held-out runs better than worse, and no held-out "
+        f"run worse by more than {100 * null.worst_run_limit:.0f} % (the same quantile of the best "
+        "catalog candidate's worst held-out run) of the control's J of that run for a catalog "
+        "effect, of its noise J for library terms and learned shapes"
     )
 
 
@@ -86,7 +87,9 @@ def decide(
     refined = s.refine_top > 0 and s.refine_iterations > 0
     for c in scores:
         c.worst_run_excess = null.run_excess(c.run_losses)
-        c.carries_over = null.carries_over(c.heldout_gain, c.run_losses)
+        c.carries_over = null.carries_over(
+            c.heldout_gain, c.run_losses, c.run_changes, generated(c.effect)
+        )
         c.accepted = (
             c.refined == refined
             and c.improvement >= s.min_improvement

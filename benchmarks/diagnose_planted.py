@@ -409,6 +409,8 @@ def run_case(
         "param_errors": errors,
         "J2_test_before": d.test_before["J2"]["Total"],
         "J2_test_after": d.test_after["J2"]["Total"],
+        # the finding acting beyond the box of the training states too (as found, unbounded)
+        "J2_test_after_unbounded": (d.test_unbounded.get("J2") or d.test_after["J2"])["Total"],
         "J2_test_true": J_true,
         # per test recording, for the harm count
         "J2_test_before_table": d.test_before["J2"],
@@ -453,6 +455,14 @@ def explained(r: dict[str, Any]) -> bool:
     finding to explain), the model with it within 1.5 x (explained)."""
     true = EXPLAINED_RATIO * r["J2_test_true"]
     return r["verdict"] not in NO_FINDING and r["J2_test_before"] > true >= r["J2_test_after"]
+
+
+def explained_unbounded(r: dict[str, Any]) -> bool:
+    """:func:`explained` with the finding acting beyond the box of the training states too (the
+    default holds it at the box's boundary there, :mod:`mmg.domain`); results stored before the
+    unbounded J2 was kept count as bounded."""
+    after = r.get("J2_test_after_unbounded", r["J2_test_after"])
+    return explained({**r, "J2_test_after": after})
 
 
 def explained_former(r: dict[str, Any]) -> bool:
@@ -506,6 +516,7 @@ def row_figures(results: list[dict[str, Any]], out: Path | None = None) -> list[
                 "row": row,
                 "effects": len(eff),
                 "explained": sum(explained(r) for r in eff),
+                "explained_unbounded": sum(explained_unbounded(r) for r in eff),
                 "explained_former": sum(explained_former(r) for r in eff),
                 "named": sum(r["correct"] for r in eff),
                 "flagged": sum(r["verdict"] == "unexplained" for r in eff),
@@ -522,18 +533,20 @@ def row_figures(results: list[dict[str, Any]], out: Path | None = None) -> list[
 def rows_table(figures: list[dict[str, Any]]) -> str:
     """The rows: explained / named / flagged of the planted effects, false alarms, harm."""
     lines = [
-        f"{'row':40s} {'effects':>7s} {'explained':>9s} {'(former)':>8s} {'named':>5s} "
-        f"{'flagged':>7s} {'absorbed':>8s} {'false alarms':>12s}  harm"
+        f"{'row':40s} {'effects':>7s} {'explained':>9s} {'(unbounded)':>11s} {'(former)':>8s} "
+        f"{'named':>5s} {'flagged':>7s} {'absorbed':>8s} {'false alarms':>12s}  harm"
     ]
     for f in figures:
         lines.append(
-            f"{f['row']:40s} {f['effects']:7d} {f['explained']:9d} {f['explained_former']:8d} "
+            f"{f['row']:40s} {f['effects']:7d} {f['explained']:9d} "
+            f"{f['explained_unbounded']:11d} {f['explained_former']:8d} "
             f"{f['named']:5d} {f['flagged']:7d} {f['absorbed']:8d} "
             f"{f['false_alarms']:>7d} of {f['none']:2d}  {f['harm_text']}"
         )
     lines.append(
         f"explained: an accepted finding, the base's test J2 > {EXPLAINED_RATIO} x the true "
-        f"model's and the model with it within {EXPLAINED_RATIO} x; (former): verdict "
+        f"model's and the model with it within {EXPLAINED_RATIO} x; (unbounded): the finding "
+        "acting beyond the training states' box too; (former): verdict "
         f"discovered and within {EXPLAINED_RATIO} x, without the base's condition; absorbed: the "
         f"base already within {EXPLAINED_RATIO} x"
     )

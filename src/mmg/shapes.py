@@ -883,18 +883,6 @@ def is_closed_form(name: str) -> bool:
     return any(g.form for g in groups) and all(g.form or g.variable == "1" for g in groups)
 
 
-def is_spline(name: str) -> bool:
-    """Whether ``name`` is a shape effect with at least one spline group (a learned shape, not
-    only closed forms and constants)."""
-    if not name.startswith(SHAPE_PREFIX):
-        return False
-    try:
-        groups = parse(name)
-    except ValueError:
-        return False
-    return any(not g.form and g.variable != "1" for g in groups)
-
-
 def penalty_matrix(effect: Effect, order: int = 2) -> FloatArray:
     """(k, k) block-diagonal penalty of all the coefficients of a shape effect, in parameter
     order (:func:`penalty` of each group)."""
@@ -929,7 +917,6 @@ __all__ = [
     "form_scale",
     "groups_of",
     "is_closed_form",
-    "is_spline",
     "parse",
     "parse_form",
     "penalty",

@@ -12,12 +12,11 @@ never below zero); it must make more held-out runs better than worse; and it mus
 held-out run worse by more than the best candidate's fits make their worst held-out run on the
 same copies in all but a share ``alpha`` of them (:attr:`AcceptanceNull.worst_run_limit`; the
 best catalog candidate's, as the library's greedy selection on noise is not what a proposal
-fits). The worst run is compared relative to the control's J of that run, as the null is; for a
-learned spline shape, in units of that run's noise J, the null's scale before any model error
-inflates the control's J: its form was chosen at every point of its range on the residuals of
-all training windows, the held-out ones included, so its held-out gains are biased in its
-favour far more than those of a fixed form with a coefficient or two (a catalog effect, a
-library term, a closed form).
+fits). A catalog effect's worst run is compared relative to the control's J of that run, as the
+null is; a candidate generated from the data (library terms, learned shapes and their closed
+forms) was chosen on residuals of all training windows, the held-out ones included, so its
+held-out gains are biased in its favour: its worst run's loss is compared in units of that run's
+noise J, the null's scale before any model error inflates the control's J.
 The procedure is described in the user guide (docs/guide/diagnosis.md).
 """
 
@@ -92,18 +91,18 @@ class AcceptanceNull:
         heldout_gain: float,
         run_losses: dict[str, float],
         run_changes: dict[str, float],
-        spline: bool,
+        generated: bool,
     ) -> bool:
         """Whether a candidate's fits carry over to the held-out runs: a held-out gain above
         :attr:`heldout_threshold`, more runs better than worse (``run_changes``), and no run
-        worse than :attr:`worst_run_limit` allows: relative to the control's J of the run, in
-        units of the run's noise J (:meth:`run_excess` of ``run_losses``) for a learned
-        ``spline`` shape."""
+        worse than :attr:`worst_run_limit` allows: relative to the control's J of the run for a
+        catalog effect, in units of the run's noise J (:meth:`run_excess` of ``run_losses``)
+        for a ``generated`` one."""
         better = sum(v < 0.0 for v in run_changes.values())
         worse = sum(v > 0.0 for v in run_changes.values())
         if not (heldout_gain > self.heldout_threshold and better > worse):
             return False
-        if spline:
+        if generated:
             return self.run_excess(run_losses) <= self.worst_run_limit
         return max(run_changes.values(), default=0.0) <= self.worst_run_limit
 

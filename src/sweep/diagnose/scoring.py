@@ -72,11 +72,6 @@ class CandidateScore:
         """How many held-out runs the fits make better."""
         return sum(v < 0.0 for v in self.run_changes.values())
 
-    @property
-    def runs_worse(self) -> int:
-        """How many held-out runs the fits make worse."""
-        return sum(v > 0.0 for v in self.run_changes.values())
-
 
 def generated(effect: str) -> bool:
     """Whether ``effect`` is generated (library terms or a learned shape), not a named one."""

@@ -20,9 +20,7 @@ reported and skipped. Each copy takes about half a minute to compile.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -31,6 +29,7 @@ from types import ModuleType
 import mmg.integrate
 from benchmarks.peak_fraction import moments_workload
 from mmg import efd_parameters
+from mmg._generated import load_module
 from mmg.integrate import segment_moments
 from mmg.kernel import render
 
@@ -129,15 +128,6 @@ def variant_source(base: str, part: str) -> str | None:
             return None
         source = source.replace(anchor, replacement, 1)
     return source
-
-
-def load_module(path: Path, name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(name, path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
 
 
 class Workload:

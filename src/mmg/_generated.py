@@ -8,6 +8,7 @@ import importlib.util
 import os
 import sys
 import threading
+from pathlib import Path
 from types import ModuleType
 
 _lock = threading.Lock()
@@ -30,12 +31,17 @@ def generated_module(module_name: str, text: str) -> ModuleType:
             tmp = path.with_suffix(f".{os.getpid()}.tmp")
             tmp.write_text(text)
             os.replace(tmp, path)  # atomic for concurrent workers
-        spec = importlib.util.spec_from_file_location(module_name, path)
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[module_name] = module
-        spec.loader.exec_module(module)
-        return module
+        return load_module(path, module_name)
 
 
-__all__ = ["generated_module"]
+def load_module(path: Path, name: str) -> ModuleType:
+    """Import the Python file ``path`` as the module ``name`` (kept in ``sys.modules``)."""
+    spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+__all__ = ["generated_module", "load_module"]

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -35,7 +34,7 @@ from sweep.data.parameters import load_parameters
 from sweep.data.recordings import Recording, read_recordings
 from sweep.diagnose.run import diagnose
 from sweep.diagnose.settings import DiagnoseSettings
-from sweep.errors import UserError, exit_on_user_error
+from sweep.errors import UserError, command_status
 
 
 def _paths(values: Sequence[str], what: str) -> list[Path]:
@@ -293,14 +292,7 @@ def _shape_variables(text: str) -> tuple[str, ...]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """The command: exit status 0, or 2 with one line on stderr for a user mistake."""
-    warnings.simplefilter("default")
-    with exit_on_user_error():
-        try:
-            run(argv)
-        except UserError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-    return 0
+    return command_status(run, argv)
 
 
 if __name__ == "__main__":

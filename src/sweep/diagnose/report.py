@@ -16,11 +16,12 @@ import numpy as np
 import pandas as pd
 
 from mmg import Parameters, get_effect, simulate_batch
-from mmg.shapes import SHAPE_PREFIX, is_closed_form
+from mmg.shapes import is_closed_form
 from sweep.data.recordings import Recording
 from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
 from sweep.diagnose.run import Diagnosis
+from sweep.diagnose.scoring import shape_and_form
 
 #: the regime variable in which each catalog effect acts
 EFFECT_REGIME_VARIABLE = {
@@ -186,15 +187,7 @@ def _band(d: Diagnosis, group: Any, names: list[str], z: Any) -> list[float] | N
 def _kept(d: Diagnosis) -> float | None:
     """The share of the learned shape's held-out gain the closed form named after it keeps
     (None without both candidates)."""
-    shape = next(
-        (
-            c
-            for c in d.candidates
-            if c.effect.startswith(SHAPE_PREFIX) and not is_closed_form(c.effect)
-        ),
-        None,
-    )
-    form = next((c for c in d.candidates if is_closed_form(c.effect)), None)
+    shape, form = shape_and_form(d.candidates)
     if shape is None or form is None or shape.heldout_gain <= 0:
         return None
     return form.heldout_gain / shape.heldout_gain
@@ -902,9 +895,8 @@ def _learned_curve(d: Diagnosis, form: Any, component: str, z: Any) -> Any:
     variable, multiplier and scaling), as the candidate's fit gave it, at z; None if absent."""
     from mmg.shapes import curve, parse
 
-    for c in d.candidates:
-        if not c.effect.startswith(SHAPE_PREFIX) or is_closed_form(c.effect):
-            continue
+    c = shape_and_form(d.candidates)[0]
+    if c is not None:
         for k, g in enumerate(parse(c.effect)):
             same = (g.variable, g.multiplier, g.scale_name) == (
                 form.variable,

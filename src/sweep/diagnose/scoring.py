@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from mmg import Parameters, get_effect
 from mmg.effect import DISCOVERED_PREFIX
-from mmg.shapes import SHAPE_PREFIX
+from mmg.shapes import SHAPE_PREFIX, is_closed_form
 from sweep.data.objective import CHANNELS, OBJECTIVES, Objective
 from sweep.data.recordings import Recording
 
@@ -76,6 +76,19 @@ class CandidateScore:
 def generated(effect: str) -> bool:
     """Whether ``effect`` is generated (library terms or a learned shape), not a named one."""
     return effect.startswith((DISCOVERED_PREFIX, SHAPE_PREFIX))
+
+
+def shape_and_form(
+    scores: Sequence[CandidateScore],
+) -> tuple[CandidateScore | None, CandidateScore | None]:
+    """The learned spline shape's score and that of the closed form it was named after (each
+    None when not among ``scores``)."""
+    shape = next(
+        (c for c in scores if c.effect.startswith(SHAPE_PREFIX) and not is_closed_form(c.effect)),
+        None,
+    )
+    form = next((c for c in scores if is_closed_form(c.effect)), None)
+    return shape, form
 
 
 def rank(scores: Sequence[CandidateScore], tie_margin: float = TIE_MARGIN) -> list[CandidateScore]:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from mmg.effect import DISCOVERED_PREFIX
 from mmg.shapes import SHAPE_PREFIX, is_closed_form
 from sweep.diagnose.context import Context
-from sweep.diagnose.scoring import CandidateScore, generated, rank
+from sweep.diagnose.scoring import CandidateScore, generated, rank, shape_and_form
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.threshold import CEILING, AcceptanceNull
 
@@ -124,7 +124,7 @@ def _named(ctx: Context, scores: Sequence[CandidateScore], effect: str) -> str:
     if not effect.startswith(SHAPE_PREFIX) or is_closed_form(effect):
         return effect
     shape = next(c for c in scores if c.effect == effect)
-    form = next((c for c in scores if is_closed_form(c.effect)), None)
+    form = shape_and_form(scores)[1]
     if form is None:
         return effect
     kept = form.heldout_gain / shape.heldout_gain if shape.heldout_gain > 0 else 0.0

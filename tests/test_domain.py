@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import pickle
 import re
+from typing import Any
 
 import numpy as np
 import pytest
@@ -72,6 +73,38 @@ def test_inside_its_box_the_effect_is_unchanged_outside_it_is_held_or_off():
     assert np.abs(_walk_force(walk, 0.8, 9.0)).max() > np.abs(inside).max()
 
 
+def _force(effect: Any, state: tuple[float, ...], e: Any) -> np.ndarray:
+    """(dX, dY, dN) of ``effect``'s force hook at ``state`` (u v_m r psi delta n_p U_T gamma_T)."""
+    p = efd_parameters()
+    assert effect.force is not None
+    return np.asarray(effect.force(*state, e, p.theta, p.ship), dtype=np.float64)
+
+
+def test_above_the_top_speed_a_held_effect_keeps_its_non_dimensional_force():
+    """Beyond U_max the state is brought to U_max by similarity (u, v_m, r, n_p and the wind
+    speed scaled by U_max / U) and the force found there divided by (U_max / U)^2; a box that
+    also clamps n_p clamps the scaled rate."""
+    walk = get_effect("propeller_walk")
+    box = Domain({"U": 0.0, "n_p": 3.0}, {"U": 1.0, "n_p": 12.0})
+    held, off = within(walk, box), within(walk, box.with_mode("off"))
+    assert held.name == "propeller_walk@held(U=0:1,n_p=3:12)"
+    e = walk.param_type(C_Yw=0.01, C_Nw=-0.004)
+    state = (1.6, 0.12, 0.02, 0.3, 0.1, 8.0, 2.0, 0.7)  # u v_m r psi delta n_p U_T gamma_T
+    s = 1.0 / math.hypot(1.6, 0.12)
+    similar = (1.6 * s, 0.12 * s, 0.02 * s, 0.3, 0.1, 8.0 * s, 2.0 * s, 0.7)
+    got = _force(held, state, e)
+    np.testing.assert_allclose(got, _force(walk, similar, e) / s**2, rtol=1e-12)
+    assert np.abs(got).max() > 0
+    np.testing.assert_array_equal(_force(off, state, e), np.zeros(3))
+    # below the top speed nothing is scaled
+    slow = (0.8, 0.05, 0.01, 0.3, 0.1, 8.0, 2.0, 0.7)
+    np.testing.assert_array_equal(_force(held, slow, e), _force(walk, slow, e))
+    # the scaled rate is clamped too: at 2 U_max and 30 rev/s, n_p s = 15 is held at 12
+    fast = (2.0, 0.0, 0.0, 0.0, 0.0, 30.0, 0.0, 0.0)
+    at_box = _force(walk, (1.0, 0.0, 0.0, 0.0, 0.0, 12.0, 0.0, 0.0), e)
+    np.testing.assert_allclose(_force(held, fast, e), 4.0 * at_box, rtol=1e-12)
+
+
 def _recording(name: str, u: np.ndarray, n_p: np.ndarray, r: float = 0.0) -> Recording:
     k = len(u)
     x = np.zeros((k, 6))
@@ -95,6 +128,7 @@ def test_ranges_and_the_recordings_that_leave_them():
     assert math.isclose(rng.intervals["beta"][1], 0.0, abs_tol=1e-12)
     box = rng.domain()
     assert box.mode == "held" and box.upper["n_p"] == 10.0
+    assert box.upper["U"] == rng.intervals["U"][1] and box.lower["U"] == 0.0
     assert box.lower["r"] == 0.0 == box.upper["r"]
     # a berthing-like recording: slower, propeller reversed half the time
     berth = _recording(

@@ -209,12 +209,14 @@ def test_a_lost_job_is_resubmitted_resumes_and_ends_as_an_uninterrupted_one(
     tracker = NullTracker()
     summary = run_sweep(
         "lossy", [lost_spec, other], executor, tracker, efd, tmp_path / "a",
-        progress=Progress(stream), max_retries=3,
+        progress=Progress(stream), max_retries=3, retry_delay=0.5,
     )  # fmt: skip
     assert summary.ok and sorted(summary.finished) == sorted([lost_spec.key, other.key])
     assert summary.retries == {lost_spec.key: 2}
     assert executor.submissions == {lost_spec.key: 3, other.key: 1}
     assert stream.getvalue().count("resubmitted") == 2 and "_LostError" in stream.getvalue()
+    assert "resubmitted (1/3) in 0.5 s" in stream.getvalue()  # then twice that
+    assert "resubmitted (2/3) in 1 s" in stream.getvalue()
     t_fresh = NullTracker()
     run_sweep("clean", fresh, LocalExecutor(plots=False), t_fresh, efd, tmp_path / "b",
               progress=Progress(io.StringIO()))  # fmt: skip
@@ -233,7 +235,7 @@ def test_a_lost_job_is_resubmitted_resumes_and_ends_as_an_uninterrupted_one(
     again = _specs(tmp_path / "c", data_dir, budget=100, objectives=("J1",))
     summary = run_sweep(
         "hopeless", again, LosingExecutor({again[0].key}, 5, data_dir), NullTracker(), efd,
-        tmp_path / "c", progress=Progress(io.StringIO()), max_retries=1,
+        tmp_path / "c", progress=Progress(io.StringIO()), max_retries=1, retry_delay=0.0,
     )  # fmt: skip
     assert not summary.ok and "_LostError" in summary.failed[again[0].key]
 

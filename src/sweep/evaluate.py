@@ -266,7 +266,11 @@ def domain_departures(
         if box is None:
             continue
         found = departures(Ranges.of_domain(box), recs, labels, params.ship)
-        how = "held at its boundary value" if box.mode == "held" else "switched off"
+        how = (
+            "held at its boundary value, above the top speed its non-dimensional force"
+            if box.mode == "held"
+            else "switched off"
+        )
         if found:
             print(f"\nBeyond the states {inner} was fitted on ({how} there):")
         for d in found:

@@ -94,9 +94,12 @@ class Ranges:
     samples: int
 
     def domain(self, mode: str = "held") -> Domain:
-        """The box of (u, v_m, r, delta, n_p) in the model's units (:mod:`mmg.domain`)."""
+        """The box of (U, u, v_m, r, delta, n_p) in the model's units (:mod:`mmg.domain`; U
+        bounded above only: beyond the top speed a held effect keeps its non-dimensional
+        force)."""
         iv = self.intervals
         lower = {
+            "U": 0.0,
             "u": iv["u"][0],
             "v_m": iv["v_m"][0],
             "r": math.radians(iv["r"][0]),
@@ -104,6 +107,7 @@ class Ranges:
             "n_p": iv["n_p"][0],
         }
         upper = {
+            "U": iv["U"][1],
             "u": iv["u"][1],
             "v_m": iv["v_m"][1],
             "r": math.radians(iv["r"][1]),
@@ -114,9 +118,16 @@ class Ranges:
 
     @classmethod
     def of_domain(cls, domain: Domain) -> Ranges:
-        """The ranges a box states (:mod:`mmg.domain`, e.g. read from an effect's name): u, v_m,
-        r, delta and n_p in the table's units; every quadrant counts as covered."""
-        scale = {"u": 1.0, "v_m": 1.0, "r": 180.0 / math.pi, "delta": 180.0 / math.pi, "n_p": 1.0}
+        """The ranges a box states (:mod:`mmg.domain`, e.g. read from an effect's name): U, u,
+        v_m, r, delta and n_p in the table's units; every quadrant counts as covered."""
+        scale = {
+            "U": 1.0,
+            "u": 1.0,
+            "v_m": 1.0,
+            "r": 180.0 / math.pi,
+            "delta": 180.0 / math.pi,
+            "n_p": 1.0,
+        }
         intervals = {
             k: (domain.lower.get(k, -math.inf) * f, domain.upper.get(k, math.inf) * f)
             for k, f in scale.items()

@@ -13,7 +13,8 @@ TR, TZR) and ``--test paper`` read the paper's split below ``--data-dir`` / ``MM
 then Levenberg-Marquardt, against up to ``--base-descent`` Levenberg-Marquardt iterations alone) and
 the centre of the weak prior of every refinement (``--prior-weight``, 0 to switch it off).
 A finding acts only in the box of states the training recordings reached: beyond it, it is held
-at its boundary value (``--outside held``, the default) or switched off (``--outside off``).
+at its boundary value (above the top speed its non-dimensional force; ``--outside held``, the
+default) or switched off (``--outside off``).
 Writes ``DIR/report.json``, ``DIR/report.md`` with its plots, ``DIR/params_before.json`` and
 ``DIR/params_after.json`` (loadable by ``python -m sweep.evaluate --params``), and one MLflow run
 (default store: ./mlflow.db, experiment ``mmg-diagnose``). Stages are kept in ``DIR/stages``:
@@ -126,7 +127,8 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         choices=("held", "off"),
         default=d.outside,
         help="what a finding does beyond the states of the training recordings: held at its "
-        "value on the boundary of their box (default) or switched off",
+        "value on the boundary of their box, above the top speed its non-dimensional force "
+        "(default), or switched off",
     )
     ap.add_argument(
         "--prior-weight",

@@ -1049,7 +1049,8 @@ def _ranges_md(d: Diagnosis) -> list[str]:
     from sweep.data.ranges import QUADRANTS, VARIABLES
 
     how = {
-        "held": "held at its value on the boundary of that box",
+        "held": "held at its value on the boundary of that box (above the top speed: its "
+        "non-dimensional force, so it still grows with U^2)",
         "off": "switched off",
     }[d.settings.outside]
     if d.verdict_effect:

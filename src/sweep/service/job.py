@@ -380,6 +380,7 @@ def run_job(
     finally:
         evaluator.close()
     sim_seconds = float(getattr(evaluator, "sim_seconds", 0.0))
+    workers_replaced = int(getattr(evaluator, "replaced", 0))
     best = from_full_vector(result.theta, efd_parameters(), effects)
     polished: dict[str, Any] | None = None
     iterations = polish_iterations(cfg)
@@ -433,6 +434,7 @@ def run_job(
         history=result.history,
         test=test_metrics(best, test, effects),
         sim_seconds=sim_seconds,
+        workers_replaced=workers_replaced,
         polished=polished,
         checkpoint_recovery=result.recovery.tag() if result.recovery else "",
         checkpoint_rejected=len(result.recovery.rejected) if result.recovery else 0,

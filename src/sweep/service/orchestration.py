@@ -45,6 +45,11 @@ from sweep.service.job import JobSpec, job_key, run_job, test_metrics
 from sweep.service.lease import LEASE_SECONDS, Driver, Heartbeat, Holder, Lease
 from sweep.service.outcome import JobOutcome, manoeuvre_metric_name
 
+#: seconds before a lost job's first resubmission, doubled at each further one: Ray declares a
+#: lost node dead only after it missed its health checks (about 15 s by default); a job
+#: resubmitted sooner may be placed on that node again and lost again
+RETRY_DELAY = 15.0
+
 
 class Executor(Protocol):
     """Where jobs run. Handles are opaque; ``wait`` returns (handle, outcome or exception)."""
@@ -403,11 +408,14 @@ def run_sweep(
     progress: Progress | None = None,
     on_outcome: Callable[[JobOutcome], None] | None = None,
     max_retries: int = 3,
+    retry_delay: float = RETRY_DELAY,
 ) -> SweepSummary:
     """Run the jobs; log each to the tracker; write and log the summary tables at the end.
 
     A job lost to the infrastructure (``executor.lost``) is resubmitted, up to ``max_retries``
-    times, and resumes from its last checkpoint wherever it lands; an error of the job's own
+    times, after ``retry_delay`` seconds doubled at each retry (a lost node is declared dead
+    only after its missed health checks: resubmitted at once, the job could land on it again),
+    and resumes from its last checkpoint wherever it lands; an error of the job's own
     code fails the job at once. Each job is claimed by a lease first: jobs another live driver
     holds are waited for, so that the summary covers every job once."""
     t0 = time.perf_counter()
@@ -431,11 +439,16 @@ def run_sweep(
     done_evals = 0.0
     limit = max(1, max_concurrent or executor.capacity())
     running: dict[Any, JobSpec] = {}
+    not_before: dict[str, float] = {}  # a lost job's resubmission waits until then
     try:
         while todo or running or claims.held:
             todo[:0] = claims.freed()
-            while todo and len(running) < limit:
-                spec = todo.pop(0)
+            while len(running) < limit:
+                now = time.monotonic()
+                ready = [k for k, s in enumerate(todo) if not_before.get(s.key, 0.0) <= now]
+                if not ready:
+                    break
+                spec = todo.pop(ready[0])
                 if not claims.claim(spec):
                     continue
                 if _settled(spec, tracker, parent, summary, progress, on_outcome):
@@ -451,10 +464,13 @@ def run_sweep(
                     and summary.retries.get(spec.key, 0) < max_retries
                 ):
                     n = summary.retries[spec.key] = summary.retries.get(spec.key, 0) + 1
+                    delay = retry_delay * 2 ** (n - 1)
+                    not_before[spec.key] = time.monotonic() + delay
                     progress.note(
                         f"{spec.key}: lost ({type(result).__name__}: "
                         f"{str(result).splitlines()[0][:160] if str(result) else ''}); "
-                        f"resubmitted ({n}/{max_retries}), resumes from its checkpoint"
+                        f"resubmitted ({n}/{max_retries}) in {delay:.3g} s, resumes from its "
+                        "checkpoint"
                     )
                     todo.insert(0, spec)
                     continue
@@ -467,6 +483,8 @@ def run_sweep(
             progress.show("\n".join(lines), force=not running and not todo and not claims.held)
             if claims.held and not running and not todo:
                 time.sleep(0.5)  # only other drivers' jobs are left: wait for them
+            elif todo and not running:
+                time.sleep(0.2)  # only resubmissions that wait are left
     except KeyboardInterrupt:
         executor.cancel(list(running))
         raise
@@ -528,6 +546,11 @@ def _record_result(
         return
     outcome, files = result
     outcome.retries = summary.retries.get(spec.key, 0)
+    if outcome.workers_replaced:
+        progress.note(
+            f"{spec.key}: evaluation worker lost {outcome.workers_replaced} time(s) (a crash or "
+            "a lost node); its chunks were evaluated in the coordinator, the worker replaced"
+        )
     plots = spec.job_dir / "plots"
     plots.mkdir(parents=True, exist_ok=True)
     for fname, data in files.items():

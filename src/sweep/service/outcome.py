@@ -82,6 +82,9 @@ class JobOutcome:
     test: ScoreTable = field(default_factory=dict)  # {J: {subset: value}}
     sim_seconds: float = 0.0  # CPU time spent evaluating the objective (simulator), all workers
     retries: int = 0  # resubmissions after the job was lost to the infrastructure
+    #: evaluation workers lost (a crash, a lost node) and replaced; their chunks were evaluated
+    #: in the coordinator, so no generation was lost (0 for an outcome from before the count)
+    workers_replaced: int = 0
     #: ``cmaes.polish``: the Levenberg-Marquardt refinement of the CMA-ES result (``params`` and
     #: ``test`` above stay the CMA-ES result): f_start, f, evaluations, iterations, seconds,
     #: params (:meth:`Parameters.to_dict`), test {J: {subset: value}}; None without it

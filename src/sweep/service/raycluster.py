@@ -88,6 +88,7 @@ class RayEvaluator:
         self._ref = ray.put(objective)
         self.workers = [self._start() for _ in range(max(1, n))]
         self.sim_seconds = 0.0  # collected from the workers when they are closed
+        self.replaced = 0  # workers lost (or failed) and replaced; their chunks evaluated here
 
     def _start(self) -> Any:
         return EvalWorker.options(num_cpus=self.cpus).remote(self._ref, self.threads)
@@ -112,6 +113,7 @@ class RayEvaluator:
                 out.append(safe_evaluate(self.objective, chunk))
                 ray.kill(self.workers[i], no_restart=True)
                 self.workers[i] = self._start()
+                self.replaced += 1
         return np.concatenate(out)
 
     def close(self) -> None:

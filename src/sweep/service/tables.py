@@ -447,7 +447,12 @@ def job_note(outcome: JobOutcome, efd: ScoreTable) -> str:
         f"({outcome.seconds:.0f} s); stopped by {outcome.stop_reason}; "
         f"{len(outcome.restarts)} restart(s)"
         + ("; **rejected** by the paper's post-filter" if outcome.rejected else "")
-        + (f"; resubmitted {outcome.retries} time(s) after a loss" if outcome.retries else ""),
+        + (f"; resubmitted {outcome.retries} time(s) after a loss" if outcome.retries else "")
+        + (
+            f"; {outcome.workers_replaced} evaluation worker(s) lost and replaced"
+            if outcome.workers_replaced
+            else ""
+        ),
         "",
     ]
     if outcome.polished:

@@ -145,6 +145,10 @@ def test_ranges_and_the_recordings_that_leave_them():
     assert "n_p to -12 rev/s, 18 rev/s beyond 6" in by_var["n_p"].text()
     assert by_var["quadrant"].quadrant == "Q3"
     assert "never in the fitted runs" in by_var["quadrant"].text()
+    # faster than the training runs: named once, by the speed (u says the same)
+    fast = _recording("fast", np.linspace(0.5, 1.5, 100), np.full(100, 8.0))
+    named = [d.variable for d in departures(rng, [fast])]
+    assert "U" in named and "u" not in named  # (and J, the advance ratio, at the same rate)
     # a short excursion (at most 1 % of the samples) is not named
     blip = _recording("blip", np.full(200, 0.8), np.r_[np.full(198, 8.0), 11.0, 11.0])
     assert departures(rng, [blip]) == []

@@ -260,6 +260,8 @@ def departures(
                 found.append(
                     Departure(name, "quadrant", 0, 0, 0, 0, math.inf, share, quadrant=quad)
                 )
+        if any(d.variable in ("U", "beta") for d in found):  # u, v_m say it again
+            found = [d for d in found if d.variable not in ("u", "v_m")]
         found.sort(key=lambda d: -d.width_share)
         out += found
     return out

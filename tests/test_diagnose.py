@@ -95,6 +95,11 @@ def test_planted_rudder_offset_is_found_end_to_end(runs, tmp_path, capsys):
     # with the effect the model carries over to the test recording: nothing more is missing
     assert report["generalisation_after"]["significant"] is False
     assert "more is missing" not in report["statement"]
+    # ... and on the training windows it is at the noise floor, against the base's misfit
+    rest = report["remainder"]
+    assert rest["significant"] is False and rest["J"] < report["misfit"]["J"]
+    assert rest["share_of_excess"] > 0.9
+    assert "With it the training windows are at the noise floor" in report["statement"]
     captured = capsys.readouterr()
     printed = captured.out
     assert "Missing physics" in printed and "MLflow run" in printed

@@ -142,6 +142,9 @@ def test_rows_keep_the_sets_apart_and_count_harm_and_false_alarms():
     assert (f["effects"], f["explained"], f["named"], f["flagged"]) == (2, 1, 1, 1)
     assert (f["none"], f["false_alarms"]) == (1, 1)
     assert f["harm"]["findings"] == 2 and f["harm"]["total_worse"] == 1  # the false alarm, +10 %
+    assert f["more_missing"] is None  # results from before it was recorded: not counted as 0
+    marked = [dict(r, more_missing=r["index"] == 100) for r in results]
+    assert {f["row"]: f for f in row_figures(marked)}[strong]["more_missing"] == 1
 
 
 def test_cases_are_selected_by_set_index_or_name():

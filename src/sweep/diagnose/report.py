@@ -57,6 +57,50 @@ def misfit_text(d: Diagnosis) -> str:
     )
 
 
+def remainder(d: Diagnosis) -> dict[str, Any] | None:
+    """The model after (with the finding) on the training windows against the same noise floor
+    as the base model's misfit: its J, ratio to the floor, z and whether it is still
+    significant (more is missing than the finding); None without a finding or a misfit test."""
+    m = d.misfit
+    if m is None or not d.verdict_effect:
+        return None
+    J = float(d.after.f)
+    z = (J - m.floor) / m.floor_sd
+    return {
+        "J": J,
+        "ratio": J / m.floor,
+        "z": z,
+        "significant": bool((1.0 + m.margin) * m.floor < J and z > m.z_crit),
+        # the share of the base's excess over the floor the finding takes away (None: no excess)
+        "share_of_excess": (m.J - J) / (m.J - m.floor) if m.floor < m.J else None,
+    }
+
+
+def remainder_text(d: Diagnosis) -> str:
+    """The misfit left with the finding on the training windows, in words ("" without one)."""
+    r = remainder(d)
+    if r is None:
+        return ""
+    m = d.misfit
+    assert m is not None
+    share = r["share_of_excess"]
+    took = (
+        f" it takes {100 * share:.0f} % of the base model's excess over the floor away"
+        if share is not None
+        else ""
+    )
+    if r["significant"]:
+        return (
+            f" With it the training windows are still {r['ratio']:.1f} x the noise floor "
+            f"({m.objective} {r['J']:.3g}, z = {r['z']:.0f}):{took}, but more is missing than "
+            "this finding."
+        )
+    return (
+        f" With it the training windows are at the noise floor ({r['ratio']:.2f} x, "
+        f"z = {r['z']:.1f})."
+    )
+
+
 def generalisation_text(d: Diagnosis) -> str:
     """The test recordings' misfit against a model exact in form, in words."""
     g = d.generalisation
@@ -372,6 +416,7 @@ def _found_statement(d: Diagnosis) -> str:
         f"typically by {100 * c.improvement:+.1f} % (geometric mean over windows; their sum "
         f"by {100 * c.improvement_total:+.1f} %)."
     )
+    text += remainder_text(d)
     J = d.settings.objective
     if d.test_before:
         b, a = d.test_before[J]["Total"], d.test_after[J]["Total"]
@@ -476,6 +521,7 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
         "misfit": asdict(d.misfit) if d.misfit is not None else None,
         "generalisation": _generalisation_dict(d.generalisation),
         "generalisation_after": _generalisation_dict(d.generalisation_after),
+        "remainder": remainder(d),
         "noise_model": d.extra.get("noise", {}),
         "discovery": (
             {

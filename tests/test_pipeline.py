@@ -110,8 +110,8 @@ def test_a_candidate_that_does_not_carry_over_to_held_out_runs_is_not_accepted(
     """Passing dBIC is not enough: the fits must gain on the held-out runs more than the best
     candidate's fits gain on noise alone (here 0.5), make more held-out runs better than worse,
     and make no run worse than the null's worst run (here 0.3): relative to the control's J of
-    the run for a catalog effect or library terms, in units of its noise J for a learned shape;
-    a loss there never passes."""
+    the run for a catalog effect, in units of its noise J for a generated one; a loss there
+    never passes."""
     lines: list[str] = []
     ctx = _context(tmp_path, lines)
     scores = [
@@ -145,21 +145,16 @@ def test_a_candidate_that_does_not_carry_over_to_held_out_runs_is_not_accepted(
     scores[2].run_losses = {"run1": -0.5, "run2": 0.8, "run3": -0.01}
     v = decide(ctx, scores, leaders, _null(-10.0, heldout=0.5), significant=True)
     assert (v.verdict, v.effect) == ("propeller_walk", "propeller_walk")
-    # library terms are judged like a catalog effect: relative to the control's J of the run
-    terms = "discovered:N_nn"
-    scores[2].effect = terms
-    v = decide(ctx, scores, [*leaders[:2], terms], _null(-10.0, heldout=0.5), significant=True)
-    assert (v.verdict, v.effect) == ("discovered", terms)
-    # a learned shape with the same runs: its loss on run2 is 0.4 x that run's noise J, beyond
-    # the null's 0.3
-    found = "shape:N~beta[-0.5:0.5]/8"
+    # a generated candidate with the same runs: its loss on run2 is 0.4 x that run's noise J,
+    # beyond the null's 0.3
+    found = "discovered:N_nn"
     scores[2].effect = found
     v = decide(ctx, scores, [*leaders[:2], found], _null(-10.0, heldout=0.5), significant=True)
     assert (v.verdict, v.effect) == ("unexplained", "")
     assert "largest loss of a run +40 % of its noise J: does not carry over" in lines[-1]
     scores[2].run_losses = {"run1": -0.5, "run2": 0.5, "run3": -0.01}
     v = decide(ctx, scores, [*leaders[:2], found], _null(-10.0, heldout=0.5), significant=True)
-    assert (v.verdict, v.effect) == ("shape", found)
+    assert (v.verdict, v.effect) == ("discovered", found)
     # a negative null quantile does not let a held-out loss through
     v = decide(ctx, scores[1:2], ["current"], _null(-10.0, heldout=-5.0), significant=False)
     assert (v.verdict, v.effect) == ("none", "")

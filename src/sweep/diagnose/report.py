@@ -1065,9 +1065,8 @@ def _candidates_md(d: Diagnosis) -> list[str]:
             f"better than worse; and make no held-out run worse by more than "
             f"{100 * held.get('worst_run_limit', 0.0):.0f} % (the same quantile of the best "
             "catalog candidate's worst held-out run) of the control's J of that run for a catalog "
-            "effect or library terms, of that run's noise J for learned shapes and their closed "
-            "forms (shaped on all training windows, so their held-out gains are biased in their "
-            "favour).",
+            "effect, of that run's noise J for library terms and learned shapes (chosen on all "
+            "training windows, so their held-out gains are biased in their favour).",
         ]
     return [*md, "", "![candidates](candidates.png)", ""]
 

@@ -91,19 +91,18 @@ class AcceptanceNull:
         heldout_gain: float,
         run_losses: dict[str, float],
         run_changes: dict[str, float],
-        shaped: bool,
+        generated: bool,
     ) -> bool:
         """Whether a candidate's fits carry over to the held-out runs: a held-out gain above
         :attr:`heldout_threshold`, more runs better than worse (``run_changes``), and no run
         worse than :attr:`worst_run_limit` allows: relative to the control's J of the run for a
-        catalog effect or library terms (forms written before the data were seen), in units of
-        the run's noise J (:meth:`run_excess` of ``run_losses``) for a form ``shaped`` by the
-        data (a learned shape, or the closed form it was named after)."""
+        catalog effect, in units of the run's noise J (:meth:`run_excess` of ``run_losses``)
+        for a ``generated`` one."""
         better = sum(v < 0.0 for v in run_changes.values())
         worse = sum(v > 0.0 for v in run_changes.values())
         if not (heldout_gain > self.heldout_threshold and better > worse):
             return False
-        if shaped:
+        if generated:
             return self.run_excess(run_losses) <= self.worst_run_limit
         return max(run_changes.values(), default=0.0) <= self.worst_run_limit
 

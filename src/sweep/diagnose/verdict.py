@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from mmg.effect import DISCOVERED_PREFIX
 from mmg.shapes import SHAPE_PREFIX, is_closed_form
 from sweep.diagnose.context import Context
-from sweep.diagnose.scoring import CandidateScore, rank, shape_and_form
+from sweep.diagnose.scoring import CandidateScore, generated, rank, shape_and_form
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.threshold import CEILING, AcceptanceNull
 
@@ -66,7 +66,7 @@ def _log_threshold(ctx: Context, null: AcceptanceNull, threshold: float) -> None
         f"{null.noise_J:.3g}, at least 0), more held-out runs better than worse, and no held-out "
         f"run worse by more than {100 * null.worst_run_limit:.0f} % (the same quantile of the best "
         "catalog candidate's worst held-out run) of the control's J of that run for a catalog "
-        "effect or library terms, of its noise J for learned shapes and their closed forms"
+        "effect, of its noise J for library terms and learned shapes"
     )
 
 
@@ -88,7 +88,7 @@ def decide(
     for c in scores:
         c.worst_run_excess = null.run_excess(c.run_losses)
         c.carries_over = null.carries_over(
-            c.heldout_gain, c.run_losses, c.run_changes, c.effect.startswith(SHAPE_PREFIX)
+            c.heldout_gain, c.run_losses, c.run_changes, generated(c.effect)
         )
         c.accepted = (
             c.refined == refined

@@ -379,8 +379,6 @@ def run_job(
         )
     finally:
         evaluator.close()
-    sim_seconds = float(getattr(evaluator, "sim_seconds", 0.0))
-    workers_replaced = int(getattr(evaluator, "replaced", 0))
     best = from_full_vector(result.theta, efd_parameters(), effects)
     polished: dict[str, Any] | None = None
     iterations = polish_iterations(cfg)
@@ -433,8 +431,8 @@ def run_job(
         restarts=restart_table(result),
         history=result.history,
         test=test_metrics(best, test, effects),
-        sim_seconds=sim_seconds,
-        workers_replaced=workers_replaced,
+        sim_seconds=float(getattr(evaluator, "sim_seconds", 0.0)),  # read when closed
+        workers_replaced=int(getattr(evaluator, "replaced", 0)),
         polished=polished,
         checkpoint_recovery=result.recovery.tag() if result.recovery else "",
         checkpoint_rejected=len(result.recovery.rejected) if result.recovery else 0,

@@ -283,6 +283,12 @@ class MisfitTest:
     refit_factor: float = 1.0  # share of the plain floor a model fitted to the windows keeps
 
 
+def above_floor(J: float, floor: float, z: float, margin: float, z_crit: float) -> bool:
+    """The misfit test's rule: ``J`` is significantly above ``floor`` when it exceeds (1 +
+    ``margin``) times the floor and its z (J - floor) / sd exceeds ``z_crit``."""
+    return bool((1.0 + margin) * floor < J and z > z_crit)
+
+
 def misfit_test(
     f: Floor,
     objective: str = "J2",
@@ -303,7 +309,7 @@ def misfit_test(
     sd = float(totals.std(ddof=1)) if totals.size > 1 else 0.0
     sd = max(sd, 1e-12)
     z = (J - floor) / sd
-    significant = bool((1.0 + margin) * floor < J and z > z_crit)
+    significant = above_floor(J, floor, z, margin, z_crit)
     per_channel = {
         OBSERVABLES_J[c]: float(f.actual[:, c].sum() / max(mean[:, c].sum(), 1e-300)) for c in ch
     }

@@ -18,6 +18,7 @@ import pandas as pd
 from mmg import Parameters, get_effect, simulate_batch
 from mmg.shapes import is_closed_form
 from sweep.data.recordings import Recording
+from sweep.diagnose.floor import above_floor
 from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
 from sweep.diagnose.run import Diagnosis
@@ -70,7 +71,7 @@ def remainder(d: Diagnosis) -> dict[str, Any] | None:
         "J": J,
         "ratio": J / m.floor,
         "z": z,
-        "significant": bool((1.0 + m.margin) * m.floor < J and z > m.z_crit),
+        "significant": above_floor(J, m.floor, z, m.margin, m.z_crit),
         # the share of the base's excess over the floor the finding takes away (None: no excess)
         "share_of_excess": (m.J - J) / (m.J - m.floor) if m.floor < m.J else None,
     }

@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mmg import Effect
+from sweep.data.recordings import Recording
 from sweep.diagnose.context import Context
 from sweep.diagnose.fit import Fit, FitSettings
 from sweep.diagnose.floor import run_of
@@ -31,6 +32,10 @@ from sweep.identification.polish import PolishSettings
 from sweep.identification.vector import effect_values, with_effects
 
 FloatArray = NDArray[np.float64]
+
+#: the candidates' fold stages are named ``candidate-c-NAME-foldJ`` (``c``: continued from the
+#: control's fold fit)
+CANDIDATE = "candidate-c-"
 
 
 @dataclass(frozen=True)
@@ -90,12 +95,15 @@ def fold_fits(
     effs: tuple[Effect, ...],
     settings: FitSettings,
     starts: Sequence[Fit] | None = None,
+    split: tuple[list[Recording], list[Recording]] | None = None,
 ) -> FoldFits:
     """Stages ``NAME-fold0`` and ``NAME-fold1``: ``effs`` fitted on each half from the base
-    (or from ``starts``), each judged on the other half."""
+    (or from ``starts``), each judged on the other half (the halves: ``split``, by default the
+    context's held-out runs)."""
     fits: list[Fit] = []
     J_ho: list[float] = []
-    halves = ((ctx.fit_w, ctx.held_w), (ctx.held_w, ctx.fit_w))
+    a, b = (ctx.fit_w, ctx.held_w) if split is None else split
+    halves = ((a, b), (b, a))
     runs = tuple(run_of(w) for _, held in halves for w in held)
     for j, (fit_half, held_half) in enumerate(halves):
         p0 = base.params if starts is None else starts[j].params
@@ -202,12 +210,15 @@ def fit_candidates(ctx: Context, base: Fit, extra: Sequence[Effect]) -> Candidat
     for i, eff in enumerate(effects, 1):
         ctx.log(f"candidate {i}/{len(effects)}: {eff.name}")
         t_c = time.perf_counter()
-        starts = None
-        if eff.name in ctx.starts:  # a learned shape starts from its linearised coefficients
-            p0 = with_effects(base.params, (eff,), ctx.starts[eff.name])
-            start = replace(base, params=p0, effects=(eff,))
-            starts = [start, start]
-        name = f"candidate-{eff.name}"
+        # each fold's fit continues the control's fit of that fold (the base parameters it
+        # reached there), the effect at neutral or, for a learned shape, at its linearised
+        # coefficients: the two fits differ by the effect, not by where the base wandered
+        values = ctx.starts.get(eff.name)
+        starts = [
+            replace(c, params=with_effects(c.params, (eff,), values), effects=(eff,))
+            for c in control.fits
+        ]
+        name = f"{CANDIDATE}{eff.name}"
         out.folds[eff.name] = fold_fits(ctx, base, name, (eff,), settings, starts)
         k = ctx.parameter_count(eff)
         c, out.best_fold[eff.name] = score(eff, out.folds[eff.name], control, ctx.n_eff, k)
@@ -246,7 +257,7 @@ def refine(ctx: Context, base: Fit, cands: Candidates, threshold: float) -> Cand
         eff = by_name[name]
         t_c = time.perf_counter()
         folds = fold_fits(
-            ctx, base, f"candidate-{name}-refined", (eff,), settings, cands.folds[name].fits
+            ctx, base, f"{CANDIDATE}{name}-refined", (eff,), settings, cands.folds[name].fits
         )
         c, best_fold[name] = score(eff, folds, control, ctx.n_eff, ctx.parameter_count(eff))
         c.refined = True

@@ -18,7 +18,7 @@ from sweep.diagnose.fit import Fit, FitSettings, fit
 from sweep.diagnose.scoring import n_effective
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.store import StageStore, data_fingerprint
-from sweep.diagnose.windows import cut_windows, split_windows
+from sweep.diagnose.windows import cut_windows, split_sessions, split_windows
 from sweep.identification.polish import PolishSettings
 
 #: where the diagnosis reports its progress: one line per call
@@ -66,6 +66,9 @@ class Context:
     store: StageStore
     log: Log
     n_eff: float
+    #: the windows in two halves of whole sessions (days; None: all of one session), for the
+    #: check of findings tied to heading, position or time (:mod:`sweep.diagnose.sessions`)
+    session_w: tuple[list[Recording], list[Recording]] | None = None
     #: per generated effect with a smoothness penalty (a learned shape): the penalty (k, k) its
     #: fits add, its effective degrees of freedom (dBIC's parameter count) and start values
     penalties: dict[str, tuple[tuple[float, ...], ...]] = field(default_factory=dict)
@@ -108,6 +111,7 @@ class Context:
             store=StageStore(out / "stages", fingerprint),
             log=log,
             n_eff=n_effective(windows, settings.objective),
+            session_w=split_sessions(windows),
         )
 
     def lm(self, iterations: int, rtol: float, prior_weight: float | None = None) -> PolishSettings:

@@ -82,7 +82,7 @@ def reidentify_with(
         ends = [ctx.refit(ctx.windows, p0, chosen, settings, f"final {verdict}") for p0 in starts]
         return min(ends, key=lambda e: e.f)
 
-    name = stage_label(f"{final_prefix(ctx)}-3-{effect.name}", chosen)
+    name = stage_label(f"{final_prefix(ctx)}-3c-{effect.name}", chosen)
     return ctx.staged(name, chosen, three_starts)
 
 

@@ -43,6 +43,7 @@ from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.location import Location, locate_misfit
 from sweep.diagnose.proposals import Proposals, propose
 from sweep.diagnose.scoring import CandidateScore
+from sweep.diagnose.sessions import check_sessions
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.shaping import ShapeProposal, propose_shape
 from sweep.diagnose.trust import trust_of
@@ -187,6 +188,7 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
     clock.lap("shapes")
     threshold = acceptance_threshold(s, cal.null)
     cands = refine(ctx, base, fit_candidates(ctx, base, extra), threshold)
+    check_sessions(ctx, base, cands)
     clock.lap("candidates")
     verdict = decide(ctx, cands.scores, cands.leaders, cal.null, cal.misfit.significant)
     final = reidentify(ctx, base, cands, verdict, threshold, cal.misfit.significant)

@@ -66,6 +66,15 @@ class CandidateScore:
     #: the held-out gain exceeds the null's and no held-out run gets worse than the null allows
     #: (:mod:`sweep.diagnose.threshold`)
     carries_over: bool = False
+    #: for a generated candidate tied to heading, position or time (:mod:`sweep.diagnose.sessions`):
+    #: "checked" (fitted on some sessions' runs, judged on the others'), "one session" (all
+    #: training runs are of one session: it cannot be checked) or "" (not tied, or not a leader)
+    sessions: str = ""
+    #: ... its gain on the other sessions' runs [J], and per held-out run its loss [J] and
+    #: relative change, against the control fitted alike
+    session_gain: float = 0.0
+    session_run_losses: dict[str, float] = field(default_factory=dict)
+    session_run_changes: dict[str, float] = field(default_factory=dict)
 
     @property
     def runs_better(self) -> int:

@@ -64,12 +64,14 @@ VARIABLES = (
     "y0",
     "t",
 )
+#: heading, position and time: where and when a run was recorded
+PLACE_AND_TIME = ("psi", "x0", "y0", "t")
 #: the variables of the ship's state and controls (the default candidates): without heading,
 #: position and time, which describe where and when a run was recorded. A force in them fitted
 #: on one session's runs carries over to its other runs but not to another day's: on the real
 #: Train-R (one day) a yaw moment in x0 passed every check on the held-out training runs and
 #: raised the test recordings' J2 by 29 %
-SHIP_VARIABLES = tuple(v for v in VARIABLES if v not in ("psi", "x0", "y0", "t"))
+SHIP_VARIABLES = tuple(v for v in VARIABLES if v not in PLACE_AND_TIME)
 #: varying-coefficient candidates: (shape variable, multiplier): Y_v(U) v_m U, Y_r(U) r' U^2,
 #: a share of the hull's sway force and of the rudder's normal force
 PRODUCTS = (("U", "v"), ("U", "rp"), ("beta", "Y_H"), ("delta", "F_N"))

@@ -89,7 +89,7 @@ def decide(
         c.worst_run_excess = null.run_excess(c.run_losses)
         c.carries_over = null.carries_over(
             c.heldout_gain, c.run_losses, c.run_changes, generated(c.effect)
-        )
+        ) and carries_to_other_sessions(null, c)
         c.accepted = (
             c.refined == refined
             and c.improvement >= s.min_improvement
@@ -110,12 +110,34 @@ def decide(
             f"{c.heldout_gain:.3g}, {c.runs_better} of {len(c.run_changes)} runs better, "
             f"worst run {100 * c.worst_run_change:+.1f} %, largest loss of a run "
             f"{100 * c.worst_run_excess:+.0f} % of its noise J"
-            f"{'' if c.carries_over else ': does not carry over'})"
+            f"{_carry_text(null, c)})"
             for c in ranked
         )
         + f" -> verdict: {verdict}"
     )
     return Verdict(ranked, verdict, effect)
+
+
+def carries_to_other_sessions(null: AcceptanceNull, c: CandidateScore) -> bool:
+    """Whether a candidate tied to heading, position or time carries over to another session's
+    runs (:mod:`sweep.diagnose.sessions`; True for any other candidate)."""
+    if c.sessions == "one session":
+        return False
+    if c.sessions == "checked":
+        return null.carries_over(
+            c.session_gain, c.session_run_losses, c.session_run_changes, generated=True
+        )
+    return True
+
+
+def _carry_text(null: AcceptanceNull, c: CandidateScore) -> str:
+    if c.carries_over:
+        return ""
+    if not carries_to_other_sessions(null, c):
+        if c.sessions == "one session":
+            return ": tied to heading, position or time, and all training runs are of one session"
+        return ": tied to heading, position or time, does not carry over to another session's runs"
+    return ": does not carry over"
 
 
 def _named(ctx: Context, scores: Sequence[CandidateScore], effect: str) -> str:

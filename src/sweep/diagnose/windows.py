@@ -3,6 +3,7 @@ two halves of the fold fits (one fits, the other judges, then the other way roun
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 
 import numpy as np
@@ -13,6 +14,9 @@ from sweep.diagnose.floor import run_of
 
 #: shortest window kept [s] (the last window of a run may be short)
 MIN_WINDOW = 20.0
+#: a date in a recording's name: the data set's own naming (``turn_14-Sep-2020_14_50_41...``)
+#: or ISO (``2020-09-14``)
+DATE = re.compile(r"\d{1,2}-[A-Za-z]{3}-\d{4}|\d{4}-\d{2}-\d{2}")
 
 
 def cut_windows(
@@ -63,6 +67,34 @@ def split_windows(windows: Sequence[Recording]) -> tuple[list[Recording], list[R
     folds: tuple[list[Recording], list[Recording]] = ([], [])
     time_in = [0.0, 0.0]
     for ws in sorted(runs.values(), key=lambda ws: -sum(w.duration for w in ws)):
+        j = 0 if time_in[0] <= time_in[1] else 1
+        folds[j].extend(ws)
+        time_in[j] += sum(w.duration for w in ws)
+    return folds
+
+
+def session_of(window: Recording) -> str:
+    """The session a window's run was recorded in: the date in the run's name
+    (:data:`DATE`), else the run itself (each recording its own session)."""
+    run = run_of(window)
+    m = DATE.search(run)
+    return m.group(0) if m else run
+
+
+def split_sessions(
+    windows: Sequence[Recording],
+) -> tuple[list[Recording], list[Recording]] | None:
+    """(fit, held-out) windows with whole sessions held out (:func:`session_of`): the sessions
+    go, longest first, to the fold with less recorded time so far. None when all the windows
+    are of one session."""
+    sessions: dict[str, list[Recording]] = {}
+    for w in windows:
+        sessions.setdefault(session_of(w), []).append(w)
+    if len(sessions) < 2:
+        return None
+    folds: tuple[list[Recording], list[Recording]] = ([], [])
+    time_in = [0.0, 0.0]
+    for ws in sorted(sessions.values(), key=lambda ws: -sum(w.duration for w in ws)):
         j = 0 if time_in[0] <= time_in[1] else 1
         folds[j].extend(ws)
         time_in[j] += sum(w.duration for w in ws)

@@ -1,0 +1,99 @@
+"""Findings tied to where and when a run was recorded must carry over to another session.
+
+A generated candidate whose force depends on the heading, the position or the time (library
+terms of those kinds, learned shapes in psi, x0, y0 or t) can stand in for whatever the runs of
+one day share: the day's wind, the region of the basin the ship sailed in. Held-out runs of the
+same day then confirm it, and another day's recordings do not: on the planted set a moment in
+x0 fitted in place of a wind force passed every check on the held-out training runs and made the
+test recordings 2.7 x worse; on the real Train-R (one day) a moment in x0 raised the test J2 by
+29 %. A bank or a force fixed to the basin acts on every day's runs alike.
+
+So each leading candidate of that kind is fitted once more on the runs of some sessions and
+judged on the others' (both ways round; the sessions are the dates in the recordings' names,
+:func:`sweep.diagnose.windows.session_of`), against the control fitted alike, and must carry
+over there by the same rule as on the held-out runs
+(:meth:`sweep.diagnose.threshold.AcceptanceNull.carries_over`). When all training runs are of
+one session the check cannot be made and such a candidate is not accepted.
+
+The procedure is described in the user guide (docs/guide/diagnosis.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from mmg.effect import DISCOVERED_PREFIX
+from mmg.library import term
+from mmg.shapes import SHAPE_PREFIX, parse
+from sweep.diagnose.candidates import (
+    CANDIDATE,
+    Candidates,
+    FoldFits,
+    fold_fits,
+    refine_settings,
+    run_changes,
+    run_losses,
+)
+from sweep.diagnose.context import Context
+from sweep.diagnose.discover import EXOGENOUS_KINDS
+from sweep.diagnose.fit import Fit
+from sweep.diagnose.scoring import CandidateScore
+from sweep.diagnose.shapes import PLACE_AND_TIME
+from sweep.identification.vector import effect_values, with_effects
+
+
+def place_or_time(effect: str) -> bool:
+    """Whether a generated effect's force depends on the heading, the position or the time."""
+    if effect.startswith(SHAPE_PREFIX):
+        return any(
+            g.variable in PLACE_AND_TIME or g.multiplier in PLACE_AND_TIME for g in parse(effect)
+        )
+    if effect.startswith(DISCOVERED_PREFIX):
+        ids = effect.split(":", 1)[1].split("@", 1)[0].split("+")
+        return any(term(i).kind in EXOGENOUS_KINDS for i in ids)
+    return False
+
+
+def check_sessions(ctx: Context, base: Fit, cands: Candidates) -> None:
+    """Fit every leading candidate tied to heading, position or time on whole sessions and
+    judge it on the others (stages ``control-sessions-foldJ`` and
+    ``candidate-c-NAME-sessions-foldJ``), recording the result in its score; logged."""
+    tied = [c for c in cands.scores if c.effect in cands.leaders and place_or_time(c.effect)]
+    if not tied:
+        return
+    if ctx.session_w is None:
+        for c in tied:
+            c.sessions = "one session"
+        ctx.log(
+            "sessions: all training runs are of one session, so "
+            + ", ".join(c.effect for c in tied)
+            + " (tied to heading, position or time) cannot be checked on another session's runs"
+        )
+        return
+    settings = refine_settings(ctx)
+    split = ctx.session_w
+    control = fold_fits(ctx, base, "control-sessions", (), settings, split=split)
+    by_name = {e.name: e for e in cands.effects}
+    for c in tied:
+        eff = by_name[c.effect]
+        values = effect_values(cands.best_fold[c.effect].params, (eff,))
+        starts = [
+            replace(f, params=with_effects(f.params, (eff,), values), effects=(eff,))
+            for f in control.fits
+        ]
+        name = f"{CANDIDATE}{c.effect}-sessions"
+        folds = fold_fits(ctx, base, name, (eff,), settings, starts, split=split)
+        _record(c, folds, control)
+        ctx.log(
+            f"sessions: {c.effect} fitted on some sessions' runs and judged on the others': "
+            f"gain {c.session_gain:.3g}, "
+            f"{sum(v < 0 for v in c.session_run_changes.values())} of "
+            f"{len(c.session_run_changes)} runs better"
+        )
+
+
+def _record(c: CandidateScore, folds: FoldFits, control: FoldFits) -> None:
+    c.sessions = "checked"
+    c.session_gain = float(control.J_heldout.sum() - folds.J_heldout.sum())
+    c.session_run_losses = run_losses(folds.J_heldout, control.J_heldout, control.runs)
+    c.session_run_changes = run_changes(folds.J_heldout, control.J_heldout, control.runs)

@@ -1,0 +1,100 @@
+"""Findings tied to where and when a run was recorded: sessions, the split by session, which
+generated effects are tied to heading, position or time, and the verdict's use of the check."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from sweep.data.recordings import Recording
+from sweep.diagnose.scoring import CandidateScore
+from sweep.diagnose.sessions import place_or_time
+from sweep.diagnose.threshold import AcceptanceNull
+from sweep.diagnose.verdict import carries_to_other_sessions
+from sweep.diagnose.windows import session_of, split_sessions
+
+
+def _window(name: str, seconds: float) -> Recording:
+    n = round(seconds / 0.1) + 1
+    t = np.arange(n, dtype=np.float64) * 0.1
+    zeros = np.zeros((n, 2))
+    return Recording(name=name, path=None, t=t, x=np.zeros((n, 6)), u=zeros, w=zeros)
+
+
+def test_a_session_is_the_date_in_the_run_name_else_the_run() -> None:
+    assert session_of(_window("turn_14-Sep-2020_14_50_41_1051@0.0s", 10)) == "14-Sep-2020"
+    assert session_of(_window("turn_cut_14-Sep-2020_15_58_08_50@100.0s", 10)) == "14-Sep-2020"
+    assert session_of(_window("trial-2021-03-05-a@0.0s", 10)) == "2021-03-05"
+    assert session_of(_window("my_run@200.0s", 10)) == "my_run"
+
+
+def test_whole_sessions_are_held_out_balanced_by_time_and_one_session_gives_none() -> None:
+    windows = [
+        _window("random_06-Aug-2020_16_24_25_1@0.0s", 100),
+        _window("random_06-Aug-2020_16_24_25_2@0.0s", 100),
+        _window("turn_14-Sep-2020_14_50_41@0.0s", 100),
+        _window("turn_cut_14-Sep-2020_15_58_08@0.0s", 50),
+        _window("zigzag_31-Jul-2020_13_22_52@0.0s", 80),
+    ]
+    split = split_sessions(windows)
+    assert split is not None
+    a, b = ({session_of(w) for w in half} for half in split)
+    assert a and b and not a & b  # no session on both sides
+    assert sum(len(h) for h in split) == len(windows)
+    # longest first to the lighter fold: Aug (200 s) | Sep (150 s) + Jul (80 s)
+    assert a == {"06-Aug-2020"} and b == {"14-Sep-2020", "31-Jul-2020"}
+    assert split_sessions(windows[:2]) is None
+
+
+def test_terms_and_shapes_of_heading_position_or_time_are_tied_to_the_session() -> None:
+    assert place_or_time("discovered:N_Usy+Y_Usy")  # a bank: position
+    assert place_or_time("discovered:N_bt+Y_bt")  # a build-up: time
+    assert place_or_time("discovered:N_Ux+N_vvr")  # one position term is enough
+    assert not place_or_time("discovered:X_uuuau+N_vvr")
+    assert place_or_time("shape:N~x0[0:30]/8")
+    assert place_or_time("shape:N~U[0:0.4]/6*t")
+    assert not place_or_time("shape:N~u[-0.07:0.41]/8+Y~delta[-0.6:0.6]:sin(2)")
+    assert not place_or_time("rudder_offset")
+
+
+def _null() -> AcceptanceNull:
+    null = AcceptanceNull(
+        alpha=0.05,
+        draws=10,
+        threshold=-10.0,
+        quantile=-10.0,
+        best=[0.0],
+        heldout_quantile=0.1,
+        worst_run_quantile=2.0,
+    )
+    null.noise_J = 1.0
+    null.run_noise = {"a": 1.0, "b": 1.0, "c": 1.0}
+    return null
+
+
+def _score(**kw: object) -> CandidateScore:
+    c = CandidateScore("discovered:N_Usy", "", "", {}, 1.0, 1.0, 0.5, -50.0)
+    for k, v in kw.items():
+        setattr(c, k, v)
+    return c
+
+
+def test_a_tied_candidate_needs_another_sessions_runs_to_get_better() -> None:
+    null = _null()
+    assert carries_to_other_sessions(null, _score())  # not tied: nothing to check
+    assert not carries_to_other_sessions(null, _score(sessions="one session"))
+    better = {"a": -0.5, "b": -0.2, "c": 0.1}
+    good = _score(
+        sessions="checked",
+        session_gain=3.0,
+        session_run_changes=better,
+        session_run_losses={"a": -2.0, "b": -1.0, "c": 0.5},
+    )
+    assert carries_to_other_sessions(null, good)
+    # as many runs worse as better on the other sessions: not carried over
+    mixed = {"a": -0.5, "b": 0.2, "c": 0.1}
+    assert not carries_to_other_sessions(null, replace(good, session_run_changes=mixed))
+    # a gain in total bought with one run 5 x its noise J worse: not carried over
+    losses = {"a": -9.0, "b": -1.0, "c": 5.0}
+    assert not carries_to_other_sessions(null, replace(good, session_run_losses=losses))

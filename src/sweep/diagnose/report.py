@@ -22,7 +22,7 @@ from sweep.diagnose.floor import above_floor
 from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
 from sweep.diagnose.run import Diagnosis
-from sweep.diagnose.scoring import shape_and_form
+from sweep.diagnose.scoring import CandidateScore, shape_and_form
 
 #: the regime variable in which each catalog effect acts
 EFFECT_REGIME_VARIABLE = {
@@ -1050,7 +1050,7 @@ def _candidates_md(d: Diagnosis) -> list[str]:
             f"{100 * c.improvement:+.1f} % | {100 * c.improvement_total:+.1f} % | "
             f"{c.heldout_gain:.4g} | {c.runs_better} of {len(c.run_changes)} | "
             f"{100 * c.worst_run_change:+.0f} % | {c.worst_run_excess:.2f} | "
-            f"{'yes' if c.carries_over else 'no'} | "
+            f"{_carries_md(c)} | "
             f"{'yes' if c.accepted else 'no'} | {vals} |"
         )
     held = (d.extra.get("acceptance") or {}).get("heldout")
@@ -1067,9 +1067,23 @@ def _candidates_md(d: Diagnosis) -> list[str]:
             f"{100 * held.get('worst_run_limit', 0.0):.0f} % (the same quantile of the best "
             "catalog candidate's worst held-out run) of the control's J of that run for a catalog "
             "effect, of that run's noise J for library terms and learned shapes (chosen on all "
-            "training windows, so their held-out gains are biased in their favour).",
+            "training windows, so their held-out gains are biased in their favour). A library "
+            "term or shape of the heading, the position or the time must carry over alike to "
+            "another session's runs (fitted on some days' runs, judged on the others'): "
+            '"no (one session)" when all training runs are of one day, "no (other '
+            'sessions)" when it does not.',
         ]
     return [*md, "", "![candidates](candidates.png)", ""]
+
+
+def _carries_md(c: CandidateScore) -> str:
+    """The table's "carries over" cell: yes, no, or why a candidate tied to heading, position or
+    time does not (:mod:`sweep.diagnose.sessions`)."""
+    if c.carries_over:
+        return "yes"
+    if not c.sessions_carry:
+        return "no (one session)" if c.sessions == "one session" else "no (other sessions)"
+    return "no"
 
 
 def _test_md(d: Diagnosis, test: Sequence[Recording]) -> list[str]:
@@ -1183,9 +1197,10 @@ def _procedure_md(d: Diagnosis) -> list[str]:
         f"evaluations (CMA-ES {s.base_budget} then Levenberg-Marquardt, and "
         f"Levenberg-Marquardt alone for up to {s.base_lm_iterations} iterations; the "
         f"lower end kept), J = "
-        f"{d.base.f:.2f}. Control and candidates: fitted on each half from the base (effect grid "
-        f"{s.effect_only_budget} evaluations, then up to {s.polish_iterations} "
-        "Levenberg-Marquardt iterations on base and effect jointly) and judged on the other half; "
+        f"{d.base.f:.2f}. Control: fitted on each half from the base; each candidate "
+        f"continues the control's fit of that half (effect grid {s.effect_only_budget} "
+        f"evaluations, then up to {s.polish_iterations} Levenberg-Marquardt iterations on base "
+        "and effect jointly); both judged on the other half; "
         f"the {s.refine_top} leading candidates (marked *) and the control continued "
         f"with up to {s.refine_iterations} more iterations; "
         "dBIC from both fits. Re-identification on all training windows (up to "

@@ -75,6 +75,8 @@ class CandidateScore:
     session_gain: float = 0.0
     session_run_losses: dict[str, float] = field(default_factory=dict)
     session_run_changes: dict[str, float] = field(default_factory=dict)
+    #: ... and whether it carries over there (True when not checked)
+    sessions_carry: bool = True
 
     @property
     def runs_better(self) -> int:

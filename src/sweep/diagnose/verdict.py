@@ -87,9 +87,11 @@ def decide(
     refined = s.refine_top > 0 and s.refine_iterations > 0
     for c in scores:
         c.worst_run_excess = null.run_excess(c.run_losses)
-        c.carries_over = null.carries_over(
-            c.heldout_gain, c.run_losses, c.run_changes, generated(c.effect)
-        ) and carries_to_other_sessions(null, c)
+        c.sessions_carry = carries_to_other_sessions(null, c)
+        c.carries_over = (
+            null.carries_over(c.heldout_gain, c.run_losses, c.run_changes, generated(c.effect))
+            and c.sessions_carry
+        )
         c.accepted = (
             c.refined == refined
             and c.improvement >= s.min_improvement
@@ -110,7 +112,7 @@ def decide(
             f"{c.heldout_gain:.3g}, {c.runs_better} of {len(c.run_changes)} runs better, "
             f"worst run {100 * c.worst_run_change:+.1f} %, largest loss of a run "
             f"{100 * c.worst_run_excess:+.0f} % of its noise J"
-            f"{_carry_text(null, c)})"
+            f"{_carry_text(c)})"
             for c in ranked
         )
         + f" -> verdict: {verdict}"
@@ -130,10 +132,10 @@ def carries_to_other_sessions(null: AcceptanceNull, c: CandidateScore) -> bool:
     return True
 
 
-def _carry_text(null: AcceptanceNull, c: CandidateScore) -> str:
+def _carry_text(c: CandidateScore) -> str:
     if c.carries_over:
         return ""
-    if not carries_to_other_sessions(null, c):
+    if not c.sessions_carry:
         if c.sessions == "one session":
             return ": tied to heading, position or time, and all training runs are of one session"
         return ": tied to heading, position or time, does not carry over to another session's runs"

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,9 +33,10 @@ from sweep.identification.vector import effect_values, with_effects
 
 FloatArray = NDArray[np.float64]
 
-#: the candidates' fold stages are named ``candidate-c-NAME-foldJ`` (``c``: continued from the
-#: control's fold fit)
+#: the candidates' fold stages: ``candidate-c-NAME-foldJ`` continues the control's fit of the
+#: fold, ``candidate-NAME-foldJ`` starts from the base (:func:`fit_candidates`)
 CANDIDATE = "candidate-c-"
+FROM_BASE = "candidate-"
 
 
 @dataclass(frozen=True)
@@ -47,6 +48,10 @@ class FoldFits:
     J_heldout: FloatArray
     #: the run of each held-out window (:func:`sweep.diagnose.floor.run_of`)
     runs: tuple[str, ...] = ()
+    #: the held-out windows of each fold (fold 0's come first in ``J_heldout``)
+    sizes: tuple[int, ...] = ()
+    #: per fold, where a candidate's fit started: ``c`` the control's fit, ``b`` the base
+    origins: str = ""
 
 
 @dataclass
@@ -62,6 +67,8 @@ class Candidates:
     scores: list[CandidateScore]
     best_fold: dict[str, Fit]
     leaders: list[str]
+    #: per candidate, where its ``best_fold`` started (``c`` the control's fit, ``b`` the base)
+    origin: dict[str, str] = field(default_factory=dict)
 
 
 def candidate_settings(ctx: Context) -> FitSettings:
@@ -96,10 +103,11 @@ def fold_fits(
     settings: FitSettings,
     starts: Sequence[Fit] | None = None,
     split: tuple[list[Recording], list[Recording]] | None = None,
+    names: Sequence[str] | None = None,
 ) -> FoldFits:
-    """Stages ``NAME-fold0`` and ``NAME-fold1``: ``effs`` fitted on each half from the base
-    (or from ``starts``), each judged on the other half (the halves: ``split``, by default the
-    context's held-out runs)."""
+    """Stages ``NAME-fold0`` and ``NAME-fold1`` (or ``names[j]-foldJ``): ``effs`` fitted on
+    each half from the base (or from ``starts``), each judged on the other half (the halves:
+    ``split``, by default the context's held-out runs)."""
     fits: list[Fit] = []
     J_ho: list[float] = []
     a, b = (ctx.fit_w, ctx.held_w) if split is None else split
@@ -107,14 +115,38 @@ def fold_fits(
     runs = tuple(run_of(w) for _, held in halves for w in held)
     for j, (fit_half, held_half) in enumerate(halves):
         p0 = base.params if starts is None else starts[j].params
+        label = stage_label(name if names is None else names[j], effs)
         res = ctx.staged(
-            f"{stage_label(name, effs)}-fold{j}",
+            f"{label}-fold{j}",
             effs,
             lambda fh=fit_half, p0=p0: ctx.refit(fh, p0, effs, settings, name),  # type: ignore[misc]
         )
         fits.append(res)
         J_ho += heldout_per_window(held_half, res.params, ctx.settings.objective)
-    return FoldFits(fits, np.asarray(J_ho), runs)
+    return FoldFits(fits, np.asarray(J_ho), runs, (len(b), len(a)))
+
+
+def better_ends(continued: FoldFits, fresh: FoldFits, share: float) -> FoldFits:
+    """Per fold, the fit that continued the control's (``c``), unless the fit from the base
+    (``b``) ends lower by more than ``share`` of its J: the continued fit differs from the
+    control by the effect alone, but where the control's fit on a few windows has absorbed the
+    effect it can stay in the control's valley."""
+    n0 = continued.sizes[0]
+    parts = (slice(0, n0), slice(n0, None))
+    fits, J_ho, origins = [], [], ""
+    for j, part in enumerate(parts):
+        use_fresh = fresh.fits[j].f < (1.0 - share) * continued.fits[j].f
+        chosen = fresh if use_fresh else continued
+        fits.append(chosen.fits[j])
+        J_ho.append(chosen.J_heldout[part])
+        origins += "b" if use_fresh else "c"
+    return FoldFits(fits, np.concatenate(J_ho), continued.runs, continued.sizes, origins)
+
+
+def origin_of(folds: FoldFits, fit: Fit) -> str:
+    """Where the fold fit ``fit`` (one of ``folds.fits``) started: ``c`` or ``b``."""
+    j = next(i for i, f in enumerate(folds.fits) if f is fit)
+    return folds.origins[j] if folds.origins else "c"
 
 
 def score(
@@ -210,18 +242,23 @@ def fit_candidates(ctx: Context, base: Fit, extra: Sequence[Effect]) -> Candidat
     for i, eff in enumerate(effects, 1):
         ctx.log(f"candidate {i}/{len(effects)}: {eff.name}")
         t_c = time.perf_counter()
-        # each fold's fit continues the control's fit of that fold (the base parameters it
-        # reached there), the effect at neutral or, for a learned shape, at its linearised
-        # coefficients: the two fits differ by the effect, not by where the base wandered
+        # two starts in each fold: the control's fit of that fold (the base parameters it
+        # reached there; the two fits then differ by the effect, not by where the base
+        # wandered), and the base; the effect at neutral or, for a learned shape, at its
+        # linearised coefficients (:func:`better_ends` keeps one)
         values = ctx.starts.get(eff.name)
-        starts = [
+        on_control = [
             replace(c, params=with_effects(c.params, (eff,), values), effects=(eff,))
             for c in control.fits
         ]
-        name = f"{CANDIDATE}{eff.name}"
-        out.folds[eff.name] = fold_fits(ctx, base, name, (eff,), settings, starts)
+        start = replace(base, params=with_effects(base.params, (eff,), values), effects=(eff,))
+        continued = fold_fits(ctx, base, f"{CANDIDATE}{eff.name}", (eff,), settings, on_control)
+        fresh = fold_fits(ctx, base, f"{FROM_BASE}{eff.name}", (eff,), settings, [start, start])
+        share = ctx.settings.base_retry_agreement
+        out.folds[eff.name] = better_ends(continued, fresh, share)
         k = ctx.parameter_count(eff)
         c, out.best_fold[eff.name] = score(eff, out.folds[eff.name], control, ctx.n_eff, k)
+        out.origin[eff.name] = origin_of(out.folds[eff.name], out.best_fold[eff.name])
         c.seconds = time.perf_counter() - t_c
         out.scores.append(c)
     return out
@@ -252,18 +289,26 @@ def refine(ctx: Context, base: Fit, cands: Candidates, threshold: float) -> Cand
     control = fold_fits(ctx, base, "control-refined", (), settings, cands.control.fits)
     by_name = {e.name: e for e in cands.effects}
     best_fold = dict(cands.best_fold)
+    origin = dict(cands.origin)
     refined = []
     for name in leaders:
         eff = by_name[name]
         t_c = time.perf_counter()
-        folds = fold_fits(
-            ctx, base, f"{CANDIDATE}{name}-refined", (eff,), settings, cands.folds[name].fits
-        )
+        start = cands.folds[name]
+        names = [f"candidate-{o}-{name}-refined" for o in start.origins]
+        folds = fold_fits(ctx, base, name, (eff,), settings, start.fits, names=names)
+        folds = replace(folds, origins=start.origins)
         c, best_fold[name] = score(eff, folds, control, ctx.n_eff, ctx.parameter_count(eff))
+        origin[name] = origin_of(folds, best_fold[name])
         c.refined = True
         c.seconds = time.perf_counter() - t_c
         refined.append(c)
     others = [c for c in cands.scores if c.effect not in leaders]
     return replace(
-        cands, control=control, scores=refined + others, best_fold=best_fold, leaders=leaders
+        cands,
+        control=control,
+        scores=refined + others,
+        best_fold=best_fold,
+        leaders=leaders,
+        origin=origin,
     )

@@ -63,9 +63,16 @@ def reidentify_base(ctx: Context, base: Fit) -> Fit:
 
 
 def reidentify_with(
-    ctx: Context, base: Fit, before: Fit, effect: Effect, start: Fit, verdict: str
+    ctx: Context,
+    base: Fit,
+    before: Fit,
+    effect: Effect,
+    start: Fit,
+    verdict: str,
+    origin: str = "c",
 ) -> Fit:
-    """Stage ``final-wW-3-EFFECT``: the base with ``effect`` re-identified on all windows from
+    """Stage ``final-wW-3O-EFFECT`` (``O``: where the fold fit ``start`` began, ``origin``, ``c``
+    the control's fit or ``b`` the base): the base with ``effect`` re-identified on all windows from
     three starts, the better end wins: the candidate's joint fold fit ``start`` (base
     re-balanced with the effect, on half the windows), the base fitted on all windows plus the
     effect's values from ``start`` (it had absorbed part of the effect), and ``before`` with the
@@ -82,7 +89,7 @@ def reidentify_with(
         ends = [ctx.refit(ctx.windows, p0, chosen, settings, f"final {verdict}") for p0 in starts]
         return min(ends, key=lambda e: e.f)
 
-    name = stage_label(f"{final_prefix(ctx)}-3c-{effect.name}", chosen)
+    name = stage_label(f"{final_prefix(ctx)}-3{origin}-{effect.name}", chosen)
     return ctx.staged(name, chosen, three_starts)
 
 
@@ -101,7 +108,8 @@ def reidentify(
         return Final(before, before, verdict, None, {})
     effect = next(e for e in cands.effects if e.name == verdict.effect)
     start = cands.best_fold[verdict.effect]
-    after = reidentify_with(ctx, base, before, effect, start, verdict.verdict)
+    origin = cands.origin.get(verdict.effect, "c")
+    after = reidentify_with(ctx, base, before, effect, start, verdict.verdict, origin)
     confirm = delta_bic(after.f, before.f, ctx.parameter_count(effect), ctx.n_eff)
     confirmation = {"effect": verdict.effect, "delta_bic": confirm}
     if confirm > threshold:

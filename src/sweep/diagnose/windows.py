@@ -4,7 +4,7 @@ two halves of the fold fits (one fits, the other judges, then the other way roun
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -64,13 +64,7 @@ def split_windows(windows: Sequence[Recording]) -> tuple[list[Recording], list[R
     longest = max(sum(w.duration for w in ws) for ws in runs.values())
     if len(runs) < 2 or longest > (2.0 / 3.0) * total:
         return list(windows[0::2]), list(windows[1::2])
-    folds: tuple[list[Recording], list[Recording]] = ([], [])
-    time_in = [0.0, 0.0]
-    for ws in sorted(runs.values(), key=lambda ws: -sum(w.duration for w in ws)):
-        j = 0 if time_in[0] <= time_in[1] else 1
-        folds[j].extend(ws)
-        time_in[j] += sum(w.duration for w in ws)
-    return folds
+    return _balanced(runs.values())
 
 
 def session_of(window: Recording) -> str:
@@ -92,9 +86,15 @@ def split_sessions(
         sessions.setdefault(session_of(w), []).append(w)
     if len(sessions) < 2:
         return None
+    return _balanced(sessions.values())
+
+
+def _balanced(groups: Iterable[list[Recording]]) -> tuple[list[Recording], list[Recording]]:
+    """Two folds of whole groups of windows: the groups go, longest first, to the fold with
+    less recorded time so far."""
     folds: tuple[list[Recording], list[Recording]] = ([], [])
     time_in = [0.0, 0.0]
-    for ws in sorted(sessions.values(), key=lambda ws: -sum(w.duration for w in ws)):
+    for ws in sorted(groups, key=lambda ws: -sum(w.duration for w in ws)):
         j = 0 if time_in[0] <= time_in[1] else 1
         folds[j].extend(ws)
         time_in[j] += sum(w.duration for w in ws)

@@ -295,7 +295,7 @@ def refine(ctx: Context, base: Fit, cands: Candidates, threshold: float) -> Cand
         eff = by_name[name]
         t_c = time.perf_counter()
         start = cands.folds[name]
-        names = [f"candidate-{o}-{name}-refined" for o in start.origins]
+        names = [f"{FROM_BASE}{o}-{name}-refined" for o in start.origins]
         folds = fold_fits(ctx, base, name, (eff,), settings, start.fits, names=names)
         folds = replace(folds, origins=start.origins)
         c, best_fold[name] = score(eff, folds, control, ctx.n_eff, ctx.parameter_count(eff))

@@ -4,6 +4,7 @@ between a job's end and its logging, duplicate runs in a store."""
 from __future__ import annotations
 
 import io
+import json
 import os
 import signal
 import subprocess
@@ -189,6 +190,13 @@ def test_two_drivers_at_once_run_each_job_once_and_log_it_once(tmp_path):
     assert {r.info.status for r in children} == {"FINISHED"}
     for summary in summaries:
         assert summary.tables["J2"].loc["J2-R", "n"] == 3 and not summary.notes
+    # the drivers logged the summary one after the other: each table once, rows not doubled
+    # (MLflow appends a table logged at the same moment by two clients to the other's)
+    for name, table in a.tables.items():
+        path = tracker.raw_client.download_artifacts(
+            a.parent_id, f"summary/{name}.json", str(tmp_path)
+        )
+        assert len(json.loads(Path(path).read_text())["data"]) == len(table), name
 
 
 def test_a_job_a_live_driver_holds_is_waited_for_and_not_run(tmp_path):
@@ -353,3 +361,44 @@ def test_a_driver_killed_between_a_jobs_end_and_its_logging_leaves_it_logged_onc
     )
     again = _sweep(specs, MlflowTracker(uri), tmp_path)
     assert sorted(again.skipped) == sorted(s.key for s in specs) and not again.finished
+
+
+def test_two_drivers_that_end_at_once_log_the_summary_one_after_the_other(tmp_path):
+    """Both drivers log the summary tables to the parent run at the same moment. MLflow logs a
+    new table by reading the run's list of tables and writing it back: two clients at once
+    failed one's insert (the sweep stopped with an error) or appended one's rows to the other's
+    table (each of 3 runs without the lease). Under the lease of the sweep each table is logged
+    once with its rows."""
+    import pandas as pd
+
+    from sweep.service.orchestration import _Claims
+    from sweep.service.tracking import MlflowTracker
+
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    specs = _specs(tmp_path / "multirun")
+    parent = MlflowTracker(uri).start_sweep("leased", {}, EFD)
+    tables = {f"T{i}": pd.DataFrame({"a": [float(i), 2.0], "b": ["x", "y"]}) for i in range(24)}
+    barrier = threading.Barrier(2)
+    errors: list[BaseException] = []
+
+    def driver() -> None:
+        claims = _Claims(specs, Progress(io.StringIO()))
+        tracker = MlflowTracker(uri)
+        barrier.wait()
+        try:
+            claims.finish_sweep(tracker, parent, tables, {})
+        except Exception as exc:
+            errors.append(exc)
+        finally:
+            claims.close()
+
+    threads = [threading.Thread(target=driver) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    client = MlflowTracker(uri).raw_client
+    for name in tables:
+        path = client.download_artifacts(parent, f"summary/{name}.json", str(tmp_path))
+        assert len(json.loads(Path(path).read_text())["data"]) == 2, name

@@ -30,7 +30,7 @@ import sys
 import time
 import traceback
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, TextIO
@@ -372,17 +372,35 @@ class _Claims:
     def start_sweep(
         self, tracker: Any, name: str, config: dict[str, Any], efd: dict[str, dict[str, float]]
     ) -> str:
-        """``tracker.start_sweep`` under a lease of the sweep (``parent-lease`` beside the jobs'
-        directories), so that two drivers started at once make one parent run, not two."""
-        if not self.specs:
+        """``tracker.start_sweep`` under the lease of the sweep (:meth:`sweep_lease`), so that
+        two drivers started at once make one parent run, not two."""
+        with self.sweep_lease():
             return str(tracker.start_sweep(name, config, efd))
+
+    def finish_sweep(
+        self, tracker: Any, parent: str, tables: dict[str, Any], files: dict[str, Path]
+    ) -> None:
+        """``tracker.finish_sweep`` under the lease of the sweep, so that two drivers that end
+        at once log the summary one after the other: MLflow logs a new table by reading the
+        run's list of tables and writing it back, and two at once made one driver's insert
+        fail (the sweep stopped with an error) or appended one driver's rows to the other's."""
+        with self.sweep_lease():
+            tracker.finish_sweep(parent, tables, files)
+
+    @contextlib.contextmanager
+    def sweep_lease(self) -> Iterator[None]:
+        """Hold the lease of the sweep (``parent-lease`` beside the jobs' directories; waiting
+        while another driver holds it), kept alive by the heartbeat."""
+        if not self.specs:
+            yield
+            return
         jobs = self.specs[0].lease_directory.rsplit("/", 2)[0]
         lease = Lease(storage.join(jobs, "parent-lease"), self.driver, self.seconds)
         while lease.acquire() is not None:
-            time.sleep(0.2)  # another driver is making or resuming the parent run
+            time.sleep(0.2)  # another driver is making, resuming or summing up the parent run
         self.heartbeat.add(lease)
         try:
-            return str(tracker.start_sweep(name, config, efd))
+            yield
         finally:
             self.heartbeat.remove(lease)
             lease.release()
@@ -485,13 +503,13 @@ def run_sweep(
                 time.sleep(0.5)  # only other drivers' jobs are left: wait for them
             elif todo and not running:
                 time.sleep(0.2)  # only resubmissions that wait are left
+        test = (dict(specs[0].config["test"]), specs[0].data_root) if specs else None
+        _write_summary(tracker, parent, efd_table, out_dir, summary, progress, test, claims)
     except KeyboardInterrupt:
         executor.cancel(list(running))
         raise
     finally:
         claims.close()
-    test = (dict(specs[0].config["test"]), specs[0].data_root) if specs else None
-    _write_summary(tracker, parent, efd_table, out_dir, summary, progress, test)
     summary.seconds = time.perf_counter() - t0
     return summary
 
@@ -634,11 +652,12 @@ def _write_summary(
     summary: SweepSummary,
     progress: Progress,
     test: tuple[dict[str, Any], str | None] | None = None,
+    claims: _Claims | None = None,
 ) -> None:
     """The summary tables of every logged job (and the sweep figure) to ``out_dir/summary``,
-    logged to the parent run; nothing when no job has an outcome. With the jobs' manoeuvres
-    also the manoeuvre table, beside the EFD model's on the ``test`` set (its config and data
-    root), computed here once."""
+    logged to the parent run (under the lease of the sweep of ``claims``, when given); nothing
+    when no job has an outcome. With the jobs' manoeuvres also the manoeuvre table, beside the
+    EFD model's on the ``test`` set (its config and data root), computed here once."""
     from sweep.service.figures import plot_sweep
     from sweep.service.tables import (
         MANOEUVRE_TABLE,
@@ -678,4 +697,7 @@ def _write_summary(
         tables[MANOEUVRE_TABLE] = manoeuvre_table(outcomes, efd)
         summary.files.update(write_manoeuvre_table(tables[MANOEUVRE_TABLE], out_dir / "summary"))
     summary.tables = tables
-    tracker.finish_sweep(parent, tables, summary.files)
+    if claims is not None:
+        claims.finish_sweep(tracker, parent, tables, summary.files)
+    else:
+        tracker.finish_sweep(parent, tables, summary.files)

@@ -504,7 +504,7 @@ def run_sweep(
             elif todo and not running:
                 time.sleep(0.2)  # only resubmissions that wait are left
         test = (dict(specs[0].config["test"]), specs[0].data_root) if specs else None
-        _write_summary(tracker, parent, efd_table, out_dir, summary, progress, test, claims)
+        _write_summary(tracker, parent, efd_table, out_dir, summary, progress, claims, test)
     except KeyboardInterrupt:
         executor.cancel(list(running))
         raise
@@ -651,12 +651,12 @@ def _write_summary(
     out_dir: Path,
     summary: SweepSummary,
     progress: Progress,
+    claims: _Claims,
     test: tuple[dict[str, Any], str | None] | None = None,
-    claims: _Claims | None = None,
 ) -> None:
     """The summary tables of every logged job (and the sweep figure) to ``out_dir/summary``,
-    logged to the parent run (under the lease of the sweep of ``claims``, when given); nothing
-    when no job has an outcome. With the jobs' manoeuvres also the manoeuvre table, beside the
+    logged to the parent run under the lease of the sweep (``claims``); nothing when no job
+    has an outcome. With the jobs' manoeuvres also the manoeuvre table, beside the
     EFD model's on the ``test`` set (its config and data root), computed here once."""
     from sweep.service.figures import plot_sweep
     from sweep.service.tables import (
@@ -697,7 +697,4 @@ def _write_summary(
         tables[MANOEUVRE_TABLE] = manoeuvre_table(outcomes, efd)
         summary.files.update(write_manoeuvre_table(tables[MANOEUVRE_TABLE], out_dir / "summary"))
     summary.tables = tables
-    if claims is not None:
-        claims.finish_sweep(tracker, parent, tables, summary.files)
-    else:
-        tracker.finish_sweep(parent, tables, summary.files)
+    claims.finish_sweep(tracker, parent, tables, summary.files)

@@ -4,14 +4,20 @@ generated effects are tied to heading, position or time, and the verdict's use o
 from __future__ import annotations
 
 from dataclasses import replace
+from types import SimpleNamespace
+from typing import cast
 
 import numpy as np
 
 from sweep.data.recordings import Recording
+from sweep.diagnose.context import Context
 from sweep.diagnose.scoring import CandidateScore
 from sweep.diagnose.sessions import place_or_time
+from sweep.diagnose.settings import DiagnoseSettings
+from sweep.diagnose.shapes import PLACE_AND_TIME, SHIP_VARIABLES, VARIABLES
+from sweep.diagnose.shaping import default_variables
 from sweep.diagnose.threshold import AcceptanceNull
-from sweep.diagnose.verdict import carries_to_other_sessions
+from sweep.diagnose.verdict import carries_over, carries_to_other_sessions
 from sweep.diagnose.windows import session_of, split_sessions
 
 
@@ -98,3 +104,51 @@ def test_a_tied_candidate_needs_another_sessions_runs_to_get_better() -> None:
     # a gain in total bought with one run 5 x its noise J worse: not carried over
     losses = {"a": -9.0, "b": -1.0, "c": 5.0}
     assert not carries_to_other_sessions(null, replace(good, session_run_losses=losses))
+
+
+def test_a_tied_candidate_is_judged_once_on_another_sessions_runs() -> None:
+    null = _null()
+    # one held-out run 5 x its noise J worse: refused on the held-out runs
+    run_split = {
+        "heldout_gain": 3.0,
+        "run_changes": {"a": -0.5, "b": -0.2, "c": 0.4},
+        "run_losses": {"a": -6.0, "b": -2.0, "c": 5.0},
+    }
+    sessions = {
+        "session_gain": 4.0,
+        "session_run_changes": {"a": -0.5, "b": -0.3, "c": -0.1},
+        "session_run_losses": {"a": -2.0, "b": -1.5, "c": -0.5},
+    }
+    assert not carries_over(null, _score(**run_split))  # not tied: the held-out runs decide
+    tied = _score(**run_split, **sessions, sessions="checked")
+    assert carries_over(null, tied)  # tied: another day's runs decide, and they all get better
+    # as many of the other day's runs worse as better: refused, however well it did held out
+    mixed = {"a": -0.5, "b": 0.2, "c": 0.1}
+    assert not carries_over(null, replace(tied, session_run_changes=mixed))
+    # all runs of one day: a tied candidate cannot be judged, however well it does held out
+    good = {"heldout_gain": 3.0, "run_changes": sessions["session_run_changes"]}
+    good["run_losses"] = sessions["session_run_losses"]
+    assert carries_over(null, _score(**good))
+    assert not carries_over(null, _score(**good, sessions="one session"))
+
+
+def test_shapes_use_heading_position_and_time_only_when_another_session_can_check() -> None:
+    windows = [
+        _window("random_06-Aug-2020_16_24_25_1@0.0s", 100),
+        _window("random_06-Aug-2020_16_24_25_2@0.0s", 100),
+        _window("turn_14-Sep-2020_14_50_41@0.0s", 100),
+    ]
+
+    def ctx(ws: list[Recording], **kw: object) -> Context:
+        # the two fields default_variables reads (a stand-in for a full diagnosis context)
+        s = replace(DiagnoseSettings(), **kw)  # type: ignore[arg-type]
+        return cast(Context, SimpleNamespace(settings=s, session_w=split_sessions(ws)))
+
+    several, one = ctx(windows), ctx(windows[:2])
+    assert default_variables(several) == VARIABLES
+    assert set(PLACE_AND_TIME) <= set(default_variables(several))
+    assert default_variables(one) == SHIP_VARIABLES
+    assert not set(PLACE_AND_TIME) & set(default_variables(one))
+    # the user's list wins either way
+    assert default_variables(ctx(windows[:2], shape_variables=("x0",))) == ("x0",)
+    assert default_variables(ctx(windows, shape_variables=("beta",))) == ("beta",)

@@ -115,7 +115,8 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         "--shape-variables",
         default="",
         help="comma-separated variables the learned shapes may depend on, or 'all' (default: "
-        "the ship's state and controls, without heading, position and time)",
+        "all when the training runs come from several sessions, else the ship's state and "
+        "controls, without heading, position and time)",
     )
     ap.add_argument(
         "--no-shapes",

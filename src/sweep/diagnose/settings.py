@@ -95,8 +95,9 @@ class DiagnoseSettings:
     shapes: bool = True
     #: noise-only copies of the shape selection's null
     shape_null_draws: int = 40
-    #: the variables shapes may depend on (empty: the ship's state and controls,
-    #: :data:`sweep.diagnose.shapes.SHIP_VARIABLES`)
+    #: the variables shapes may depend on (empty: all of them when the training runs come from
+    #: several sessions, else the ship's state and controls alone,
+    #: :func:`sweep.diagnose.shaping.default_variables`)
     shape_variables: tuple[str, ...] = ()
     #: what a finding does beyond the states of the training recordings (:mod:`mmg.domain`):
     #: ``held`` at its value on the boundary of their box, or switched ``off``

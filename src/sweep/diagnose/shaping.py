@@ -24,6 +24,7 @@ from sweep.diagnose.discover import null_sets
 from sweep.diagnose.naming import ClosedForm, closest_forms, form_group
 from sweep.diagnose.shapes import (
     SHIP_VARIABLES,
+    VARIABLES,
     ShapeColumns,
     ShapeSelection,
     candidate_groups,
@@ -113,13 +114,24 @@ def named_form(
     return named, shape_effect(groups), start
 
 
+def default_variables(ctx: Context) -> tuple[str, ...]:
+    """The variables the shapes may depend on: ``--shape-variables`` when given; else every
+    variable when the training runs come from several sessions (a shape in heading, position
+    or time must then carry over to another session's runs, :mod:`sweep.diagnose.sessions`),
+    and the ship's state and controls alone when they come from one (no other session could
+    show that such a shape does not carry over)."""
+    if ctx.settings.shape_variables:
+        return ctx.settings.shape_variables
+    return VARIABLES if ctx.session_w is not None else SHIP_VARIABLES
+
+
 def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapeProposal | None:
     """The shape candidate at the base ``params`` (None with shapes off), logged."""
     s = ctx.settings
     if not s.shapes:
         return None
     t0 = time.perf_counter()
-    variables = s.shape_variables or SHIP_VARIABLES
+    variables = default_variables(ctx)
     columns = ShapeColumns(cal.lin, candidate_groups(ctx.windows, params, variables=variables))
     selection = columns.select(cal.lin.residuals(ctx.windows), ctx.n_eff)
     null: list[float] = []

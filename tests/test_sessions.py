@@ -17,7 +17,7 @@ from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.shapes import PLACE_AND_TIME, SHIP_VARIABLES, VARIABLES
 from sweep.diagnose.shaping import default_variables
 from sweep.diagnose.threshold import AcceptanceNull
-from sweep.diagnose.verdict import carries_over, carries_to_other_sessions
+from sweep.diagnose.verdict import carries_to_other_sessions
 from sweep.diagnose.windows import session_of, split_sessions
 
 
@@ -104,32 +104,6 @@ def test_a_tied_candidate_needs_another_sessions_runs_to_get_better() -> None:
     # a gain in total bought with one run 5 x its noise J worse: not carried over
     losses = {"a": -9.0, "b": -1.0, "c": 5.0}
     assert not carries_to_other_sessions(null, replace(good, session_run_losses=losses))
-
-
-def test_a_tied_candidate_is_judged_once_on_another_sessions_runs() -> None:
-    null = _null()
-    # one held-out run 5 x its noise J worse: refused on the held-out runs
-    run_split = {
-        "heldout_gain": 3.0,
-        "run_changes": {"a": -0.5, "b": -0.2, "c": 0.4},
-        "run_losses": {"a": -6.0, "b": -2.0, "c": 5.0},
-    }
-    sessions = {
-        "session_gain": 4.0,
-        "session_run_changes": {"a": -0.5, "b": -0.3, "c": -0.1},
-        "session_run_losses": {"a": -2.0, "b": -1.5, "c": -0.5},
-    }
-    assert not carries_over(null, _score(**run_split))  # not tied: the held-out runs decide
-    tied = _score(**run_split, **sessions, sessions="checked")
-    assert carries_over(null, tied)  # tied: another day's runs decide, and they all get better
-    # as many of the other day's runs worse as better: refused, however well it did held out
-    mixed = {"a": -0.5, "b": 0.2, "c": 0.1}
-    assert not carries_over(null, replace(tied, session_run_changes=mixed))
-    # all runs of one day: a tied candidate cannot be judged, however well it does held out
-    good = {"heldout_gain": 3.0, "run_changes": sessions["session_run_changes"]}
-    good["run_losses"] = sessions["session_run_losses"]
-    assert carries_over(null, _score(**good))
-    assert not carries_over(null, _score(**good, sessions="one session"))
 
 
 def test_shapes_use_heading_position_and_time_only_when_another_session_can_check() -> None:

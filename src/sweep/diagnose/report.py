@@ -1068,11 +1068,10 @@ def _candidates_md(d: Diagnosis) -> list[str]:
             "catalog candidate's worst held-out run) of the control's J of that run for a catalog "
             "effect, of that run's noise J for library terms and learned shapes (chosen on all "
             "training windows, so their held-out gains are biased in their favour). A library "
-            "term or shape of the heading, the position or the time is judged alike on another "
-            "session's runs instead (fitted on some days' runs, judged on the others'), whether "
-            'it holds beyond the day it was fitted on: "yes (other sessions)" when it does, '
-            '"no (other sessions)" when it does not, "no (one session)" when all training '
-            "runs are of one day.",
+            "term or shape of the heading, the position or the time must carry over alike to "
+            "another session's runs (fitted on some days' runs, judged on the others'): "
+            '"no (one session)" when all training runs are of one day, "no (other '
+            'sessions)" when it does not.',
         ]
     return [*md, "", "![candidates](candidates.png)", ""]
 
@@ -1081,7 +1080,7 @@ def _carries_md(c: CandidateScore) -> str:
     """The table's "carries over" cell: yes, no, or why a candidate tied to heading, position or
     time does not (:mod:`sweep.diagnose.sessions`)."""
     if c.carries_over:
-        return "yes (other sessions)" if c.sessions == "checked" else "yes"
+        return "yes"
     if not c.sessions_carry:
         return "no (one session)" if c.sessions == "one session" else "no (other sessions)"
     return "no"

@@ -11,12 +11,9 @@ test recordings 2.7 x worse; on the real Train-R (one day) a moment in x0 raised
 So each leading candidate of that kind is fitted once more on the runs of some sessions and
 judged on the others' (both ways round; the sessions are the dates in the recordings' names,
 :func:`sweep.diagnose.windows.session_of`), against the control fitted alike, and must carry
-over there by the same rule as other candidates on the held-out runs
-(:meth:`sweep.diagnose.threshold.AcceptanceNull.carries_over`). That judgement replaces the one
-on the held-out runs (:func:`sweep.diagnose.verdict.carries_over`): it asks what decides for
-such a candidate, whether it holds on another day, and every candidate is judged once. When all
-training runs are of one session the check cannot be made and such a candidate is not
-accepted.
+over there by the same rule as on the held-out runs
+(:meth:`sweep.diagnose.threshold.AcceptanceNull.carries_over`). When all training runs are of
+one session the check cannot be made and such a candidate is not accepted.
 
 The procedure is described in the user guide (docs/guide/diagnosis.md).
 """

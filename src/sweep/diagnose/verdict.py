@@ -88,7 +88,10 @@ def decide(
     for c in scores:
         c.worst_run_excess = null.run_excess(c.run_losses)
         c.sessions_carry = carries_to_other_sessions(null, c)
-        c.carries_over = carries_over(null, c)
+        c.carries_over = (
+            null.carries_over(c.heldout_gain, c.run_losses, c.run_changes, generated(c.effect))
+            and c.sessions_carry
+        )
         c.accepted = (
             c.refined == refined
             and c.improvement >= s.min_improvement
@@ -117,18 +120,6 @@ def decide(
     return Verdict(ranked, verdict, effect)
 
 
-def carries_over(null: AcceptanceNull, c: CandidateScore) -> bool:
-    """Whether a candidate carries over to runs it was not fitted on. A candidate tied to
-    heading, position or time is judged on another session's runs
-    (:func:`carries_to_other_sessions`: fitted on some days' runs, judged on the others'), the
-    question that decides whether it holds beyond the day it was fitted on, and it is not
-    accepted when all runs are of one session; any other candidate is judged on the held-out
-    runs. Each is judged once, by the same rule and null."""
-    if c.sessions in ("checked", "one session"):
-        return carries_to_other_sessions(null, c)
-    return null.carries_over(c.heldout_gain, c.run_losses, c.run_changes, generated(c.effect))
-
-
 def carries_to_other_sessions(null: AcceptanceNull, c: CandidateScore) -> bool:
     """Whether a candidate tied to heading, position or time carries over to another session's
     runs (:mod:`sweep.diagnose.sessions`; True for any other candidate)."""
@@ -143,7 +134,7 @@ def carries_to_other_sessions(null: AcceptanceNull, c: CandidateScore) -> bool:
 
 def _carry_text(c: CandidateScore) -> str:
     if c.carries_over:
-        return ": carries over to another session's runs" if c.sessions == "checked" else ""
+        return ""
     if not c.sessions_carry:
         if c.sessions == "one session":
             return ": tied to heading, position or time, and all training runs are of one session"

@@ -181,6 +181,8 @@ def test_no_planted_effect_gives_verdict_none(runs, tmp_path):
     assert report["verdict"] == "none"
     assert not any(c["accepted"] for c in report["candidates"])
     assert report["shapes"] is not None  # the shape selection ran
+    # random, turning and zigzag runs of three days: heading, position and time were tried too
+    assert {"psi", "x0", "y0", "t"} <= set(report["shapes"]["variables"])
     assert "Nothing significant" in report["statement"]
     assert report["fitted_effect_params"] == {}
     gen = report["generalisation"]
@@ -301,6 +303,9 @@ def test_a_form_no_library_term_expresses_is_learned_as_a_shape_end_to_end(runs,
     assert _diagnose(case, out, *args) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["shapes"]["proposed"]
+    # the random runs are of one day: the shapes use the ship's state and controls alone
+    assert "beta" in report["shapes"]["variables"]
+    assert not {"psi", "x0", "y0", "t"} & set(report["shapes"]["variables"])
     assert report["verdict"] == "shape", report["statement"]
     groups = report["shape"]["groups"]
     assert {g["variable"] for g in groups} & {"beta", "v", "rp"}
@@ -311,7 +316,9 @@ def test_a_form_no_library_term_expresses_is_learned_as_a_shape_end_to_end(runs,
     assert all(g["closest"] or g["closed_form"] or g["variable"] == "1" for g in groups)
     assert all(g["band"] and min(g["band"]) > 0 for g in groups if g["variable"] != "1")
     assert (out / "shapes.png").stat().st_size > 0
-    assert "## Learned shape of the missing force" in (out / "report.md").read_text()
+    md = (out / "report.md").read_text()
+    assert "## Learned shape of the missing force" in md
+    assert "(without heading, position and time, which one session's runs cannot check)" in md
     before, after = report["J_before"]["J2"]["Total"], report["J_after"]["J2"]["Total"]
     assert after < before
     # the learned shape is rebuilt from its name: the parameter file evaluates elsewhere

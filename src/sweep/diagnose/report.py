@@ -23,6 +23,7 @@ from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
 from sweep.diagnose.run import Diagnosis
 from sweep.diagnose.scoring import CandidateScore, shape_and_form
+from sweep.diagnose.shapes import PLACE_AND_TIME
 
 #: the regime variable in which each catalog effect acts
 EFFECT_REGIME_VARIABLE = {
@@ -956,6 +957,21 @@ def _learned_curve(d: Diagnosis, form: Any, component: str, z: Any) -> Any:
     return None
 
 
+def _variables_md(variables: Sequence[str]) -> str:
+    """The variables the shapes were made of, in words (heading, position and time only when
+    the training runs come from several sessions)."""
+    if not variables:
+        return "Candidate groups: none."
+    place = [v for v in variables if v in PLACE_AND_TIME]
+    why = (
+        "heading, position and time among them: the training runs come from several sessions, "
+        "and a shape in them must carry over to another session's runs too"
+        if place
+        else "without heading, position and time, which one session's runs cannot check"
+    )
+    return f"Candidate groups in {', '.join(variables)} ({why})."
+
+
 def _shape_md(d: Diagnosis) -> list[str]:
     """The learned shape: formula, table and plot (verdict ``shape``), or the selection's
     result otherwise."""
@@ -965,6 +981,8 @@ def _shape_md(d: Diagnosis) -> list[str]:
     sel = sp.selection
     md = [
         "## Learned shape of the missing force",
+        "",
+        _variables_md(sp.variables),
         "",
         f"Groups chosen on the trajectory residuals: `{sel.spec or 'none'}`; effective degrees "
         f"of freedom {sum(sel.edf):.1f}; held-out gain "

@@ -47,6 +47,8 @@ class ShapeProposal:
     named: list[ClosedForm | None] | None = None
     form: Effect | None = None
     form_start: list[float] | None = None
+    #: the variables the candidate groups were made of (:func:`default_variables`)
+    variables: tuple[str, ...] = ()
 
     @property
     def effect(self) -> Effect:
@@ -81,6 +83,7 @@ class ShapeProposal:
             "seconds": self.seconds,
             "form": self.form.name if self.form is not None else None,
             "named": [None if c is None else asdict(c) for c in (self.named or [])],
+            "variables": list(self.variables),
         }
 
 
@@ -157,8 +160,9 @@ def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapePr
             + "; ".join(f"{c.formula} (R^2 {c.r2:.2f})" for c in named if c is not None)
             + f" -> candidate {form.name}"
         )
+    seconds = time.perf_counter() - t0
     out = ShapeProposal(
-        selection, null, threshold, proposed, time.perf_counter() - t0, named, form, start
+        selection, null, threshold, proposed, seconds, named, form, start, tuple(variables)
     )
     if proposed:
         ctx.penalties[out.effect.name] = out.penalty()
@@ -169,4 +173,4 @@ def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapePr
     return out
 
 
-__all__ = ["ShapeProposal", "named_form", "propose_shape"]
+__all__ = ["ShapeProposal", "default_variables", "named_form", "propose_shape"]

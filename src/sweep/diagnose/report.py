@@ -957,18 +957,19 @@ def _learned_curve(d: Diagnosis, form: Any, component: str, z: Any) -> Any:
     return None
 
 
-def _variables_md(variables: Sequence[str]) -> str:
-    """The variables the shapes were made of, in words (heading, position and time only when
-    the training runs come from several sessions)."""
-    if not variables:
-        return "Candidate groups: none."
-    place = [v for v in variables if v in PLACE_AND_TIME]
-    why = (
-        "heading, position and time among them: the training runs come from several sessions, "
-        "and a shape in them must carry over to another session's runs too"
-        if place
-        else "without heading, position and time, which one session's runs cannot check"
-    )
+def _variables_md(variables: Sequence[str], chosen: bool) -> str:
+    """The variables the shapes were made of, in words: ``chosen`` by the user
+    (``--shape-variables``), else the default, which holds heading, position and time only
+    when the training runs come from several sessions."""
+    if chosen:
+        why = "chosen with --shape-variables"
+    elif any(v in PLACE_AND_TIME for v in variables):
+        why = (
+            "heading, position and time among them: the training runs come from several "
+            "sessions, and a shape in them must carry over to another session's runs too"
+        )
+    else:
+        why = "without heading, position and time, which one session's runs cannot check"
     return f"Candidate groups in {', '.join(variables)} ({why})."
 
 
@@ -982,7 +983,7 @@ def _shape_md(d: Diagnosis) -> list[str]:
     md = [
         "## Learned shape of the missing force",
         "",
-        _variables_md(sp.variables),
+        _variables_md(sp.variables, bool(d.settings.shape_variables)),
         "",
         f"Groups chosen on the trajectory residuals: `{sel.spec or 'none'}`; effective degrees "
         f"of freedom {sum(sel.edf):.1f}; held-out gain "

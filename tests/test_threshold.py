@@ -145,3 +145,20 @@ def test_null_of_the_best_candidate_on_noise_only_windows(case):
     step = 1e-3 * np.ones(N_THETA)
     R = (A @ step)[..., None]  # (S, M, 1): the residual of the parameters moved by 1e-3
     assert lin.refit_factor(R) < 0.05
+
+
+def test_a_fit_with_the_effect_held_refits_the_base_alone(case):
+    """The transfer check's fit (``fixed_effects``): the effect stays at the value it starts
+    with while the 57 base parameters move; held at the planted value it fits the data better
+    than held at zero (the base alone makes up only part of the force)."""
+    ship, eff, data = _planted(case, 2e-4)
+    polish = PolishSettings(
+        max_iterations=15, rtol=1e-6, max_evaluations=10**6, prior_weight=1.0, prior_dims=N_THETA
+    )
+    settings = FitSettings(budget=0, effect_only_budget=40, polish=polish, fixed_effects=True)
+    right = fit(data, with_effects(ship, (eff,), [2e-4]), (eff,), settings, prior_center=ship)
+    none = fit(data, with_effects(ship, (eff,), [0.0]), (eff,), settings, prior_center=ship)
+    assert dict(dict(right.params.effects)[eff.name])["C_Y_one"] == pytest.approx(2e-4, rel=1e-6)
+    assert dict(dict(none.params.effects)[eff.name])["C_Y_one"] == pytest.approx(0.0, abs=1e-10)
+    assert right.params.theta != ship.theta  # the base did move
+    assert right.f < 0.8 * none.f

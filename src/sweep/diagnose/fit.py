@@ -53,6 +53,24 @@ class FitSettings:
     #: (k, k) quadratic penalty c' P c on the effects' k parameters c (their units), added in
     #: the refinement: a shape's smoothness (:func:`sweep.diagnose.shapes`); None: none
     penalty: tuple[tuple[float, ...], ...] | None = None
+    #: hold the effects at their values in the start and refit the base alone (the transfer
+    #: check, :mod:`sweep.diagnose.transfer`): no effect-only search, no CMA-ES
+    fixed_effects: bool = False
+
+
+#: half-width of the interval an effect's coordinate is held in by ``fixed_effects``, as a
+#: share of its search interval: Levenberg-Marquardt works in the box, so a held coordinate
+#: gets a box of (almost) no width rather than leaving the vector
+HELD = 1e-9
+
+
+def held_box(box: Box, x0: FloatArray) -> Box:
+    """``box`` with the coordinates after the 57 base parameters pinned at ``x0``'s values."""
+    lower, upper = box.lower.copy(), box.upper.copy()
+    eps = HELD * (upper[N_THETA:] - lower[N_THETA:])
+    lower[N_THETA:] = x0[N_THETA:] - eps
+    upper[N_THETA:] = x0[N_THETA:] + eps
+    return Box(lower, upper)
 
 
 @dataclass(frozen=True)
@@ -96,6 +114,9 @@ def fit(
     x0 = full_vector(start, effects)
     k = box.n - N_THETA
     budget = settings.budget
+    if settings.fixed_effects and k:
+        box = held_box(box, x0)
+        k, budget = 0, 0
     spent = 0
     t0 = time.perf_counter()
     if k and (

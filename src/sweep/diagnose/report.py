@@ -1092,14 +1092,43 @@ def _candidates_md(d: Diagnosis) -> list[str]:
             '"no (one session)" when all training runs are of one day, "no (other '
             'sessions)" when it does not.',
         ]
+    md += _transfer_md(d)
     return [*md, "", "![candidates](candidates.png)", ""]
+
+
+def _transfer_md(d: Diagnosis) -> list[str]:
+    """The transfer check of the generated candidates refused by their worst held-out run
+    alone (:mod:`sweep.diagnose.transfer`)."""
+    checked = [c for c in d.candidates if c.transfer_checked]
+    if not checked:
+        return []
+    md = [
+        "",
+        "Transfer check (a library term or shape refused by its worst held-out run alone): its "
+        "effect as fitted on one half of the runs held fixed, the 57 base parameters refitted on "
+        "the other half from the control's fit of it, against that fit continued without the "
+        "effect. It carries over when the summed J falls, more runs get better than worse, and "
+        "no run gets worse by more than the limit of a catalog effect's held-out run.",
+        "",
+        "| effect | J against the control refitted alike | runs better | worst run "
+        "| carries over |",
+        "|---|---:|---:|---:|:-:|",
+    ]
+    for c in checked:
+        ch = c.transfer_run_changes
+        md.append(
+            f"| {c.effect} | {100 * c.transfer_change:+.1f} % | "
+            f"{sum(v < 0 for v in ch.values())} of {len(ch)} | "
+            f"{100 * max(ch.values(), default=0.0):+.0f} % | {'yes' if c.carries_over else 'no'} |"
+        )
+    return md
 
 
 def _carries_md(c: CandidateScore) -> str:
     """The table's "carries over" cell: yes, no, or why a candidate tied to heading, position or
     time does not (:mod:`sweep.diagnose.sessions`)."""
     if c.carries_over:
-        return "yes"
+        return "yes (transfer check)" if c.transfer_checked else "yes"
     if not c.sessions_carry:
         return "no (one session)" if c.sessions == "one session" else "no (other sessions)"
     return "no"

@@ -46,6 +46,7 @@ from sweep.diagnose.scoring import CandidateScore
 from sweep.diagnose.sessions import check_sessions
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.shaping import ShapeProposal, propose_shape
+from sweep.diagnose.transfer import check_transfer
 from sweep.diagnose.trust import trust_of
 from sweep.diagnose.verdict import acceptance_threshold, decide
 
@@ -189,6 +190,7 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
     threshold = acceptance_threshold(s, cal.null)
     cands = refine(ctx, base, fit_candidates(ctx, base, extra), threshold)
     check_sessions(ctx, base, cands)
+    check_transfer(ctx, cands, cal.null, threshold)
     clock.lap("candidates")
     verdict = decide(ctx, cands.scores, cands.leaders, cal.null, cal.misfit.significant)
     final = reidentify(ctx, base, cands, verdict, threshold, cal.misfit.significant)

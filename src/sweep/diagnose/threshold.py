@@ -98,13 +98,31 @@ class AcceptanceNull:
         worse than :attr:`worst_run_limit` allows: relative to the control's J of the run for a
         catalog effect, in units of the run's noise J (:meth:`run_excess` of ``run_losses``)
         for a ``generated`` one."""
-        better = sum(v < 0.0 for v in run_changes.values())
-        worse = sum(v > 0.0 for v in run_changes.values())
-        if not (heldout_gain > self.heldout_threshold and better > worse):
+        if not self.heldout_ok(heldout_gain, run_changes):
             return False
         if generated:
             return self.run_excess(run_losses) <= self.worst_run_limit
         return max(run_changes.values(), default=0.0) <= self.worst_run_limit
+
+    def heldout_ok(self, heldout_gain: float, run_changes: dict[str, float]) -> bool:
+        """The first two conditions of :meth:`carries_over`: a held-out gain above
+        :attr:`heldout_threshold` and more held-out runs better than worse."""
+        better = sum(v < 0.0 for v in run_changes.values())
+        worse = sum(v > 0.0 for v in run_changes.values())
+        return heldout_gain > self.heldout_threshold and better > worse
+
+    def transfers(self, transfer_gain: float, run_changes: dict[str, float]) -> bool:
+        """Whether a generated candidate passes the transfer check
+        (:mod:`sweep.diagnose.transfer`): the runs' summed J falls, more runs get better than
+        worse, and no run gets worse, relative to the control's J of it, than
+        :attr:`worst_run_limit` allows a catalog effect's held-out run."""
+        better = sum(v < 0.0 for v in run_changes.values())
+        worse = sum(v > 0.0 for v in run_changes.values())
+        return (
+            transfer_gain > 0.0
+            and better > worse
+            and max(run_changes.values(), default=0.0) <= self.worst_run_limit
+        )
 
     def as_dict(self) -> dict[str, Any]:
         """The null as ``report.json`` shows it (``acceptance``), with a summary of ``best``."""

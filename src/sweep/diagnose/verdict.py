@@ -90,8 +90,8 @@ def decide(
         c.sessions_carry = carries_to_other_sessions(null, c)
         c.carries_over = (
             null.carries_over(c.heldout_gain, c.run_losses, c.run_changes, generated(c.effect))
-            and c.sessions_carry
-        )
+            or (c.transfer_checked and null.transfers(c.transfer_gain, c.transfer_run_changes))
+        ) and c.sessions_carry
         c.accepted = (
             c.refined == refined
             and c.improvement >= s.min_improvement
@@ -133,6 +133,8 @@ def carries_to_other_sessions(null: AcceptanceNull, c: CandidateScore) -> bool:
 
 
 def _carry_text(c: CandidateScore) -> str:
+    if c.carries_over and c.transfer_checked:
+        return ": carries over by the transfer check"
     if c.carries_over:
         return ""
     if not c.sessions_carry:

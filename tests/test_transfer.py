@@ -1,0 +1,51 @@
+"""The transfer check's rule (:mod:`sweep.diagnose.transfer`): pure, no simulation."""
+
+from __future__ import annotations
+
+from sweep.diagnose.threshold import AcceptanceNull
+
+
+def _null(limit: float = 1.0, heldout: float = 0.05, noise_J: float = 2.0) -> AcceptanceNull:
+    return AcceptanceNull(
+        alpha=0.05,
+        draws=10,
+        threshold=-10.0,
+        quantile=-10.0,
+        best=[0.0],
+        heldout_quantile=heldout,
+        worst_run_quantile=limit,
+        noise_J=noise_J,
+        run_noise={"a": 0.1, "b": 0.1, "c": 0.1},
+    )
+
+
+def test_a_candidate_transfers_when_the_refitted_runs_get_better():
+    null = _null(limit=1.0)
+    assert null.transfers(0.5, {"a": -0.3, "b": -0.1, "c": 0.2})
+
+
+def test_a_candidate_does_not_transfer_when_the_summed_j_rises():
+    assert not _null().transfers(-0.01, {"a": -0.3, "b": -0.1, "c": 0.2})
+
+
+def test_a_candidate_does_not_transfer_when_more_runs_get_worse():
+    assert not _null().transfers(0.5, {"a": -0.9, "b": 0.01, "c": 0.02})
+
+
+def test_a_candidate_does_not_transfer_when_one_run_gets_worse_than_the_limit():
+    null = _null(limit=0.5)
+    assert not null.transfers(0.5, {"a": -0.3, "b": -0.1, "c": 0.6})
+    assert null.transfers(0.5, {"a": -0.3, "b": -0.1, "c": 0.4})
+
+
+def test_the_held_out_conditions_are_those_of_carrying_over():
+    """heldout_ok is the first part of carries_over: a gain above the null's threshold (its
+    quantile times the noise's J) and more held-out runs better than worse."""
+    null = _null(heldout=0.05, noise_J=2.0)  # threshold 0.1
+    changes = {"a": -0.2, "b": -0.1, "c": 5.0}
+    assert null.heldout_ok(0.2, changes)
+    assert not null.heldout_ok(0.05, changes)
+    assert not null.heldout_ok(0.2, {"a": -0.2, "b": 0.1, "c": 5.0})
+    # the run far worse than its noise J refuses a generated candidate on the held-out runs
+    losses = {"a": -0.1, "b": -0.1, "c": 1.0}
+    assert not null.carries_over(0.2, losses, changes, generated=True)

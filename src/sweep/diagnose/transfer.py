@@ -17,9 +17,10 @@ fit of that half continued by the same Levenberg-Marquardt without an effect (st
 ``control-transfer-foldJ``). Both sides then refit the same 57 parameters on the same runs, and
 the effect's form is the only thing carried from the runs it was fitted on: a stand-in fitted
 to what the runs of one half happen to have (a moment in the speed for a moment that needs the
-wind, which differs from run to run) makes the other half worse. It carries over when the summed J falls, more runs get better
-than worse, and no run gets relatively worse than the null allows a catalog effect's held-out
-run (:meth:`sweep.diagnose.threshold.AcceptanceNull.transfers`).
+wind, which differs from run to run) makes the other half worse. It carries over when the
+summed J falls, more runs get better than worse, and no run gets relatively worse than the null
+allows a catalog effect's held-out run
+(:meth:`sweep.diagnose.threshold.AcceptanceNull.transfers`).
 
 A finding tied to heading, position or time gets no transfer check: both halves share how the
 ship's position grows with time along a day's runs, so a shape in x0 stands in for a force that
@@ -100,7 +101,8 @@ def check_transfer(ctx: Context, cands: Candidates, null: AcceptanceNull, thresh
         folds = cands.folds[c.effect]
         J: list[float] = []
         for j, half in enumerate(halves):
-            # the effect as fitted on the other half, on the control's fit of this half
+            # the effect as fitted on the other half (its first fold fit: the refinement keeps
+            # only the scores), on the control's (refined) fit of this half
             start = replace(cands.control.fits[j].params, effects=folds.fits[1 - j].params.effects)
             fit: Fit = ctx.staged(
                 f"{TRANSFER}{stage_label(c.effect, (eff,))}-fold{j}",

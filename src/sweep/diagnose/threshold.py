@@ -37,6 +37,14 @@ from sweep.diagnose.linearised import Linearised
 CEILING = -10.0
 
 
+def more_better(run_changes: dict[str, float]) -> bool:
+    """Whether more runs got better than worse (``run_changes``: each run's relative change of
+    J, negative: better)."""
+    better = sum(v < 0.0 for v in run_changes.values())
+    worse = sum(v > 0.0 for v in run_changes.values())
+    return better > worse
+
+
 @dataclass
 class AcceptanceNull:
     """The null distribution of the best candidate's dBIC and the threshold it gives."""
@@ -107,20 +115,16 @@ class AcceptanceNull:
     def heldout_ok(self, heldout_gain: float, run_changes: dict[str, float]) -> bool:
         """The first two conditions of :meth:`carries_over`: a held-out gain above
         :attr:`heldout_threshold` and more held-out runs better than worse."""
-        better = sum(v < 0.0 for v in run_changes.values())
-        worse = sum(v > 0.0 for v in run_changes.values())
-        return heldout_gain > self.heldout_threshold and better > worse
+        return heldout_gain > self.heldout_threshold and more_better(run_changes)
 
     def transfers(self, transfer_gain: float, run_changes: dict[str, float]) -> bool:
         """Whether a generated candidate passes the transfer check
         (:mod:`sweep.diagnose.transfer`): the runs' summed J falls, more runs get better than
         worse, and no run gets worse, relative to the control's J of it, than
         :attr:`worst_run_limit` allows a catalog effect's held-out run."""
-        better = sum(v < 0.0 for v in run_changes.values())
-        worse = sum(v > 0.0 for v in run_changes.values())
         return (
             transfer_gain > 0.0
-            and better > worse
+            and more_better(run_changes)
             and max(run_changes.values(), default=0.0) <= self.worst_run_limit
         )
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from sweep.diagnose.sessions import place_or_time
 from sweep.diagnose.threshold import AcceptanceNull
 
 
@@ -21,21 +22,44 @@ def _null(limit: float = 1.0, heldout: float = 0.05, noise_J: float = 2.0) -> Ac
 
 def test_a_candidate_transfers_when_the_refitted_runs_get_better():
     null = _null(limit=1.0)
-    assert null.transfers(0.5, {"a": -0.3, "b": -0.1, "c": 0.2})
+    assert null.transfers(0.5, {"a": -0.3, "b": -0.1, "c": 0.2}, heldout_gain=0.5)
 
 
 def test_a_candidate_does_not_transfer_when_the_summed_j_rises():
-    assert not _null().transfers(-0.01, {"a": -0.3, "b": -0.1, "c": 0.2})
+    assert not _null().transfers(-0.01, {"a": -0.3, "b": -0.1, "c": 0.2}, heldout_gain=0.5)
 
 
 def test_a_candidate_does_not_transfer_when_more_runs_get_worse():
-    assert not _null().transfers(0.5, {"a": -0.9, "b": 0.01, "c": 0.02})
+    assert not _null().transfers(0.5, {"a": -0.9, "b": 0.01, "c": 0.02}, heldout_gain=0.5)
 
 
 def test_a_candidate_does_not_transfer_when_one_run_gets_worse_than_the_limit():
     null = _null(limit=0.5)
-    assert not null.transfers(0.5, {"a": -0.3, "b": -0.1, "c": 0.6})
-    assert null.transfers(0.5, {"a": -0.3, "b": -0.1, "c": 0.4})
+    assert not null.transfers(0.5, {"a": -0.3, "b": -0.1, "c": 0.6}, heldout_gain=0.5)
+    assert null.transfers(0.5, {"a": -0.3, "b": -0.1, "c": 0.4}, heldout_gain=0.5)
+
+
+def test_the_gain_must_beat_the_null_in_one_of_the_two_checks():
+    """The gain on runs the effect was not fitted on must beat the held-out null (0.1 here) with
+    the base refitted alongside (held-out) or with the base alone refitted (transfer)."""
+    null = _null(heldout=0.05, noise_J=2.0)
+    changes = {"a": -0.3, "b": -0.1, "c": 0.2}
+    assert null.transfers(0.05, changes, heldout_gain=0.5)  # the held-out gain beats it
+    assert null.transfers(0.5, changes, heldout_gain=-5.0)  # one run's loss; transfer beats it
+    assert not null.transfers(0.05, changes, heldout_gain=0.05)  # neither does
+
+
+def test_position_and_time_are_told_from_the_heading():
+    """The transfer check leaves out findings tied to position or time, not the heading."""
+    pos_time = ("position", "time")
+    assert place_or_time("discovered:E_y0+E_x0")
+    assert not place_or_time("discovered:E_y0+E_x0", pos_time)
+    assert place_or_time("discovered:N_x+Y_sy", pos_time)
+    assert place_or_time("discovered:N_bt", pos_time)
+    assert place_or_time("shape:N~x0[0:30]/8", pos_time)
+    assert not place_or_time("shape:N~psi[-3:3]/8", pos_time)
+    assert place_or_time("shape:N~psi[-3:3]/8")
+    assert not place_or_time("shape:N~delta[-0.6:0.6]/8")
 
 
 def test_the_held_out_conditions_are_those_of_carrying_over():

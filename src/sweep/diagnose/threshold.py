@@ -117,13 +117,19 @@ class AcceptanceNull:
         :attr:`heldout_threshold` and more held-out runs better than worse."""
         return heldout_gain > self.heldout_threshold and more_better(run_changes)
 
-    def transfers(self, transfer_gain: float, run_changes: dict[str, float]) -> bool:
+    def transfers(
+        self, transfer_gain: float, run_changes: dict[str, float], heldout_gain: float
+    ) -> bool:
         """Whether a generated candidate passes the transfer check
         (:mod:`sweep.diagnose.transfer`): the runs' summed J falls, more runs get better than
-        worse, and no run gets worse, relative to the control's J of it, than
-        :attr:`worst_run_limit` allows a catalog effect's held-out run."""
+        worse, no run gets worse, relative to the control's J of it, than
+        :attr:`worst_run_limit` allows a catalog effect's held-out run, and the gain on runs
+        the effect was not fitted on beats :attr:`heldout_threshold` in one of the two checks
+        (``heldout_gain`` with the base refitted alongside on the other half, ``transfer_gain``
+        with the base alone refitted on the runs it is judged on)."""
         return (
             transfer_gain > 0.0
+            and max(transfer_gain, heldout_gain) > self.heldout_threshold
             and more_better(run_changes)
             and max(run_changes.values(), default=0.0) <= self.worst_run_limit
         )

@@ -10,23 +10,26 @@ one run rose 4.6-fold (101 x its noise J), and the shape was refused. Transferre
 the true model's.
 
 So each leading generated candidate (library terms, learned shapes and their closed forms) that
-the noise of the worst held-out run alone refuses is checked a second way: its effect as fitted
-on one half of the runs is held fixed, and the base alone is refitted on the *other* half, from
-the control's fit of that half (stage ``transfer-NAME-foldJ``); the reference is the control's
-fit of that half continued by the same Levenberg-Marquardt without an effect (stage
-``control-transfer-foldJ``). Both sides then refit the same 57 parameters on the same runs, and
-the effect's form is the only thing carried from the runs it was fitted on: a stand-in fitted
-to what the runs of one half happen to have (a moment in the speed for a moment that needs the
-wind, which differs from run to run) makes the other half worse. It carries over when the
-summed J falls, more runs get better than worse, and no run gets relatively worse than the null
-allows a catalog effect's held-out run
+makes more held-out runs better than worse but is refused by its held-out runs (by its worst
+run, or by a held-out gain one run's loss keeps below the null's) is checked a second way: its
+effect as fitted on one half of the runs is held fixed, and the base alone is refitted on the
+*other* half, from the control's fit of that half (stage ``transfer-NAME-foldJ``); the reference
+is the control's fit of that half continued by the same Levenberg-Marquardt without an effect
+(stage ``control-transfer-foldJ``). Both sides then refit the same 57 parameters on the same
+runs, and the effect's form is the only thing carried from the runs it was fitted on: a stand-in
+fitted to what the runs of one half happen to have (a moment in the speed for a moment that
+needs the wind, which differs from run to run) makes the other half worse. It carries over when
+the summed J falls, more runs get better than worse, no run gets relatively worse than the null
+allows a catalog effect's held-out run, and the gain on runs the effect was not fitted on beats
+the held-out null in this check or the held-out one
 (:meth:`sweep.diagnose.threshold.AcceptanceNull.transfers`).
 
-A finding tied to heading, position or time gets no transfer check: both halves share how the
-ship's position grows with time along a day's runs, so a shape in x0 stands in for a force that
-builds up in time on both alike (planted build-up, without the library's time terms: the x0
-shape passed the transfer check and the other sessions' check, and left one test run 43 %
-worse). It must still pass the held-out check itself.
+A finding tied to position or time gets no transfer check: both halves share how the ship's
+position grows with time along a day's runs, so a shape in x0 stands in for a force that builds
+up in time on both alike (planted build-up, without the library's time terms: the x0 shape
+passed the transfer check and the other sessions' check, and left one test run 43 % worse). It
+must still pass the held-out check itself. A finding tied to the heading gets the check, and
+still must carry over to another session's runs (:mod:`sweep.diagnose.sessions`).
 
 The procedure is described in the user guide (docs/guide/diagnosis.md).
 """
@@ -44,7 +47,7 @@ from sweep.diagnose.floor import run_of
 from sweep.diagnose.scoring import CandidateScore, generated, heldout_per_window
 from sweep.diagnose.sessions import place_or_time
 from sweep.diagnose.store import stage_label
-from sweep.diagnose.threshold import AcceptanceNull
+from sweep.diagnose.threshold import AcceptanceNull, more_better
 from sweep.diagnose.verdict import carries_to_other_sessions
 
 #: the stages of the reference: the control's fit of each half continued
@@ -54,17 +57,19 @@ TRANSFER = "transfer-"
 
 
 def needs_transfer(ctx: Context, null: AcceptanceNull, threshold: float, c: CandidateScore) -> bool:
-    """Whether a generated candidate passes every condition of acceptance but the limit on its
-    worst held-out run (refined, when the refinement runs): only then can the transfer check
+    """Whether a generated candidate not tied to position or time, which makes more held-out
+    runs better than worse and passes every other condition of acceptance (refined, when the
+    refinement runs), is refused by its held-out runs: by its worst one, or by a held-out gain
+    that a single run's loss can keep below the null's. Only then can the transfer check
     accept it."""
     s = ctx.settings
     return (
         generated(c.effect)
-        and not place_or_time(c.effect)
+        and not place_or_time(c.effect, ("position", "time"))
         and c.refined == (s.refine_top > 0 and s.refine_iterations > 0)
         and c.delta_bic <= threshold
         and c.improvement >= s.min_improvement
-        and null.heldout_ok(c.heldout_gain, c.run_changes)
+        and more_better(c.run_changes)
         and carries_to_other_sessions(null, c)
         and not null.carries_over(c.heldout_gain, c.run_losses, c.run_changes, generated=True)
     )

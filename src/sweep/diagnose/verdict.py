@@ -90,7 +90,10 @@ def decide(
         c.sessions_carry = carries_to_other_sessions(null, c)
         c.carries_over = (
             null.carries_over(c.heldout_gain, c.run_losses, c.run_changes, generated(c.effect))
-            or (c.transfer_checked and null.transfers(c.transfer_gain, c.transfer_run_changes))
+            or (
+                c.transfer_checked
+                and null.transfers(c.transfer_gain, c.transfer_run_changes, c.heldout_gain)
+            )
         ) and c.sessions_carry
         c.accepted = (
             c.refined == refined

@@ -283,7 +283,7 @@ def refine(ctx: Context, base: Fit, cands: Candidates, threshold: float) -> Cand
     first, the others follow unchanged."""
     s = ctx.settings
     leaders = leading(cands.scores, threshold, s.refine_top)
-    if not (s.refine_top > 0 and s.refine_iterations > 0):
+    if not s.refines:
         return replace(cands, leaders=leaders)
     settings = refine_settings(ctx)
     control = fold_fits(ctx, base, "control-refined", (), settings, cands.control.fits)

@@ -1097,18 +1097,21 @@ def _candidates_md(d: Diagnosis) -> list[str]:
 
 
 def _transfer_md(d: Diagnosis) -> list[str]:
-    """The transfer check of the generated candidates refused by their worst held-out run
-    alone (:mod:`sweep.diagnose.transfer`)."""
+    """The transfer check of the generated candidates refused by their held-out runs
+    (:mod:`sweep.diagnose.transfer`)."""
     checked = [c for c in d.candidates if c.transfer_checked]
     if not checked:
         return []
     md = [
         "",
-        "Transfer check (a library term or shape refused by its worst held-out run alone): its "
+        "Transfer check (a library term or shape that makes more held-out runs better than worse "
+        "but is refused by its worst held-out run, or by a held-out gain below the null's): its "
         "effect as fitted on one half of the runs held fixed, the 57 base parameters refitted on "
         "the other half from the control's fit of it, against that fit continued without the "
-        "effect. It carries over when the summed J falls, more runs get better than worse, and "
-        "no run gets worse by more than the limit of a catalog effect's held-out run.",
+        "effect. It carries over when the summed J falls, more runs get better than worse, no "
+        "run gets worse by more than the limit of a catalog effect's held-out run, and the gain "
+        "on runs the effect was not fitted on beats the held-out null here or on the held-out "
+        "runs.",
         "",
         "| effect | J against the control refitted alike | runs better | worst run "
         "| carries over |",

@@ -78,9 +78,10 @@ class CandidateScore:
     #: ... and whether it carries over there (True when not checked)
     sessions_carry: bool = True
     #: the transfer check (:mod:`sweep.diagnose.transfer`; a generated candidate refused by its
-    #: worst held-out run alone): whether it ran, the J it takes off the control's on the runs
-    #: the base was refitted on with the effect held [J] (positive: better), that relative to
-    #: the control's J (negative: better), and per run the relative change
+    #: held-out runs, :func:`~sweep.diagnose.transfer.needs_transfer`): whether it ran, the J it
+    #: takes off the control's on the runs the base was refitted on with the effect held [J]
+    #: (positive: better), that relative to the control's J (negative: better), and per run the
+    #: relative change
     transfer_checked: bool = False
     transfer_gain: float = 0.0
     transfer_change: float = 0.0

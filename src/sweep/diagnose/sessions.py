@@ -38,6 +38,7 @@ from sweep.diagnose.context import Context
 from sweep.diagnose.discover import EXOGENOUS_KINDS
 from sweep.diagnose.fit import Fit
 from sweep.diagnose.scoring import CandidateScore
+from sweep.diagnose.shapes import PLACE_AND_TIME_KINDS
 from sweep.identification.vector import effect_values, with_effects
 
 
@@ -46,16 +47,12 @@ def place_or_time(effect: str, kinds: tuple[str, ...] = EXOGENOUS_KINDS) -> bool
     (``kinds``: the library's term kinds to look for, a subset of those three; a shape's
     variables are matched to them: psi to heading, x0 and y0 to position, t to time)."""
     if effect.startswith(SHAPE_PREFIX):
-        names = {v for k in kinds for v in _SHAPE_VARIABLES[k]}
+        names = {v for k in kinds for v in PLACE_AND_TIME_KINDS[k]}
         return any(g.variable in names or g.multiplier in names for g in parse(effect))
     if effect.startswith(DISCOVERED_PREFIX):
         ids = effect.split(":", 1)[1].split("@", 1)[0].split("+")
         return any(term(i).kind in kinds for i in ids)
     return False
-
-
-#: the shape variables of each kind of :data:`sweep.diagnose.discover.EXOGENOUS_KINDS`
-_SHAPE_VARIABLES = {"heading": ("psi",), "position": ("x0", "y0"), "time": ("t",)}
 
 
 def check_sessions(ctx: Context, base: Fit, cands: Candidates) -> None:

@@ -103,6 +103,12 @@ class DiagnoseSettings:
     #: ``held`` at its value on the boundary of their box, or switched ``off``
     outside: str = "held"
 
+    @property
+    def refines(self) -> bool:
+        """Whether the leading candidates' fold fits are refined
+        (:func:`sweep.diagnose.candidates.refine`)."""
+        return self.refine_top > 0 and self.refine_iterations > 0
+
     def candidate_effects(self) -> tuple[Effect, ...]:
         """The catalog effects to try (``candidates``, or every catalog effect)."""
         names = self.candidates or tuple(sorted(catalog()))

@@ -65,7 +65,8 @@ VARIABLES = (
     "t",
 )
 #: heading, position and time: where and when a run was recorded
-PLACE_AND_TIME = ("psi", "x0", "y0", "t")
+PLACE_AND_TIME_KINDS = {"heading": ("psi",), "position": ("x0", "y0"), "time": ("t",)}
+PLACE_AND_TIME = tuple(v for vs in PLACE_AND_TIME_KINDS.values() for v in vs)
 #: the variables of the ship's state and controls (the default candidates): without heading,
 #: position and time, which describe where and when a run was recorded. A force in them fitted
 #: on one session's runs carries over to its other runs but not to another day's: on the real

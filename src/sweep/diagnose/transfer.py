@@ -66,7 +66,7 @@ def needs_transfer(ctx: Context, null: AcceptanceNull, threshold: float, c: Cand
     return (
         generated(c.effect)
         and not place_or_time(c.effect, ("position", "time"))
-        and c.refined == (s.refine_top > 0 and s.refine_iterations > 0)
+        and c.refined == s.refines
         and c.delta_bic <= threshold
         and c.improvement >= s.min_improvement
         and more_better(c.run_changes)

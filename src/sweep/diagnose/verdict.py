@@ -84,7 +84,7 @@ def decide(
     s = ctx.settings
     threshold = acceptance_threshold(s, null)
     _log_threshold(ctx, null, threshold)
-    refined = s.refine_top > 0 and s.refine_iterations > 0
+    refined = s.refines
     for c in scores:
         c.worst_run_excess = null.run_excess(c.run_losses)
         c.sessions_carry = carries_to_other_sessions(null, c)

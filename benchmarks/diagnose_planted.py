@@ -12,6 +12,7 @@ on the no-effect cases, parameter errors, and the test-set J2 before / after / o
     python benchmarks/diagnose_planted.py [--set twin|unforeseen|all]
         [--cases all|quick|N,M,...|NAME,...] [--repeats R]
         [--base-budget 6000] [--candidate-budget 0] [--final-budget 0] [--base-retry-agreement 0.01]
+        [--rounds 1]
         [--scale 1] [--out DIR] [--results FILE]
         [--weak] [--markdown]
 
@@ -82,8 +83,7 @@ from mmg import Parameters, efd_parameters
 from sweep.data.datasets import data_root
 from sweep.data.objective import Objective
 from sweep.data.recordings import Recording, read_recordings
-from sweep.diagnose.report import remainder
-from sweep.diagnose.run import diagnose
+from sweep.diagnose.run import diagnose_rounds, final_round
 from sweep.diagnose.settings import DiagnoseSettings
 
 KINDS = ("random", "turning", "zigzag", "berthing")
@@ -382,8 +382,12 @@ def run_case(
     blind_train = read_recordings(case_dir / "train")
     blind_test = read_recordings(case_dir / "test")
     t0 = time.perf_counter()
-    d = diagnose(efd_parameters(), blind_train, blind_test, case_dir / "diagnosis", settings)
+    rounds = diagnose_rounds(
+        efd_parameters(), blind_train, blind_test, case_dir / "diagnosis", settings
+    )
     seconds = time.perf_counter() - t0
+    # the verdict and candidates are the first round's; the model after is the final one
+    d, last = rounds[0], final_round(rounds)
     truth = true_model(ship, spec)
     J_true = float(Objective(blind_test, "J2", effects=truth[1]).evaluate(truth[0])[0])
     errors: dict[str, float] = {}
@@ -406,16 +410,18 @@ def run_case(
         "correct": names_family(d.verdict, spec.family),
         "diverged_truth": diverged,
         "candidates": [asdict(c) for c in d.candidates],
-        "after_effect_params": {n: dict(v) for n, v in d.after.params.effects},
+        "after_effect_params": {n: dict(v) for n, v in last.after.params.effects},
         "param_errors": errors,
         "J2_test_before": d.test_before["J2"]["Total"],
-        "J2_test_after": d.test_after["J2"]["Total"],
+        "J2_test_after": last.test_after["J2"]["Total"],
         # the finding acting beyond the box of the training states too (as found, unbounded)
-        "J2_test_after_unbounded": (d.test_unbounded.get("J2") or d.test_after["J2"])["Total"],
+        "J2_test_after_unbounded": (last.test_unbounded.get("J2") or last.test_after["J2"])[
+            "Total"
+        ],
         "J2_test_true": J_true,
         # per test recording, for the harm count
         "J2_test_before_table": d.test_before["J2"],
-        "J2_test_after_table": d.test_after["J2"],
+        "J2_test_after_table": last.test_after["J2"],
         "J2_base_fit": d.base.f,
         # the base's two routes' ends and the second start's (when it ran)
         "base_retry": d.extra.get("base_retry"),
@@ -427,12 +433,23 @@ def run_case(
         # the report says more is missing than the finding: the model after is still above the
         # floor on the training windows, or still significant on the test recordings
         "more_missing": bool(
-            d.verdict_effect
+            last.verdict_effect
             and (
-                bool((remainder(d) or {}).get("significant"))
-                or bool(d.generalisation_after and d.generalisation_after.significant)
+                last.more_missing
+                or bool(last.generalisation_after and last.generalisation_after.significant)
             )
         ),
+        # each round's verdict, finding and test J2 after (the first round's J2 before)
+        "rounds": [
+            {
+                "verdict": r.verdict,
+                "finding": r.verdict_effect,
+                "J2_train_after": float(r.after.f),
+                "more_missing": r.more_missing,
+                "J2_test_after": r.test_after["J2"]["Total"],
+            }
+            for r in rounds
+        ],
         "proposed_terms": d.proposal.terms if d.proposal else [],
         "noise_phi": NOISE_PHI.get(index, 0.0) if phi is None else phi,
         "seconds": seconds,
@@ -715,6 +732,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         default=DiagnoseSettings.base_retry_agreement,
         help="0: the second base start runs whenever the misfit is significant",
     )
+    ap.add_argument(
+        "--rounds",
+        type=int,
+        default=DiagnoseSettings.rounds,
+        help="diagnoses in all per case (a further round when a finding leaves the training "
+        "windows above the floor; the case's model after is the last round's with a finding)",
+    )
     ap.add_argument("--out", default="benchmarks/out/diagnose")
     ap.add_argument(
         "--results",
@@ -822,6 +846,7 @@ def main(argv: list[str] | None = None) -> int:
         candidate_budget=args.candidate_budget,
         final_budget=args.final_budget,
         base_retry_agreement=args.base_retry_agreement,
+        rounds=args.rounds,
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -992,8 +992,9 @@ class PlantedSpec:
 
     @property
     def family(self) -> str:
-        """The catalog family the diagnosis should name for this form (:data:`FAMILY`)."""
-        return FAMILY[self.form]
+        """The catalog family the diagnosis should name for this form (:data:`FAMILY`; of a
+        form ``a+b``, ``family(a)+family(b)``)."""
+        return "+".join(FAMILY[f] for f in self.form.split("+"))
 
     @property
     def expected(self) -> str:
@@ -1059,7 +1060,13 @@ def _controls(win: Window, spec: PlantedSpec) -> np.ndarray:
 
 
 def truth_effects(spec: PlantedSpec) -> tuple[tuple[Effect, ...], Parameters | None]:
-    """(effects for the simulator, and a Parameters template carrying their values)."""
+    """(effects for the simulator, and a Parameters template carrying their values). A form
+    ``a+b`` plants the forms a and b at once (their parameters' values from one ``values``)."""
+    if "+" in spec.form:
+        parts = [truth_effects(PlantedSpec(f, spec.values)) for f in spec.form.split("+")]
+        effects = tuple(e for es, _ in parts for e in es)
+        carried = tuple(v for _, t in parts if t is not None for v in t.effects)
+        return effects, Parameters(efd_parameters().theta, effects=carried)
     if spec.form in ("none", "delay"):
         return (), None
     if spec.form == "heading_only":

@@ -20,6 +20,7 @@ from benchmarks.planted import (
 )
 
 from mmg import efd_parameters
+from sweep.data.parameters import load_parameters
 from sweep.data.recordings import read_recordings
 from sweep.diagnose.__main__ import main
 from sweep.diagnose.base import routes_agree
@@ -187,6 +188,48 @@ def test_no_planted_effect_gives_verdict_none(runs, tmp_path):
     assert report["fitted_effect_params"] == {}
     gen = report["generalisation"]
     assert gen is not None and not gen["significant"] and gen["J"] < gen["limit"]
+
+
+@pytest.mark.integration  # a planted case, end to end
+@pytest.mark.kernels(
+    *kernels(("rudder_offset",), "simulate", "moments"),
+    *kernels(("heading_bias",), "simulate", "moments"),
+)
+def test_a_finding_that_leaves_more_missing_is_followed_by_a_second_round(runs, tmp_path, capsys):
+    """A heading bias and a rudder zero error planted together: the first round names one and
+    finds the training windows still above the floor with it, so a second round diagnoses the
+    model with it (held at its values) and names the other; the final model carries both."""
+    case = tmp_path / "case"
+    values = {"b_psi": 0.02, "b_v": 0.0, "delta_0": 0.08}
+    _case(runs, PlantedSpec("heading_bias+rudder_offset", values), case)
+    out = tmp_path / "out"
+    args = ("--no-tracking", "--no-discovery", "--no-shapes", "--rounds", "2")
+    assert _diagnose(case, out, *args, "--candidates", "rudder_offset,heading_bias") == 0
+    first = json.loads((out / "report.json").read_text())
+    second = json.loads((out / "round-2" / "report.json").read_text())
+    assert first["remainder"]["significant"]
+    assert {first["verdict"], second["verdict"]} == {"heading_bias", "rudder_offset"}
+    held = second["held_findings"]
+    assert len(held) == 1 and held[0].startswith(first["finding"] + "@fixed(")
+    assert [r["verdict"] for r in first["rounds"]] == [first["verdict"], second["verdict"]]
+    # the second round's base carries the first finding at the values it was found with
+    assert list(second["params_before"]["effects"]) == held
+    final = load_parameters(str(out / "round-2" / "params_after.json"))
+    assert [n for n, _ in final.effects] == [held[0], second["finding"]]
+    J = [first["J_before"]["J2"]["Total"], first["J_after"]["J2"]["Total"]]
+    J.append(second["J_after"]["J2"]["Total"])
+    assert J[2] < J[1] < J[0]
+    printed = capsys.readouterr().out
+    assert "round 2: " in printed and "final model: " in printed
+    md = (out / "report.md").read_text()
+    assert "## Rounds" in md and "(round-2/report.md)" in md
+    # the final model evaluates with both effects through the evaluate command
+    from sweep.evaluate import run as evaluate_run
+
+    table = evaluate_run(
+        ["--params", str(out / "round-2" / "params_after.json"), "--recordings", str(case / "test")]
+    )
+    assert table["J2"]["Total"] == pytest.approx(J[2], rel=1e-9)
 
 
 @pytest.mark.integration  # a planted case, end to end

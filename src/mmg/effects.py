@@ -9,7 +9,7 @@ an effect is and its hooks: :mod:`mmg.effect`.
 
 from __future__ import annotations
 
-from mmg import discovered, domain, shapes
+from mmg import discovered, domain, fixed, shapes
 from mmg.catalog import EFFECTS as _CATALOG_EFFECTS
 from mmg.effect import DISCOVERED_PREFIX, Effect
 
@@ -30,11 +30,14 @@ def get_effect(name: str) -> Effect:
     built from the term library on first use, in any process, so that parameter files carrying
     it load everywhere. A name ``shape:<group>+<group>...`` is a shape effect (:mod:`mmg.shapes`),
     built from its spec likewise. A name ``<effect>@held(<box>)`` or ``<effect>@off(<box>)`` is
-    that effect restricted to a box of states (:mod:`mmg.domain`), built alike.
+    that effect restricted to a box of states (:mod:`mmg.domain`), built alike; a name
+    ``<effect>@fixed(<values>)`` is that effect held at the values (:mod:`mmg.fixed`).
     """
     if name in _REGISTRY:
         return _REGISTRY[name]
     try:
+        if fixed.split_name(name)[1] is not None:  # <effect>@fixed(...): mmg.fixed
+            return fixed.by_name(name, get_effect)
         inner, box = domain.split_name(name)  # <effect>@held(...): mmg.domain
         if box is not None:
             return domain.within(get_effect(inner), box)

@@ -28,12 +28,13 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from mmg import catalog
 from sweep.data.datasets import CONF_DIR, DataNotFoundError, SplitError, load_split
 from sweep.data.parameters import load_parameters
 from sweep.data.recordings import Recording, read_recordings
-from sweep.diagnose.run import diagnose
+from sweep.diagnose.run import ROUND_DIR, diagnose_rounds, final_round
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.errors import UserError, command_status
 
@@ -124,6 +125,14 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         help="do not learn the shape of the missing force as a candidate",
     )
     ap.add_argument(
+        "--rounds",
+        type=int,
+        default=d.rounds,
+        help="diagnoses in all: while a finding leaves the training windows above the noise "
+        "floor, the next round diagnoses the model with it, held at its values, in "
+        "DIR/round-K (default %(default)s: one diagnosis)",
+    )
+    ap.add_argument(
         "--outside",
         choices=("held", "off"),
         default=d.outside,
@@ -167,7 +176,7 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     return ap.parse_args(argv)
 
 
-def run(argv: Sequence[str] | None = None) -> dict[str, object]:
+def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """Read the recordings and parameters the command line names, diagnose, write the report;
     returns the report's JSON object. User mistakes raise :class:`~sweep.errors.UserError`."""
     args = parse(argv)
@@ -185,6 +194,8 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
             raise UserError(
                 f"{flag} must be 0 (refinement only) or at least 20 evaluations (one generation)"
             )
+    if args.rounds < 1:
+        raise UserError(f"--rounds must be >= 1; got {args.rounds}")
     if args.discover_terms < 1:
         raise UserError(f"--discover-terms must be >= 1; got {args.discover_terms}")
     if not 0.0 < args.alpha < 1.0:
@@ -215,6 +226,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
         min_improvement=args.min_improvement,
         outside=args.outside,
         shapes=not args.no_shapes,
+        rounds=args.rounds,
         shape_variables=_shape_variables(args.shape_variables),
         max_delta_bic=args.max_delta_bic,
         prior_weight=args.prior_weight,
@@ -225,14 +237,23 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
     )
     out = Path(args.out)
     try:
-        result = diagnose(start, train, test, out, settings, test_labels=labels)
+        rounds = diagnose_rounds(start, train, test, out, settings, test_labels=labels)
     except ValueError as exc:  # too little data, recordings of different steps
         raise UserError(str(exc)) from None
     from sweep.diagnose.report import write_report
 
-    report = write_report(result, test, out)
-    print(report["statement"])
-    print(f"report: {out / 'report.md'}")
+    result = rounds[0]
+    report: dict[str, Any] = {}
+    for k, r in enumerate(rounds, start=1):
+        where = out if k == 1 else out / ROUND_DIR.format(k=k)
+        written = write_report(r, test, where, rounds)
+        report = report or written
+        print(("" if len(rounds) == 1 else f"round {k}: ") + str(written["statement"]))
+        print(f"report: {where / 'report.md'}")
+    if len(rounds) > 1:
+        last = final_round(rounds)
+        where = out if last is result else out / ROUND_DIR.format(k=rounds.index(last) + 1)
+        print(f"final model: {where / 'params_after.json'}")
     if not args.no_tracking:
         from sweep.service.tracking import MlflowTracker, default_tracking_uri
 
@@ -256,6 +277,10 @@ def run(argv: Sequence[str] | None = None) -> dict[str, object]:
             metrics["harm/harmed_subsets"] = float(len(harm["harmed_subsets"]))
             metrics["harm/total_change"] = harm["total_change"]
         metrics["departures"] = float(len({d.recording for d in result.departures}))
+        metrics["rounds"] = float(len(rounds))
+        for J, row in final_round(rounds).test_after.items():  # the final model's
+            for label, value in row.items():
+                metrics[f"final_test_after/{J}/{label}"[:250]] = value
         if result.misfit is not None:
             metrics["misfit/ratio_to_floor"] = result.misfit.ratio
             metrics["misfit/z"] = result.misfit.z

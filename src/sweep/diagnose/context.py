@@ -11,7 +11,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from mmg import Effect, Parameters
+from mmg import Effect, Parameters, get_effect
+from mmg.fixed import fixed
 from mmg.params import N_THETA
 from sweep.data.recordings import Recording
 from sweep.diagnose.fit import Fit, FitSettings, fit
@@ -20,6 +21,7 @@ from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.store import StageStore, data_fingerprint
 from sweep.diagnose.windows import cut_windows, split_sessions, split_windows
 from sweep.identification.polish import PolishSettings
+from sweep.identification.vector import effect_values, with_effects
 
 #: where the diagnosis reports its progress: one line per call
 Log = Callable[[str], None]
@@ -44,6 +46,19 @@ def progress(log: Log, label: str, every: float = 10.0) -> Any:
             )
 
     return show
+
+
+def held_start(start: Parameters) -> Parameters:
+    """``start`` with each effect it carries held at its values (:func:`mmg.fixed.fixed`): a
+    model that carries findings is diagnosed for what is missing beyond them (its base
+    parameters are refitted around them, the findings stay as they are)."""
+    held = []
+    for name, values in start.effects:
+        eff = get_effect(name)
+        if eff.params:
+            eff = fixed(eff, dict(values))
+        held.append((eff.name, ()))
+    return Parameters(start.theta, start.ship, tuple(held))
 
 
 @dataclass(frozen=True)
@@ -75,6 +90,17 @@ class Context:
     dof: dict[str, float] = field(default_factory=dict)
     starts: dict[str, list[float]] = field(default_factory=dict)
 
+    @property
+    def base_effects(self) -> tuple[Effect, ...]:
+        """The effects the model of ``start`` carries, held at its values (:func:`held_start`):
+        part of every model the diagnosis fits."""
+        return tuple(get_effect(n) for n, _ in self.start.effects)
+
+    def with_base(self, effs: Sequence[Effect]) -> tuple[Effect, ...]:
+        """``effs`` after the effects the base model carries (:attr:`base_effects`)."""
+        names = {e.name for e in effs}
+        return (*(e for e in self.base_effects if e.name not in names), *effs)
+
     def parameter_count(self, effect: Effect) -> float:
         """The parameters an effect counts in dBIC: its effective degrees of freedom when it has
         a penalty, else its number of parameters."""
@@ -92,6 +118,7 @@ class Context:
         log: Log,
     ) -> Context:
         """Cut and split the training windows and open the stage store under ``out/stages``."""
+        start = held_start(start)
         windows = cut_windows(train)
         fit_w, held_w = split_windows(windows)
         log(
@@ -145,16 +172,19 @@ class Context:
         label: str,
     ) -> Fit:
         """Every fit of the diagnosis: from ``p0`` on ``recs``; its refinement's prior is
-        centred on the start (``--params``). An effect with a penalty (a learned shape) is
-        fitted with it, by Levenberg-Marquardt from its values in ``p0`` (no effect-only
-        search)."""
+        centred on the start (``--params``). The effects the base carries
+        (:attr:`base_effects`) come first, held at their values. An effect with a penalty (a
+        learned shape) is fitted with it, by Levenberg-Marquardt from its values in ``p0`` (no
+        effect-only search)."""
         penalised = [self.penalties[e.name] for e in effs if e.name in self.penalties]
         if penalised and len(effs) == 1:
             settings = replace(settings, penalty=penalised[0], effect_only_budget=0)
+        every = self.with_base(effs)
+        p0 = with_effects(p0, every, effect_values(p0, every))
         return fit(
             recs,
             p0,
-            effs,
+            every,
             settings,
             self.settings.workers,
             progress(self.log, label),

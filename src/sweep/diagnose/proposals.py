@@ -82,5 +82,5 @@ def propose(ctx: Context, params: Parameters, cal: Calibration) -> Proposals:
         if proposed:
             half = [max(4.0 * abs(c), 1e-6) for c in trajectory.coefficients]
             _add(effects, with_bounds(discovered_effect(trajectory.terms), half, trajectory.shapes))
-    precompile(tasks((e,) for e in effects), log=ctx.log)
+    precompile(tasks(ctx.with_base((e,)) for e in effects), log=ctx.log)
     return Proposals(proposal, trajectory, tuple(effects))

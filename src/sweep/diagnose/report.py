@@ -18,10 +18,9 @@ import pandas as pd
 from mmg import Parameters, get_effect, simulate_batch
 from mmg.shapes import is_closed_form
 from sweep.data.recordings import Recording
-from sweep.diagnose.floor import above_floor
 from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
-from sweep.diagnose.run import Diagnosis
+from sweep.diagnose.run import ROUND_DIR, Diagnosis
 from sweep.diagnose.scoring import CandidateScore, shape_and_form
 from sweep.diagnose.shapes import PLACE_AND_TIME
 
@@ -72,7 +71,7 @@ def remainder(d: Diagnosis) -> dict[str, Any] | None:
         "J": J,
         "ratio": J / m.floor,
         "z": z,
-        "significant": above_floor(J, m.floor, z, m.margin, m.z_crit),
+        "significant": d.more_missing,
         # the share of the base's excess over the floor the finding takes away (None: no excess)
         "share_of_excess": (m.J - J) / (m.J - m.floor) if m.floor < m.J else None,
     }
@@ -1267,15 +1266,98 @@ def _procedure_md(d: Diagnosis) -> list[str]:
     ]
 
 
-def report_md(
-    d: Diagnosis, statement_text: str, test: Sequence[Recording], view: dict[str, Any]
-) -> str:
-    """The text of ``report.md``: the verdict's ``statement_text``, then one section per stage."""
+def held_findings(d: Diagnosis) -> list[str]:
+    """The names of the effects the diagnosed model carries, held at their values (a later
+    round's earlier findings, or the effects of ``--params``)."""
+    return [n for n, _ in d.base.params.effects]
+
+
+def rounds_dict(rounds: Sequence[Diagnosis]) -> list[dict[str, Any]]:
+    """Each round's verdict, finding, the model after on the training windows (J, against the
+    floor) and the test recordings' J total before and after."""
+    rows = []
+    for k, r in enumerate(rounds, start=1):
+        m = r.misfit
+        rows.append(
+            {
+                "round": k,
+                "dir": "." if k == 1 else ROUND_DIR.format(k=k),
+                "verdict": r.verdict,
+                "finding": r.finding_name,
+                "J_train_after": float(r.after.f),
+                "floor": m.floor if m is not None else None,
+                "more_missing": r.more_missing,
+                "J_test_before": {J: t.get("Total") for J, t in r.test_before.items()},
+                "J_test_after": {J: t.get("Total") for J, t in r.test_after.items()},
+            }
+        )
+    return rows
+
+
+def rounds_md(rounds: Sequence[Diagnosis], here: int) -> list[str]:
+    """The section on the diagnosis's rounds, in the report of round ``here`` (1-based)."""
+    if len(rounds) < 2:
+        return []
+    obj = rounds[0].settings.objective
     md = [
-        "# Diagnosis report",
+        "## Rounds",
+        "",
+        "A finding that leaves the training windows above the noise floor is followed by another "
+        "round: the model with the finding (held at its values, the base parameters refitted "
+        "around it) is diagnosed for what is missing beyond it. The final model is the last "
+        "round's with a finding.",
+        "",
+        f"| round | verdict | finding | training {obj} after (noise floor) | test {obj} before "
+        "-> after | report |",
+        "|---:|---|---|---|---|---|",
+    ]
+    for row in rounds_dict(rounds):
+        k = row["round"]
+        floor = f" ({row['floor']:.3g})" if row["floor"] is not None else ""
+        tb, ta = row["J_test_before"].get(obj), row["J_test_after"].get(obj)
+        test = f"{tb:.4g} -> {ta:.4g}" if tb is not None and ta is not None else "-"
+        up = "" if here == 1 else "../"
+        link = (
+            "this one"
+            if k == here
+            else f"[report]({up}{'' if k == 1 else row['dir'] + '/'}report.md)"
+        )
+        finding = f"`{row['finding']}`" if row["finding"] else "-"
+        md.append(
+            f"| {k} | `{row['verdict']}` | {finding} | {row['J_train_after']:.4g}{floor} | "
+            f"{test} | {link} |"
+        )
+    return [*md, ""]
+
+
+def report_md(
+    d: Diagnosis,
+    statement_text: str,
+    test: Sequence[Recording],
+    view: dict[str, Any],
+    rounds: Sequence[Diagnosis] = (),
+) -> str:
+    """The text of ``report.md``: the verdict's ``statement_text``, the rounds (when there were
+    several), then one section per stage."""
+    held = held_findings(d)
+    carries = (
+        [
+            "The model diagnosed carries "
+            + ", ".join(f"`{n}`" for n in held)
+            + ": held at its values, its base parameters refitted around it.",
+            "",
+        ]
+        if held
+        else []
+    )
+    here = next((k for k, r in enumerate(rounds, start=1) if r is d), 1)
+    md = [
+        "# Diagnosis report" + (f", round {here}" if len(rounds) > 1 else ""),
         "",
         f"**Verdict: `{d.verdict}`.** {statement_text}",
         "",
+        *carries,
+        *rounds_md(rounds, here),
         *_misfit_md(d),
         *_generalisation_md(d),
         "## Discovery: equation-level residuals regressed on the term library",
@@ -1299,11 +1381,17 @@ def report_md(
     return "\n".join(md)
 
 
-def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str, Any]:
+def write_report(
+    d: Diagnosis, test: Sequence[Recording], out: Path, rounds: Sequence[Diagnosis] = ()
+) -> dict[str, Any]:
     """Write report.json, report.md, the parameter files and the plots into ``out``; returns
-    the report dict (with the figures' file names)."""
+    the report dict (with the figures' file names). ``rounds``: every round of the diagnosis
+    ``d`` is one of (:func:`sweep.diagnose.run.diagnose_rounds`), shown in each report."""
     out.mkdir(parents=True, exist_ok=True)
     data = report_dict(d)
+    data["held_findings"] = held_findings(d)
+    if len(rounds) > 1:
+        data["rounds"] = rounds_dict(rounds)
     (out / "report.json").write_text(json.dumps(data, indent=2, default=float) + "\n")
     d.before.params.save_json(out / "params_before.json", stage="base model, re-identified")
     d.after.params.save_json(
@@ -1311,6 +1399,6 @@ def write_report(d: Diagnosis, test: Sequence[Recording], out: Path) -> dict[str
     )
     view = d.proposal.extra.get("regression", {}) if d.proposal is not None else {}
     figures = write_figures(d, test, out, view)
-    (out / "report.md").write_text(report_md(d, data["statement"], test, view))
+    (out / "report.md").write_text(report_md(d, data["statement"], test, view, rounds))
     data["figures"] = figures
     return data

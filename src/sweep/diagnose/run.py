@@ -38,7 +38,7 @@ from sweep.diagnose.context import Context, Log, stderr_log
 from sweep.diagnose.discover import Proposal
 from sweep.diagnose.final import reidentify
 from sweep.diagnose.fit import Fit
-from sweep.diagnose.floor import MisfitTest
+from sweep.diagnose.floor import MisfitTest, above_floor
 from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.location import Location, locate_misfit
 from sweep.diagnose.proposals import Proposals, propose
@@ -112,6 +112,16 @@ class Diagnosis:
         return dict(next((v for n, v in self.after.params.effects if n == name), ()))
 
     @property
+    def more_missing(self) -> bool:
+        """Whether the model with the finding is still above the noise floor on the training
+        windows (the misfit test's floor and rule; False without a finding)."""
+        m = self.misfit
+        if m is None or not self.verdict_effect:
+            return False
+        J = float(self.after.f)
+        return above_floor(J, m.floor, (J - m.floor) / m.floor_sd, m.margin, m.z_crit)
+
+    @property
     def chosen(self) -> CandidateScore | None:
         """The chosen candidate's score (None when nothing was chosen)."""
         name = self.verdict_effect or self.verdict
@@ -142,6 +152,49 @@ def diagnose(
         return run_stages(ctx, t0)
 
 
+#: the directory of round K (K > 1) of :func:`diagnose_rounds`, below the first round's
+ROUND_DIR = "round-{k}"
+
+
+def diagnose_rounds(
+    start: Parameters,
+    train: Sequence[Recording],
+    test: Sequence[Recording],
+    out: Path,
+    settings: DiagnoseSettings | None = None,
+    test_labels: Sequence[str] | None = None,
+    log: Log = stderr_log,
+) -> list[Diagnosis]:
+    """:func:`diagnose` in rounds: while the last round's finding leaves the training windows
+    above the noise floor (:attr:`Diagnosis.more_missing`) and ``settings.rounds`` allows, the
+    next round diagnoses the model with the finding (its ``after``), the finding held at its
+    values and the base parameters refitted around it (:func:`sweep.diagnose.context.held_start`),
+    in ``out/round-K``. The test recordings take no part in the decision. Returns the rounds'
+    diagnoses; the last one with a finding holds the final model (:func:`final_round`)."""
+    s = settings or DiagnoseSettings()
+    rounds = [diagnose(start, train, test, out, s, test_labels, log)]
+    while len(rounds) < s.rounds and rounds[-1].more_missing:
+        k = len(rounds) + 1
+        last = rounds[-1]
+        log(
+            f"round {k}: the model with {last.verdict_effect} is still above the noise floor on "
+            f"the training windows (J {last.after.f:.4g}); what is missing beyond it, the finding "
+            f"held at its values -> {out / ROUND_DIR.format(k=k)}"
+        )
+        rounds.append(
+            diagnose(
+                last.after.params, train, test, out / ROUND_DIR.format(k=k), s, test_labels, log
+            )
+        )
+    return rounds
+
+
+def final_round(rounds: Sequence[Diagnosis]) -> Diagnosis:
+    """The round whose model after is the final model: the last one that accepted a finding
+    (the first round when none did)."""
+    return next((d for d in reversed(rounds) if d.verdict_effect), rounds[0])
+
+
 class StageClock:
     """Wall time per stage [s], logged as one line at the end."""
 
@@ -166,8 +219,8 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
     # the kernels of the base model and of every catalog effect, compiled side by side where
     # the cache lacks them (one after another as the stages reach them took minutes)
     precompile(
-        tasks([()], ("simulate", "moments", "derivatives"))
-        + tasks((e,) for e in s.candidate_effects()),
+        tasks([ctx.base_effects], ("simulate", "moments", "derivatives"))
+        + tasks(ctx.with_base((e,)) for e in s.candidate_effects()),
         log=ctx.log,
     )
     clock.lap("compilation")
@@ -185,7 +238,8 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
         extra = (*extra, shape.effect)
         named = () if shape.form is None else (shape.form,)
         extra = (*extra, *named)
-        precompile(tasks([(shape.effect,), *((e,) for e in named)]), log=ctx.log)
+        sets = [ctx.with_base((shape.effect,)), *(ctx.with_base((e,)) for e in named)]
+        precompile(tasks(sets), log=ctx.log)
     clock.lap("shapes")
     threshold = acceptance_threshold(s, cal.null)
     cands = refine(ctx, base, fit_candidates(ctx, base, extra), threshold)

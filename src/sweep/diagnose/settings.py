@@ -93,6 +93,13 @@ class DiagnoseSettings:
     base_retry_agreement: float = 0.01
     #: learn the shape of the missing force (:mod:`sweep.diagnose.shaping`) as one more candidate
     shapes: bool = True
+    #: diagnoses in all: while a finding leaves the training windows above the noise floor,
+    #: the next round diagnoses the model with it, held at its values (:func:`diagnose_rounds
+    #: <sweep.diagnose.run.diagnose_rounds>`); 1: one diagnosis. On the three planted cases
+    #: whose finding left the training windows above the floor, a second round accepted
+    #: nothing, at 8-18 minutes each (most of it compiling the kernels of the model with the
+    #: held finding): off by default
+    rounds: int = 1
     #: noise-only copies of the shape selection's null
     shape_null_draws: int = 40
     #: the variables shapes may depend on (empty: all of them when the training runs come from
@@ -132,6 +139,7 @@ class DiagnoseSettings:
             "generalisation_margin",
             "outside",  # (the test stage only)
             "shapes",  # (the shape only adds a candidate, with stages of its own)
+            "rounds",  # (a further round stores its stages in a directory of its own)
             "shape_null_draws",
             "shape_variables",
         )

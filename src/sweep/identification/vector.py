@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mmg import Effect, Parameters, bounds
+from mmg import Effect, Parameters, bounds, get_effect
 from mmg.params import N_THETA
 from sweep.identification.cmaes import Box
 
@@ -30,9 +30,14 @@ def with_effects(
     """``base`` carrying ``effects`` with the given values in kernel order (neutral if None).
 
     ``values``: (k,) the effects' parameter values, k = the total number of their parameters,
-    each in its parameter's unit; the base's own effect values are replaced.
+    each in its parameter's unit; the base's own effect values are replaced, except those of
+    its effects held at given values (:mod:`mmg.fixed`: part of the model, no parameters to
+    fit), which stay first unless ``effects`` lists them.
     """
-    out: list[tuple[str, tuple[tuple[str, float], ...]]] = []
+    names = {e.name for e in effects}
+    out: list[tuple[str, tuple[tuple[str, float], ...]]] = [
+        (n, v) for n, v in base.effects if not v and n not in names and not get_effect(n).params
+    ]
     i = 0
     for eff in effects:
         k = len(eff.params)

@@ -386,6 +386,8 @@ def test_user_mistakes_are_one_line_errors(runs, tmp_path, capsys):
     assert "--base-descent must be >= 0" in capsys.readouterr().err
     assert _diagnose(case, tmp_path / "o1", "--base-retry-agreement", "-0.1") == 2
     assert "--base-retry-agreement must be >= 0" in capsys.readouterr().err
+    assert _diagnose(case, tmp_path / "o1", "--rounds", "0") == 2
+    assert "--rounds must be >= 1" in capsys.readouterr().err
     one = tmp_path / "one"
     one.mkdir()
     first = sorted((case / "train").iterdir())[0]

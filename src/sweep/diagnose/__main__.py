@@ -34,7 +34,7 @@ from mmg import catalog
 from sweep.data.datasets import CONF_DIR, DataNotFoundError, SplitError, load_split
 from sweep.data.parameters import load_parameters
 from sweep.data.recordings import Recording, read_recordings
-from sweep.diagnose.run import ROUND_DIR, diagnose_rounds, final_round
+from sweep.diagnose.run import ROUND_DIR, Diagnosis, diagnose_rounds, final_round
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.errors import UserError, command_status
 
@@ -176,10 +176,9 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     return ap.parse_args(argv)
 
 
-def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    """Read the recordings and parameters the command line names, diagnose, write the report;
-    returns the report's JSON object. User mistakes raise :class:`~sweep.errors.UserError`."""
-    args = parse(argv)
+def _checked(args: argparse.Namespace) -> tuple[str, ...]:
+    """The ``--candidates`` names, after checking every option a user can get wrong; raises
+    :class:`~sweep.errors.UserError`."""
     known = catalog()
     names = tuple(n.strip() for n in args.candidates.split(",") if n.strip())
     unknown = [n for n in names if n not in known]
@@ -208,6 +207,14 @@ def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
         raise UserError(f"--prior-weight must be >= 0; got {args.prior_weight}")
     if not args.final_prior_weight >= 0.0:
         raise UserError(f"--final-prior-weight must be >= 0; got {args.final_prior_weight}")
+    return names
+
+
+def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    """Read the recordings and parameters the command line names, diagnose, write the report;
+    returns the report's JSON object. User mistakes raise :class:`~sweep.errors.UserError`."""
+    args = parse(argv)
+    names = _checked(args)
     start = load_parameters(args.params)
     train, _ = _recordings(args.train, "--train", "train", args.data_dir)
     test: list[Recording] = []
@@ -242,7 +249,6 @@ def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
         raise UserError(str(exc)) from None
     from sweep.diagnose.report import write_report
 
-    result = rounds[0]
     report: dict[str, Any] = {}
     for k, r in enumerate(rounds, start=1):
         where = out if k == 1 else out / ROUND_DIR.format(k=k)
@@ -251,54 +257,63 @@ def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
         print(("" if len(rounds) == 1 else f"round {k}: ") + str(written["statement"]))
         print(f"report: {where / 'report.md'}")
     if len(rounds) > 1:
-        last = final_round(rounds)
-        where = out if last is result else out / ROUND_DIR.format(k=rounds.index(last) + 1)
+        k = rounds.index(final_round(rounds)) + 1
+        where = out if k == 1 else out / ROUND_DIR.format(k=k)
         print(f"final model: {where / 'params_after.json'}")
     if not args.no_tracking:
-        from sweep.service.tracking import MlflowTracker, default_tracking_uri
-
-        uri = args.tracking_uri or default_tracking_uri()
-
-        def key(effect: str) -> str:  # a generated effect's name lists terms: not a metric name
-            return "discovered" if effect.startswith("discovered:") else effect
-
-        metrics = {f"improvement/{key(c.effect)}": c.improvement for c in result.candidates}
-        metrics.update(
-            {
-                f"delta_bic/{key(c.effect)}": c.delta_bic
-                for c in result.candidates
-                if c.delta_bic == c.delta_bic and abs(c.delta_bic) < float("inf")
-            }
-        )
-        metrics.update({f"heldout_gain/{key(c.effect)}": c.heldout_gain for c in result.candidates})
-        harm = report.get("harm")
-        if harm:
-            metrics["harm/harmful"] = float(harm["harmful"])
-            metrics["harm/harmed_subsets"] = float(len(harm["harmed_subsets"]))
-            metrics["harm/total_change"] = harm["total_change"]
-        metrics["departures"] = float(len({d.recording for d in result.departures}))
-        metrics["rounds"] = float(len(rounds))
-        for J, row in final_round(rounds).test_after.items():  # the final model's
-            for label, value in row.items():
-                metrics[f"final_test_after/{J}/{label}"[:250]] = value
-        if result.misfit is not None:
-            metrics["misfit/ratio_to_floor"] = result.misfit.ratio
-            metrics["misfit/z"] = result.misfit.z
-        if result.generalisation is not None:
-            metrics["generalisation/ratio_to_median"] = result.generalisation.ratio
-            metrics["generalisation/significant"] = float(result.generalisation.significant)
-        for when, table in (("before", result.test_before), ("after", result.test_after)):
-            for J, row in table.items():
-                for label, value in row.items():
-                    metrics[f"test_{when}/{J}/{label}"[:250]] = value
-        params = {k: v for k, v in vars(args).items() if k not in ("train", "test")}
-        params["train"] = " ".join(args.train)
-        params["test"] = " ".join(args.test)
-        rid = MlflowTracker(uri, args.experiment).log_diagnosis(
-            f"diagnose-{out.name}", params, metrics, {"verdict": result.verdict}, out
-        )
-        print(f"MLflow run {rid} in {uri} (experiment {args.experiment})")
+        _track(args, rounds, report, out)
     return report
+
+
+def _track(
+    args: argparse.Namespace, rounds: Sequence[Diagnosis], report: dict[str, Any], out: Path
+) -> None:
+    """One MLflow run of the diagnosis: the first round's candidates, harm, misfit and test
+    tables, and the final model's test table."""
+    from sweep.service.tracking import MlflowTracker, default_tracking_uri
+
+    result = rounds[0]
+    uri = args.tracking_uri or default_tracking_uri()
+
+    def key(effect: str) -> str:  # a generated effect's name lists terms: not a metric name
+        return "discovered" if effect.startswith("discovered:") else effect
+
+    metrics = {f"improvement/{key(c.effect)}": c.improvement for c in result.candidates}
+    metrics.update(
+        {
+            f"delta_bic/{key(c.effect)}": c.delta_bic
+            for c in result.candidates
+            if c.delta_bic == c.delta_bic and abs(c.delta_bic) < float("inf")
+        }
+    )
+    metrics.update({f"heldout_gain/{key(c.effect)}": c.heldout_gain for c in result.candidates})
+    harm = report.get("harm")
+    if harm:
+        metrics["harm/harmful"] = float(harm["harmful"])
+        metrics["harm/harmed_subsets"] = float(len(harm["harmed_subsets"]))
+        metrics["harm/total_change"] = harm["total_change"]
+    metrics["departures"] = float(len({d.recording for d in result.departures}))
+    metrics["rounds"] = float(len(rounds))
+    for J, row in final_round(rounds).test_after.items():  # the final model's
+        for label, value in row.items():
+            metrics[f"final_test_after/{J}/{label}"[:250]] = value
+    if result.misfit is not None:
+        metrics["misfit/ratio_to_floor"] = result.misfit.ratio
+        metrics["misfit/z"] = result.misfit.z
+    if result.generalisation is not None:
+        metrics["generalisation/ratio_to_median"] = result.generalisation.ratio
+        metrics["generalisation/significant"] = float(result.generalisation.significant)
+    for when, table in (("before", result.test_before), ("after", result.test_after)):
+        for J, row in table.items():
+            for label, value in row.items():
+                metrics[f"test_{when}/{J}/{label}"[:250]] = value
+    params = {k: v for k, v in vars(args).items() if k not in ("train", "test")}
+    params["train"] = " ".join(args.train)
+    params["test"] = " ".join(args.test)
+    rid = MlflowTracker(uri, args.experiment).log_diagnosis(
+        f"diagnose-{out.name}", params, metrics, {"verdict": result.verdict}, out
+    )
+    print(f"MLflow run {rid} in {uri} (experiment {args.experiment})")
 
 
 def _shape_variables(text: str) -> tuple[str, ...]:

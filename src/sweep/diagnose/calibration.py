@@ -51,7 +51,7 @@ def linearise(ctx: Context, params: Parameters) -> Linearised:
         params,
         ctx.windows,
         ([position[id(w)] for w in ctx.fit_w], [position[id(w)] for w in ctx.held_w]),
-        s.candidate_effects(),
+        ctx.candidate_effects(),
         objective=s.objective,
         prior_weight=s.prior_weight,
         library_terms=s.discover_terms if s.discover else 0,

@@ -237,7 +237,7 @@ def fit_candidates(ctx: Context, base: Fit, extra: Sequence[Effect]) -> Candidat
     """The control and every candidate (the catalog's, then ``extra``) fitted and scored."""
     settings = candidate_settings(ctx)
     control = fold_fits(ctx, base, "control", (), settings)
-    effects = (*ctx.settings.candidate_effects(), *extra)
+    effects = (*ctx.candidate_effects(), *extra)
     out = Candidates(effects, control, {}, [], {}, [])
     for i, eff in enumerate(effects, 1):
         ctx.log(f"candidate {i}/{len(effects)}: {eff.name}")

@@ -12,7 +12,9 @@ from pathlib import Path
 from typing import Any
 
 from mmg import Effect, Parameters, get_effect
+from mmg.domain import inner_name
 from mmg.fixed import fixed
+from mmg.fixed import split_name as fixed_split
 from mmg.params import N_THETA
 from sweep.data.recordings import Recording
 from sweep.diagnose.fit import Fit, FitSettings, fit
@@ -95,6 +97,12 @@ class Context:
         """The effects the model of ``start`` carries, held at its values (:func:`held_start`):
         part of every model the diagnosis fits."""
         return tuple(get_effect(n) for n, _ in self.start.effects)
+
+    def candidate_effects(self) -> tuple[Effect, ...]:
+        """The settings' catalog candidates without those the base already carries (held:
+        a second copy of an identified effect adds nothing but a shift of its values)."""
+        held = {inner_name(fixed_split(e.name)[0]) for e in self.base_effects}
+        return tuple(e for e in self.settings.candidate_effects() if e.name not in held)
 
     def with_base(self, effs: Sequence[Effect]) -> tuple[Effect, ...]:
         """``effs`` after the effects the base model carries (:attr:`base_effects`)."""

@@ -220,7 +220,7 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
     # the cache lacks them (one after another as the stages reach them took minutes)
     precompile(
         tasks([ctx.base_effects], ("simulate", "moments", "derivatives"))
-        + tasks(ctx.with_base((e,)) for e in s.candidate_effects()),
+        + tasks(ctx.with_base((e,)) for e in ctx.candidate_effects()),
         log=ctx.log,
     )
     clock.lap("compilation")

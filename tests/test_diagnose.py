@@ -212,6 +212,8 @@ def test_a_finding_that_leaves_more_missing_is_followed_by_a_second_round(runs, 
     held = second["held_findings"]
     assert len(held) == 1 and held[0].startswith(first["finding"] + "@fixed(")
     assert [r["verdict"] for r in first["rounds"]] == [first["verdict"], second["verdict"]]
+    # the effect the model carries is not tried again
+    assert first["verdict"] not in [c["effect"] for c in second["candidates"]]
     # the second round's base carries the first finding at the values it was found with
     assert list(second["params_before"]["effects"]) == held
     final = load_parameters(str(out / "round-2" / "params_after.json"))

@@ -34,7 +34,7 @@ from mmg import catalog
 from sweep.data.datasets import CONF_DIR, DataNotFoundError, SplitError, load_split
 from sweep.data.parameters import load_parameters
 from sweep.data.recordings import Recording, read_recordings
-from sweep.diagnose.run import ROUND_DIR, Diagnosis, diagnose_rounds, final_round
+from sweep.diagnose.run import Diagnosis, diagnose_rounds, final_round, round_dir
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.errors import UserError, command_status
 
@@ -251,15 +251,14 @@ def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
 
     report: dict[str, Any] = {}
     for k, r in enumerate(rounds, start=1):
-        where = out if k == 1 else out / ROUND_DIR.format(k=k)
+        where = round_dir(out, k)
         written = write_report(r, test, where, rounds)
         report = report or written
         print(("" if len(rounds) == 1 else f"round {k}: ") + str(written["statement"]))
         print(f"report: {where / 'report.md'}")
     if len(rounds) > 1:
-        k = rounds.index(final_round(rounds)) + 1
-        where = out if k == 1 else out / ROUND_DIR.format(k=k)
-        print(f"final model: {where / 'params_after.json'}")
+        final = round_dir(out, rounds.index(final_round(rounds)) + 1)
+        print(f"final model: {final / 'params_after.json'}")
     if not args.no_tracking:
         _track(args, rounds, report, out)
     return report

@@ -156,6 +156,11 @@ def diagnose(
 ROUND_DIR = "round-{k}"
 
 
+def round_dir(out: Path, k: int) -> Path:
+    """Where round ``k`` (1-based) of a diagnosis in ``out`` keeps its stages and report."""
+    return out if k == 1 else out / ROUND_DIR.format(k=k)
+
+
 def diagnose_rounds(
     start: Parameters,
     train: Sequence[Recording],
@@ -179,12 +184,10 @@ def diagnose_rounds(
         log(
             f"round {k}: the model with {last.verdict_effect} is still above the noise floor on "
             f"the training windows (J {last.after.f:.4g}); what is missing beyond it, the finding "
-            f"held at its values -> {out / ROUND_DIR.format(k=k)}"
+            f"held at its values -> {round_dir(out, k)}"
         )
         rounds.append(
-            diagnose(
-                last.after.params, train, test, out / ROUND_DIR.format(k=k), s, test_labels, log
-            )
+            diagnose(last.after.params, train, test, round_dir(out, k), s, test_labels, log)
         )
     return rounds
 

@@ -8,11 +8,11 @@ effect has no parameters: a fit, a parameter vector and a search box do not see 
 simulation of a model that carries it does.
 
 The wrapped effect keeps the name of the effect it wraps followed by its values, e.g.
-``propeller_walk@fixed(C_Nw=0.0123,J_0=0.2)`` (each value as Python writes the float, so the
+``propeller_walk@fixed(C_Yw=0.01,C_Nw=-0.004)`` (each value as Python writes the float, so the
 name gives the values back exactly). Like a ``discovered:`` effect it is generated at run time
 (a small module in ``<kernel dir>/effects``, named by a hash of its text) and rebuilt from its
 name in any process (:func:`mmg.get_effect` splits the name, :func:`split_name`). A parameter
-file writes it with no values: ``["propeller_walk@fixed(...)", []]``.
+file writes it with no values: ``"effects": {"propeller_walk@fixed(...)": {}}``.
 """
 
 from __future__ import annotations
@@ -140,7 +140,8 @@ def fixed(effect: Effect, values: Sequence[float] | Mapping[str, float]) -> Effe
             )
         values = [float(values.get(q.name, q.neutral)) for q in effect.params]
     vals = tuple(float(v) for v in values)
-    name = effect.name + spec_of(effect, vals)
+    spec = spec_of(effect, vals)
+    name = effect.name + spec
     made = _made.get(name)
     if made is not None:
         return made
@@ -180,7 +181,7 @@ def fixed(effect: Effect, values: Sequence[float] | Mapping[str, float]) -> Effe
     own_type: type[NamedTuple] = getattr(module, f"FixedParams_{key}")
     made = FixedEffect(
         name=name,
-        description=f"{effect.description} (held at {spec_of(effect, vals)[1:]})",
+        description=f"{effect.description} (held at {spec[1:]})",
         regime=effect.regime,
         params=(),
         param_type=own_type,

@@ -20,7 +20,7 @@ from mmg.shapes import is_closed_form
 from sweep.data.recordings import Recording
 from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
-from sweep.diagnose.run import ROUND_DIR, Diagnosis
+from sweep.diagnose.run import Diagnosis, round_dir
 from sweep.diagnose.scoring import CandidateScore, shape_and_form
 from sweep.diagnose.shapes import PLACE_AND_TIME
 
@@ -1281,7 +1281,7 @@ def rounds_dict(rounds: Sequence[Diagnosis]) -> list[dict[str, Any]]:
         rows.append(
             {
                 "round": k,
-                "dir": "." if k == 1 else ROUND_DIR.format(k=k),
+                "dir": round_dir(Path("."), k).as_posix(),
                 "verdict": r.verdict,
                 "finding": r.finding_name,
                 "J_train_after": float(r.after.f),
@@ -1316,12 +1316,8 @@ def rounds_md(rounds: Sequence[Diagnosis], here: int) -> list[str]:
         floor = f" ({row['floor']:.3g})" if row["floor"] is not None else ""
         tb, ta = row["J_test_before"].get(obj), row["J_test_after"].get(obj)
         test = f"{tb:.4g} -> {ta:.4g}" if tb is not None and ta is not None else "-"
-        up = "" if here == 1 else "../"
-        link = (
-            "this one"
-            if k == here
-            else f"[report]({up}{'' if k == 1 else row['dir'] + '/'}report.md)"
-        )
+        path = Path("." if here == 1 else "..", row["dir"], "report.md").as_posix()
+        link = "this one" if k == here else f"[report]({path})"
         finding = f"`{row['finding']}`" if row["finding"] else "-"
         md.append(
             f"| {k} | `{row['verdict']}` | {finding} | {row['J_train_after']:.4g}{floor} | "

@@ -79,7 +79,8 @@ class Variable:
 
     ``code``: its value in the generated hook [``unit``]; ``factor``: its dimensionless value as
     a multiplier ("" if it cannot multiply); ``scale``: the default scaling of its shapes
-    (a key of :data:`SCALES`)."""
+    (a key of :data:`SCALES`, "" for a gap); ``control``: for the gap of a control, the
+    control's letter (a key of :data:`CONTROLS`): its shapes are memories of that control."""
 
     symbol: str
     unit: str
@@ -88,6 +89,7 @@ class Variable:
     factor: str
     scale: str
     factor_formula: str = ""
+    control: str = ""
 
 
 #: the variables of shapes, by their name in a spec. u, v_m are velocities through the water.
@@ -120,6 +122,59 @@ VARIABLES: dict[str, Variable] = {
     "t": Variable(
         "t", "s", "time on the recording's clock", "t", f"t / {T_REF!r}", "ref", "t / T_ref"
     ),
+    "ed": Variable(
+        "z_delta",
+        "-",
+        "gap of the rudder, e_delta = delta_log - delta_prev (the logged angle less the acting "
+        "one of the step before), as z_delta = asinh(e_delta / 1 deg)",
+        "z_ed",
+        "",
+        "",
+        control="D",
+    ),
+    "en": Variable(
+        "z_n",
+        "-",
+        "gap of the propeller, e_n = n_log - n_prev (the logged rate less the acting one of "
+        "the step before), as z_n = asinh(e_n / 0.5 rev/s)",
+        "z_en",
+        "",
+        "",
+        control="P",
+    ),
+}
+
+
+@dataclass(frozen=True)
+class Control:
+    """A control whose memory a shape can learn: the component's letter is its key in
+    :data:`CONTROLS`. ``quantum``: the gap's scale in z = asinh(e / quantum) [``unit``]."""
+
+    symbol: str
+    unit: str
+    meaning: str
+    log: str  # the logged value's argument of the inputs hook
+    prev: str  # the acting value of the step before
+    quantum: float
+    variable: str  # its gap's key in VARIABLES
+
+
+#: the components of groups in a probe's order: forces X, Y, N, memories of D (rudder angle)
+#: and P (propeller speed)
+COMPONENTS = "XYNDP"
+
+#: the controls of memory shapes. A group ``D~ed[lo:hi]/n`` makes the acting rudder angle
+#: delta = delta_log - e_delta f_D(z_delta): f is the share of the gap e_delta that the rudder
+#: leaves open in one time step (0: no memory, the paper's model; a constant exp(-dt / T): a
+#: first-order lag; 1 - R dt / |e| beyond R dt: a rate limit R; 1 below a play b). The gap is
+#: taken on the scale z = asinh(e / quantum): a quantum's resolution near 0 (the log's own steps
+#: are 0.56 deg and 0.08 rev/s), logarithmic beyond, so one knot grid spans a play of a degree
+#: and a reversal of 70 deg.
+CONTROLS: dict[str, Control] = {
+    "D": Control(
+        "delta", "rad", "rudder angle", "delta_log", "delta_prev", math.radians(1.0), "ed"
+    ),
+    "P": Control("n_p", "rev/s", "propeller speed", "n_log", "n_prev", 0.5, "en"),
 }
 #: quadrant indicators (multipliers only): [u < 0], [u >= 0], [n_p < 0], [n_p >= 0]
 INDICATORS: dict[str, tuple[str, str]] = {
@@ -328,8 +383,22 @@ class Group:
 
     def __post_init__(self) -> None:
         c = self.components
-        if not c or any(x not in "XYN" for x in c) or "".join(sorted(c, key="XYN".index)) != c:
-            raise ValueError(f"components {c!r}: one or more of X, Y, N, in this order")
+        var = VARIABLES.get(self.variable)
+        if var is not None and var.control:  # a memory of a control: that control alone
+            if c != var.control:
+                raise ValueError(
+                    f"{self.variable} is the gap of the {CONTROLS[var.control].meaning}: its "
+                    f"shape's component is {var.control}, not {c!r}"
+                )
+            if self.multiplier or self.scale or self.form:
+                raise ValueError(
+                    f"{self.variable}: a memory shape takes no multiplier, scale or closed form"
+                )
+        elif not c or any(x not in "XYN" for x in c) or "".join(sorted(c, key="XYN".index)) != c:
+            raise ValueError(
+                f"components {c!r}: one or more of X, Y, N, in this order (or D, P with the "
+                "gap of the rudder, ed, and of the propeller, en)"
+            )
         if len(set(c)) != len(c):
             raise ValueError(f"components {c!r}: repeated")
         if self.variable == "1":
@@ -361,7 +430,9 @@ class Group:
         if self.scale and m in FORCES:
             raise ValueError(f"a shape times the force {m} takes no scale")
         default = VARIABLES[self.variable].scale if self.variable != "1" else "U2"
-        if self.scale == default:  # one spelling of each group: the default scale is implied
+        if (
+            self.scale and self.scale == default
+        ):  # one spelling of each group: the default scale is implied
             object.__setattr__(self, "scale", "")
 
     @property
@@ -380,9 +451,15 @@ class Group:
         return out
 
     @property
+    def control(self) -> str:
+        """The letter of the control whose memory this group is ("" for a force)."""
+        return VARIABLES[self.variable].control if self.variable != "1" else ""
+
+    @property
     def scale_name(self) -> str:
-        """The scaling used: "" (times a force), the given one, or the variable's default."""
-        if self.multiplier in FORCES:
+        """The scaling used: "" (times a force, or a memory), the given one, or the variable's
+        default."""
+        if self.multiplier in FORCES or self.control:
             return ""
         if self.scale:
             return self.scale
@@ -396,6 +473,10 @@ class Group:
         """What the group adds to ``component``, in the paper's notation, with units."""
         arg = "" if self.variable == "1" else f"({VARIABLES[self.variable].symbol})"
         f = f"f_{component}{g}{arg}"
+        if self.control:
+            k = CONTROLS[self.control]
+            e = f"e_{k.log.removesuffix('_log')}"
+            return f"{k.symbol} = {k.log} - {e} {f}  [{k.unit}]"
         unit = "N m" if component == "N" else "N"
         m = self.multiplier
         if m in FORCES:
@@ -429,7 +510,7 @@ class Group:
 
 
 _GROUP = re.compile(
-    r"^(?P<c>[XYN]+)~(?:(?P<one>1)|(?P<v>\w+)\[(?P<lo>[^:\]]+):(?P<hi>[^\]]+)\]"
+    r"^(?P<c>[XYNDP]+)~(?:(?P<one>1)|(?P<v>\w+)\[(?P<lo>[^:\]]+):(?P<hi>[^\]]+)\]"
     r"(?:/(?P<n>\d+)|:(?P<f>[a-z]+(?:\([^)]*\))?)))"
     r"(?:\*(?P<m>\w+))?(?:@(?P<s>\w+))?$"
 )
@@ -525,7 +606,9 @@ def variable_values(
     hook computes them: t (N,) [s], x (N, 6) states (x0, u, y0, v_m, psi, r), controls (N, 2)
     (delta, n_p), wind (N, 2) (U_T, gamma_T), the model's parameters ``theta`` (a
     :class:`mmg.params.Theta`) and ``ship``. Still water (velocity through the water = over
-    ground). For the knot ranges of shapes over recorded windows."""
+    ground); a control's gap is the log's change from the sample before (0 at the first: the
+    acting control of a model without memory). For the knot ranges of shapes over recorded
+    windows."""
     from mmg.model import rudder_inflow_at
     from mmg.propeller import advance_ratio, wake_factor
 
@@ -541,6 +624,11 @@ def variable_values(
     if name == "alphaR":
         inflow = np.array([rudder_inflow_at(*p, theta, ship) for p in rows]).reshape(-1, 2)
         return np.asarray(c[:, 0] - np.arctan2(inflow[:, 1], inflow[:, 0]))
+    var = VARIABLES.get(name)
+    if var is not None and var.control:  # the log's own gaps: the acting control is the logged
+        k = CONTROLS[var.control]  # one where no memory acts
+        log = c[:, 0 if var.control == "D" else 1]
+        return np.asarray(np.arcsinh(np.diff(log, prepend=log[:1]) / k.quantum))
     if name == "JP":
         return np.array(
             [advance_ratio(a, n, ship) * wake_factor(a, b, q, theta, ship) for a, b, q, n in rows]
@@ -596,7 +684,9 @@ def _b3(x):
     p = max(2.0 - a, 0.0)
     m = max(1.0 - a, 0.0)
     return (p * p * p - 4.0 * m * m * m) * {sixth!r}
+{hooks}'''
 
+_FORCE_HOOK = '''
 
 @subfunction
 def {func}(t, x0, y0, u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh):
@@ -610,6 +700,17 @@ def {func}(t, x0, y0, u, v_m, r, psi, delta, n_p, U_T, gamma_T, e, th, sh):
     N = 0.0
 {lines}
     return X, Y, N
+'''
+
+_INPUTS_HOOK = '''
+
+@subfunction
+def {func}(delta_log, n_log, delta_prev, n_prev, dt, e):
+    """The acting controls of the memory shapes: each leaves a share of its gap open."""
+    delta = delta_log
+    n_p = n_log
+{lines}
+    return delta, n_p
 '''
 
 
@@ -660,11 +761,49 @@ def _group_lines(g: int, group: Group) -> list[str]:
     return lines
 
 
+def _gap_lines(group: Group) -> list[str]:
+    """The gap of a memory group's control and the gap's variable z (:data:`CONTROLS`)."""
+    k = CONTROLS[group.control]
+    code = VARIABLES[group.variable].code
+    return [
+        f"    gap = {k.log} - {k.prev}",
+        f"    {code} = math.asinh(gap * {1.0 / k.quantum!r})",
+    ]
+
+
+def _memory_lines(g: int, group: Group) -> list[str]:
+    """The inputs hook's code of memory group ``g``: the control less the share of its gap."""
+    lines = [f"    # {group.text}", *_gap_lines(group), f"    s = {_clamped(group)}"]
+    for j in range(group.n):
+        lines.append(f"    b{j} = _b3(s {'+' if j < 1 else '-'} {abs(float(j - 1))!r})")
+    c = group.control
+    terms = " + ".join(f"e.s{g}_{c}{j} * b{j}" for j in range(group.n))
+    lines.append(f"    {CONTROLS[c].symbol} -= gap * ({terms})")
+    return lines
+
+
+def _probe_memory_lines(groups: Sequence[Group]) -> list[str]:
+    """The probe's inputs hook: one basis function (J) of the memory group G at amplitude A."""
+    lines: list[str] = []
+    for g, group in enumerate(groups):
+        if not group.control:
+            continue
+        lines += [f"    # {group.text}", f"    w = 1.0 if e.G == {float(g)!r} else 0.0"]
+        lines += _gap_lines(group)
+        lines.append(
+            f"    {CONTROLS[group.control].symbol} -= w * gap * e.A * "
+            f"_b3({_clamped(group)} - (e.J - 1.0))"
+        )
+    return lines
+
+
 def _probe_lines(groups: Sequence[Group]) -> list[str]:
     """The probe's code: every group's clamped variable and factors weighted by [G == g], then
     one basis function (J) of one component (C) at amplitude A; no branch."""
     lines = ["    z = 0.0", "    spline = 0.0", "    fX = 0.0", "    fY = 0.0", "    fN = 0.0"]
     for g, group in enumerate(groups):
+        if group.control:
+            continue
         lines += [f"    # {group.text}", f"    w = 1.0 if e.G == {float(g)!r} else 0.0"]
         if group.variable != "1":
             lines += [f"    z += w * ({_clamped(group)})", "    spline += w"]
@@ -693,33 +832,54 @@ def _prelude(lines: Sequence[str]) -> list[str]:
 
 
 def _source(name: str, groups: Sequence[Group], key: str, probe: bool = False) -> str:
+    """The generated module: the parameters, a force hook when a group is a force, an inputs
+    hook when a group is a memory (:func:`hook_names`)."""
     lines: list[str] = []
+    memory: list[str] = []
     fields: list[str] = []
     if probe:
         lines = _probe_lines(groups)
+        memory = _probe_memory_lines(groups)
         fields = [
             "    G: float  # the group (0, 1, ...)",
-            "    C: float  # the component (0: X, 1: Y, 2: N)",
+            "    C: float  # the component (0: X, 1: Y, 2: N, 3: D, 4: P)",
             "    J: float  # the basis function (0 .. n - 1)",
             "    A: float  # its coefficient (0: no force)",
         ]
     else:
         for g, group in enumerate(groups):
-            lines += _group_lines(g, group)
+            if group.control:
+                memory += _memory_lines(g, group)
+            else:
+                lines += _group_lines(g, group)
             for c in group.components:
                 formula = group.formula(c, g)
                 fields += [f"    s{g}_{c}{j}: float  # {formula}" for j in range(group.n)]
-    prelude = _prelude(lines)
+    force_name, inputs_name = hook_names(groups, key)
+    hooks = ""
+    if force_name:
+        hooks += _FORCE_HOOK.format(
+            func=force_name,
+            U_0=U_0,
+            prelude="".join(f"{line}\n" for line in _prelude(lines)),
+            lines="\n".join(lines),
+        )
+    if inputs_name:
+        hooks += _INPUTS_HOOK.format(func=inputs_name, lines="\n".join(memory))
     return _TEMPLATE.format(
         name=name,
         ptype=f"ShapeParams_{key}",
-        func=f"shape_force_{key}",
         fields="\n".join(fields),
         sixth=1.0 / 6.0,
-        U_0=U_0,
-        prelude="".join(f"{line}\n" for line in prelude),
-        lines="\n".join(lines),
+        hooks=hooks,
     )
+
+
+def hook_names(groups: Sequence[Group], key: str) -> tuple[str, str]:
+    """(force hook, inputs hook) of the generated module of ``groups`` ("" for one it lacks)."""
+    force = any(not g.control for g in groups)
+    memory = any(g.control for g in groups)
+    return (f"shape_force_{key}" if force else "", f"shape_inputs_{key}" if memory else "")
 
 
 class ShapeEffect(Effect):
@@ -742,6 +902,15 @@ def _module(name: str, groups: Sequence[Group], probe: bool = False) -> tuple[An
     module_name = f"mmg_shape_{key}"
     module = generated_module(module_name, _source(name, groups, key, probe))
     return module, key
+
+
+def _hooks(module: Any, groups: Sequence[Group], key: str) -> dict[str, Any]:
+    """The hooks of a generated module: force_at for the forces, inputs for the memories."""
+    force, inputs = hook_names(groups, key)
+    return {
+        "force_at": getattr(module, force) if force else None,
+        "inputs": getattr(module, inputs) if inputs else None,
+    }
 
 
 def shape_effect(groups: Sequence[Group] | str, bound: float = DEFAULT_BOUND) -> Effect:
@@ -778,12 +947,14 @@ def shape_effect(groups: Sequence[Group] | str, bound: float = DEFAULT_BOUND) ->
                 "closed form of a missing force: "
                 if all(g.form or g.variable == "1" for g in gs)
                 else "shapes of a missing force: "
+                if not any(g.control for g in gs)
+                else "shapes of a missing force or memory of the controls: "
             )
             + "; ".join(g.text for g in gs),
             regime="shapes",
             params=tuple(params),
             param_type=getattr(module, f"ShapeParams_{key}"),
-            force_at=getattr(module, f"shape_force_{key}"),
+            **_hooks(module, gs, key),
         )
         _generated[name] = effect
     if bound == DEFAULT_BOUND:
@@ -806,7 +977,12 @@ def probe_effect(groups: Sequence[Group] | str) -> Effect:
     effect = _generated.get(name)
     if effect is None:
         module, key = _module(name, gs, probe=True)
-        roles = ("group", "component (0: X, 1: Y, 2: N)", "basis function", "coefficient")
+        roles = (
+            "group",
+            "component (0: X, 1: Y, 2: N, 3: D, 4: P)",
+            "basis function",
+            "coefficient",
+        )
         effect = ShapeEffect(
             name=name,
             description="one coefficient at a time of " + shape_name(gs),
@@ -814,11 +990,11 @@ def probe_effect(groups: Sequence[Group] | str) -> Effect:
             params=tuple(
                 EffectParam(p, "-", 0.0, 0.0, hi, role)
                 for p, hi, role in zip(
-                    "GCJA", (len(gs) - 1, 2, MAX_BASIS - 1, 1.0), roles, strict=True
+                    "GCJA", (len(gs) - 1, 4, MAX_BASIS - 1, 1.0), roles, strict=True
                 )
             ),
             param_type=getattr(module, f"ShapeParams_{key}"),
-            force_at=getattr(module, f"shape_force_{key}"),
+            **_hooks(module, gs, key),
         )
         _generated[name] = effect
     return effect
@@ -830,7 +1006,7 @@ def probe_rows(effect: Effect, step: float) -> FloatArray:
     rows = []
     for g, group in enumerate(groups_of(effect)):
         for c in group.components:
-            rows += [(g, "XYN".index(c), j, step) for j in range(group.n)]
+            rows += [(g, COMPONENTS.index(c), j, step) for j in range(group.n)]
     return np.asarray(rows, dtype=np.float64)
 
 
@@ -897,6 +1073,8 @@ def penalty_matrix(effect: Effect, order: int = 2) -> FloatArray:
 
 
 __all__ = [
+    "COMPONENTS",
+    "CONTROLS",
     "DEFAULT_BOUND",
     "FORCES",
     "FORMS",
@@ -906,6 +1084,7 @@ __all__ = [
     "SCALES",
     "SHAPE_PREFIX",
     "VARIABLES",
+    "Control",
     "Form",
     "Group",
     "ShapeEffect",
@@ -916,6 +1095,7 @@ __all__ = [
     "difference_penalty",
     "form_scale",
     "groups_of",
+    "hook_names",
     "is_closed_form",
     "parse",
     "parse_form",

@@ -74,8 +74,9 @@ def families(lo: float, hi: float, angle: bool) -> list[Form]:
 
 def closest_forms(group: Group, coefficients: list[float], top: int = 3) -> list[ClosedForm]:
     """The ``top`` closed forms closest to one component's shape of ``group`` (its n
-    coefficients), best first (none for a constant group)."""
-    if group.variable == "1":
+    coefficients), best first (none for a constant group or a memory: a share of a gap on an
+    asinh scale is stated as the steps it lets the control take, not as a form in z)."""
+    if group.variable == "1" or group.control:
         return []
     var = VARIABLES[group.variable]
     z = np.linspace(group.lo, group.hi, GRID)

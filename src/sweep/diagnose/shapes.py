@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 
 from mmg import Parameters
 from mmg.effect import Effect
+from mmg.shapes import VARIABLES as SHAPE_VARIABLES
 from mmg.shapes import (
     Group,
     difference_penalty,
@@ -63,6 +64,8 @@ VARIABLES = (
     "x0",
     "y0",
     "t",
+    "ed",
+    "en",
 )
 #: heading, position and time: where and when a run was recorded
 PLACE_AND_TIME_KINDS = {"heading": ("psi",), "position": ("x0", "y0"), "time": ("t",)}
@@ -80,6 +83,9 @@ PRODUCTS = (("U", "v"), ("U", "rp"), ("beta", "Y_H"), ("delta", "F_N"))
 QUADRANTS = ("ast", "rev")
 #: basis functions per shape
 N_BASIS = 8
+#: basis functions per memory shape (the share of a control's gap left open, over the gap's
+#: asinh scale: a knot every ~0.6, from a degree's play to a reversal)
+N_MEMORY_BASIS = 16
 #: the knots span these quantiles of a variable over the training windows
 RANGE_QUANTILES = (0.005, 0.995)
 #: values at least this large are a sub-model's guard, not a state (J_s = 1e4 at n_p = 0)
@@ -102,7 +108,8 @@ def variable_ranges(
     """{variable: (lo, hi)}: the ``quantiles`` of each variable over the recorded samples of
     ``windows`` (with the base ``params`` for the rudder inflow and the wake), leaving out
     values beyond :data:`GUARD` (the advance ratio where the propeller stands still); a
-    variable that does not vary there (a constant propeller speed) is left out."""
+    variable that does not vary there (a constant propeller speed) is left out. A control's
+    gap spans [-m, m], m its largest size: the log's steps are few, and the largest matter."""
     cols: dict[str, list[FloatArray]] = {n: [] for n in names}
     for w in windows:
         for n in names:
@@ -114,6 +121,9 @@ def variable_ranges(
         if z.size == 0:
             continue
         lo, hi = (float(v) for v in np.quantile(z, quantiles))
+        if SHAPE_VARIABLES[n].control:
+            hi = float(np.max(np.abs(z)))
+            lo = -hi
         if hi - lo > 1e-6 * max(1.0, abs(lo), abs(hi)):
             out[n] = (lo, hi)
     return out
@@ -130,9 +140,16 @@ def candidate_groups(
 ) -> list[Group]:
     """The candidate groups, all three components each (one basis per variable in the hook):
     a shape of each variable that varies over ``windows``, the varying-coefficient
-    ``products`` and a constant times each quadrant indicator."""
+    ``products`` and a constant times each quadrant indicator; a control's gap gives the
+    memory of that control (one component, :data:`N_MEMORY_BASIS` functions)."""
     ranges = variable_ranges(windows, params, sorted({*variables, *(v for v, _ in products)}))
-    groups = [Group("XYN", v, *ranges[v], n) for v in variables if v in ranges]
+    groups = [
+        Group(c, v, *ranges[v], N_MEMORY_BASIS)
+        if (c := SHAPE_VARIABLES[v].control)
+        else Group("XYN", v, *ranges[v], n)
+        for v in variables
+        if v in ranges
+    ]
     groups += [Group("XYN", v, *ranges[v], n, m) for v, m in products if v in ranges]
     groups += [Group("XYN", "1", multiplier=q) for q in quadrants]
     return groups

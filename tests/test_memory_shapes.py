@@ -166,3 +166,21 @@ def test_the_gaps_of_the_log_give_the_memory_candidates() -> None:
     groups = {g.variable: g for g in candidate_groups(wins, p, products=(), quadrants=())}
     assert "en" not in groups
     assert groups["ed"] == Group("D", "ed", z[200], -z[200], N_MEMORY_BASIS)
+
+
+def test_the_report_states_a_memory_as_the_steps_it_lets_the_control_take() -> None:
+    """A constant share of 0.5 (a lag halving the gap each step): the table gives, at gaps of
+    both signs in degrees, the share, the step (half the gap) and that step per second."""
+    from sweep.diagnose.report import _memory_entry, _memory_md
+
+    g = Group("D", "ed", -4.0, 4.0, 8)
+    m = _memory_entry(g, [0.5] * 8, 0.1)
+    gaps = np.asarray(m["gap"])
+    assert m["unit"] == "deg" and len(gaps) == 12 and gaps[0] < 0 < gaps[-1]
+    assert gaps[-1] == pytest.approx(math.degrees(math.sinh(4.0) * math.radians(1.0)))
+    np.testing.assert_allclose(m["share"], 0.5, rtol=1e-12)
+    np.testing.assert_allclose(m["step"], 0.5 * gaps, rtol=1e-12)
+    np.testing.assert_allclose(m["rate"], 5.0 * gaps, rtol=1e-12)
+    md = "\n".join(_memory_md(m))
+    assert "| gap [deg] | share left open f | step in 0.1 s [deg] | as a rate [deg/s] |" in md
+    assert "A constant share is a first-order lag" in md

@@ -583,6 +583,17 @@ def curve(group: Group, coefficients: Any, z: Any) -> FloatArray:
     return np.asarray(basis(group, z) @ np.asarray(coefficients, dtype=np.float64))
 
 
+def memory_steps(group: Group, coefficients: Any, gaps: Any) -> tuple[FloatArray, FloatArray]:
+    """(share f, step e (1 - f)) of a memory group (:data:`CONTROLS`) at gaps e [the control's
+    unit]: the share of the gap left open in one time step, and how far the control moves in
+    it (the same arithmetic as the hook's)."""
+    if not group.control:
+        raise ValueError(f"{group.text} is a force, not a memory of a control")
+    e = np.asarray(gaps, dtype=np.float64)
+    f = curve(group, coefficients, np.arcsinh(e / CONTROLS[group.control].quantum))
+    return f, np.asarray(e * (1.0 - f))
+
+
 def difference_penalty(n: int, order: int = 2) -> FloatArray:
     """(n, n) D'D with D the ``order``-th difference matrix: the P-spline penalty
     sum_j (Delta^order c_j)^2 (its null space: polynomials of degree < order in j)."""
@@ -1097,6 +1108,7 @@ __all__ = [
     "groups_of",
     "hook_names",
     "is_closed_form",
+    "memory_steps",
     "parse",
     "parse_form",
     "penalty",

@@ -199,6 +199,8 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
                         "band": _band(d, group, names, z),
                     }
                 )
+                if group.control:
+                    entry["memory"] = _memory_entry(group, coef, d.extra.get("time_step", 0.1))
                 forms = [] if group.form else closest_forms(group, coef)
                 entry["closest"] = [asdict(c) for c in forms]
                 entry["named"] = bool(group.form) or (bool(forms) and forms[0].r2 >= CLOSE)
@@ -208,6 +210,28 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
         "closed_form": is_closed_form(d.verdict_effect),
         "kept": _kept(d),
         "groups": groups,
+    }
+
+
+def _memory_entry(group: Any, coef: list[float], dt: float) -> dict[str, Any]:
+    """A memory of a control in the control's terms: at gaps over the range it was learnt on
+    (both signs), the share f left open in one time step of ``dt`` [s], the step the control
+    takes and that step as a rate; a rudder's in degrees."""
+    from mmg.shapes import CONTROLS, memory_steps
+
+    k = CONTROLS[group.control]
+    z = np.linspace(0.0, max(abs(group.lo), abs(group.hi)), 7)[1:]
+    gaps = np.sinh(np.concatenate([-z[::-1], z])) * k.quantum
+    share, step = memory_steps(group, coef, gaps)
+    to = np.degrees if k.unit == "rad" else np.asarray
+    return {
+        "control": k.symbol,
+        "unit": "deg" if k.unit == "rad" else k.unit,
+        "time_step": dt,
+        "gap": [float(v) for v in to(gaps)],
+        "share": [float(v) for v in share],
+        "step": [float(v) for v in to(step)],
+        "rate": [float(v) for v in to(step / dt)],
     }
 
 
@@ -998,6 +1022,8 @@ def _shape_md(d: Diagnosis) -> list[str]:
         if g["variable"] == "1":
             md += [f"value {g['coefficients'][0]:.4g}", ""]
             continue
+        if "memory" in g:
+            md += _memory_md(g["memory"])
         band = g.get("band") or [float("nan")] * len(g["z"])
         md += [f"| {g['variable']} [{g['unit']}] | f | +- (band) |", "|---:|---:|---:|"]
         md += [
@@ -1012,6 +1038,24 @@ def _shape_md(d: Diagnosis) -> list[str]:
     if entry:
         md += ["![learned shape](shapes.png)", ""]
     return md
+
+
+def _memory_md(m: dict[str, Any]) -> list[str]:
+    """A memory of a control as a table of the steps it lets the control take."""
+    c, u, dt = m["control"], m["unit"], m["time_step"]
+    md = [
+        f"A memory of the {c}: in each time step of {dt:.3g} s the acting {c} closes the gap "
+        f"to the logged one except for the share f. A constant share is a first-order lag; a "
+        f"step that stops growing with the gap is a rate limit; no step below a gap is play.",
+        "",
+        f"| gap [{u}] | share left open f | step in {dt:.3g} s [{u}] | as a rate [{u}/s] |",
+        "|---:|---:|---:|---:|",
+    ]
+    md += [
+        f"| {e:.3g} | {f:.3f} | {s:.3g} | {r:.3g} |"
+        for e, f, s, r in zip(m["gap"], m["share"], m["step"], m["rate"], strict=True)
+    ]
+    return [*md, ""]
 
 
 def _misfit_md(d: Diagnosis) -> list[str]:

@@ -269,6 +269,7 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
     out.shape = shape
     out.extra["stage_seconds"] = clock.seconds
     out.extra["trust"] = trust
+    out.extra["time_step"] = float(np.median(np.concatenate([np.diff(w.t) for w in ctx.windows])))
     return out
 
 

@@ -115,7 +115,8 @@ def test_a_memory_shape_expresses_rate_limits_play_and_lags(kind: str, size: flo
         e = eff.param_type(*c)
         return _acting(log, lambda lg, pv: hook(lg, 10.0, pv, 10.0, DT, e)[0]) - truth
 
-    fit = least_squares(residual, np.zeros(16), bounds=(-1.0, 1.0), max_nfev=100)
+    assert eff.bounds == ((0.0,) * 16, (1.0,) * 16)  # the share lies in [0, 1]
+    fit = least_squares(residual, np.full(16, 0.5), bounds=eff.bounds, max_nfev=100)
     rms = math.degrees(float(np.sqrt(np.mean(fit.fun**2))))
     before = math.degrees(float(np.sqrt(np.mean((log - truth) ** 2))))
     assert rms < 0.2 and rms < before / 8.0, (rms, before)

@@ -926,8 +926,10 @@ def _hooks(module: Any, groups: Sequence[Group], key: str) -> dict[str, Any]:
 
 def shape_effect(groups: Sequence[Group] | str, bound: float = DEFAULT_BOUND) -> Effect:
     """The shape effect of ``groups`` (or of a spec) with every coefficient searched in
-    [-bound, bound]; the one with the default interval is kept under its name for
-    :func:`by_name`. Raises ValueError for a malformed spec, no group or a repeated one."""
+    [-bound, bound], a memory's in [0, bound] (its share lies between the control's place
+    before and the log, f in [0, 1] for bound 1: the B-splines are positive and sum to one);
+    the one with the default interval is kept under its name for :func:`by_name`. Raises
+    ValueError for a malformed spec, no group or a repeated one."""
     from dataclasses import replace
 
     gs = parse(groups) if isinstance(groups, str) else tuple(groups)
@@ -946,7 +948,7 @@ def shape_effect(groups: Sequence[Group] | str, bound: float = DEFAULT_BOUND) ->
                         f"s{k}_{c}{j}",
                         "-",
                         0.0,
-                        -DEFAULT_BOUND,
+                        0.0 if g.control else -DEFAULT_BOUND,
                         DEFAULT_BOUND,
                         (f"{'ab'[j]} of {formula}" if g.form else f"coefficient {j} of {formula}"),
                     )
@@ -970,7 +972,10 @@ def shape_effect(groups: Sequence[Group] | str, bound: float = DEFAULT_BOUND) ->
         _generated[name] = effect
     if bound == DEFAULT_BOUND:
         return effect
-    table = tuple(q._replace(lower=-float(bound), upper=float(bound)) for q in effect.params)
+    table = tuple(
+        q._replace(lower=0.0 if q.lower == 0.0 else -float(bound), upper=float(bound))
+        for q in effect.params
+    )
     return replace(effect, params=table)
 
 

@@ -167,7 +167,8 @@ def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapePr
     if proposed:
         ctx.penalties[out.effect.name] = out.penalty()
         ctx.dof[out.effect.name] = out.dof
-        ctx.starts[out.effect.name] = selection.values()
+        lo, hi = out.effect.bounds  # a memory's share within [0, 1]
+        ctx.starts[out.effect.name] = [float(v) for v in np.clip(selection.values(), lo, hi)]
     if form is not None:
         ctx.starts[form.name] = start
     return out

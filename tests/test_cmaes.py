@@ -77,6 +77,18 @@ def test_restarts_follow_the_schedule_and_record_stop_reasons():
     assert hist[-1]["best_so_far"] == res.f
 
 
+def test_a_flat_objective_ends_each_restart_instead_of_raising():
+    """Every candidate of the first generations at the same value (a whole population
+    diverged to the penalty): pycma's boundary handling cannot scale and raises; the restart
+    ends ("flat"), the evaluations count and the start's value is the result."""
+    s = Settings(seed=1, max_evaluations=300, sigma0=0.3, popsize_max=40)
+    res = optimise(lambda X: np.full(len(X), 42.0), BOX, np.zeros(N), s)
+    assert res.f == 42.0 and res.evaluations <= 300
+    assert res.restarts and all(r.stop == {"flat": 1} for r in res.restarts[:-1])
+    with pytest.raises(ValueError, match="evaluate returned shape"):
+        optimise(lambda X: np.zeros(1), BOX, np.zeros(N), s)
+
+
 def test_same_seed_same_result_other_seed_other_result():
     s = Settings(seed=7, max_evaluations=3000, sigma0=0.3)
     a = optimise(rastrigin, BOX, np.ones(N), s)

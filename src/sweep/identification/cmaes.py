@@ -369,6 +369,21 @@ def optimise(
         )
 
 
+def _tell(es: Any, Y: FloatArray, f: FloatArray) -> bool:
+    """Tell the strategy its generation's values; True when it cannot go on because every
+    value of its first generations was the same (the whole population diverged to the
+    penalty, or the objective does not depend on the searched parameters): pycma's boundary
+    handling then has no spread to scale its penalty by and raises. The restart stops there
+    ("flat"); what was evaluated counts."""
+    try:
+        es.tell(list(Y), f.tolist())
+    except ValueError as err:
+        if "no feasible solution sampled" not in str(err) or float(np.ptp(f)) > 0.0:
+            raise
+        return True
+    return False
+
+
 def _optimise(
     evaluate: Evaluate,
     box: Box,
@@ -408,7 +423,7 @@ def _optimise(
             if f.shape != (Y.shape[0],):
                 raise ValueError(f"evaluate returned shape {f.shape} for {Y.shape[0]} candidates")
             f = np.where(np.isfinite(f), f, np.finfo(np.float64).max / 1e3)
-            es.tell(list(Y), f.tolist())
+            flat = _tell(es, Y, f)
             state.evaluations += len(f)
             record.generations += 1
             record.evaluations += len(f)
@@ -432,7 +447,7 @@ def _optimise(
                 "sigma": float(es.sigma),
             }
             state.history.append(row)
-            stop = dict(es.stop())
+            stop = {"flat": 1} if flat else dict(es.stop())
             state.seconds = time.perf_counter() - t_start
             if stop:
                 break

@@ -85,6 +85,14 @@ def test_a_flat_objective_ends_each_restart_instead_of_raising():
     res = optimise(lambda X: np.full(len(X), 42.0), BOX, np.zeros(N), s)
     assert res.f == 42.0 and res.evaluations <= 300
     assert res.restarts and all(r.stop == {"flat": 1} for r in res.restarts[:-1])
+    # three quarters of every population at the penalty, the rest spread: no spread either
+    def mostly_diverged(X: np.ndarray) -> np.ndarray:
+        f = np.full(len(X), 4.2e4)
+        f[: len(X) // 4] = np.arange(len(X) // 4)
+        return f
+
+    res = optimise(mostly_diverged, BOX, np.zeros(N), s)
+    assert res.f == 0.0 and res.restarts[0].stop == {"flat": 1}
     with pytest.raises(ValueError, match="evaluate returned shape"):
         optimise(lambda X: np.zeros(1), BOX, np.zeros(N), s)
 

@@ -370,15 +370,15 @@ def optimise(
 
 
 def _tell(es: Any, Y: FloatArray, f: FloatArray) -> bool:
-    """Tell the strategy its generation's values; True when it cannot go on because every
-    value of its first generations was the same (the whole population diverged to the
-    penalty, or the objective does not depend on the searched parameters): pycma's boundary
-    handling then has no spread to scale its penalty by and raises. The restart stops there
-    ("flat"); what was evaluated counts."""
+    """Tell the strategy its generation's values; True when it cannot go on: pycma's boundary
+    handling scales its penalty by the spread of the middle half of its first generations'
+    values and raises when there was none (most of the population at one value: diverged to
+    the penalty, or an objective that does not depend on the searched parameters). The
+    restart stops there ("flat"); what was evaluated counts."""
     try:
         es.tell(list(Y), f.tolist())
     except ValueError as err:
-        if "no feasible solution sampled" not in str(err) or float(np.ptp(f)) > 0.0:
+        if "no feasible solution sampled" not in str(err):
             raise
         return True
     return False

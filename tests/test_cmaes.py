@@ -85,6 +85,7 @@ def test_a_flat_objective_ends_each_restart_instead_of_raising():
     res = optimise(lambda X: np.full(len(X), 42.0), BOX, np.zeros(N), s)
     assert res.f == 42.0 and res.evaluations <= 300
     assert res.restarts and all(r.stop == {"flat": 1} for r in res.restarts[:-1])
+
     # three quarters of every population at the penalty, the rest spread: no spread either
     def mostly_diverged(X: np.ndarray) -> np.ndarray:
         f = np.full(len(X), 4.2e4)

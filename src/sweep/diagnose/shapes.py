@@ -452,7 +452,8 @@ class ShapeColumns:
         persisting memory only in part, so in the first step a force that stands in for it
         can lead on the held-out gain while it explains far less (a steering gear's play: a
         yaw moment in delta led, 56 % against 49 % of the held-out J, with an in-sample dBIC
-        of -4 against -170); and the controls act upstream of every force."""
+        of -4 against -170, and ended the selection); and the controls act upstream of every
+        force."""
         rows = [self._entered(sides, d, EEs, n_eff, opts, None)]
         memory = {u for u, unit in enumerate(self.units) if unit.group.control}
         if memory & set(self._candidates()):
@@ -468,11 +469,10 @@ class ShapeColumns:
         opts: _Options,
         lead: set[int] | None,
     ) -> _Row:
-        """Forward selection of (unit, kappa) for residual vector d: of the trials that raise
-        the held-out gain (summed over both pairs) by ``min_gain`` of the gain so far and lower
-        the in-sample dBIC, the one of the best held-out gain; until none does. (A unit whose
-        held-out gain leads but whose in-sample fit does not pay for its degrees of freedom
-        does not end the selection.) ``lead``: the units that may enter first (None: any)."""
+        """Forward selection of (unit, kappa) for residual vector d: the best held-out gain
+        summed over both pairs, kept while it raises the held-out gain by ``min_gain`` of the
+        gain so far and lowers the in-sample dBIC. ``lead``: the units that may enter first
+        (None: any)."""
         cs = [c[:, d] for c in sides.c]
         ehs = [e[:, d] for e in sides.eh]
         J0 = float(sides.J0[d])
@@ -498,19 +498,16 @@ class ShapeColumns:
                 if u not in taken and (self.units[u].group.n > 1 or self.units[u].kind not in kinds)
                 for kap in (opts.kappas if self.units[u].group.n > 2 else opts.kappas[:1])
             ]
-            picked = None
-            for g, u, kap in sorted(trials, reverse=True):  # the best held out that passes
-                if not np.isfinite(g) or g <= 0.0 or g <= best * (1.0 + opts.min_gain):
-                    break
-                gain, dof = self._insample(cs, [*chosen, (u, kap)])
-                ratio = max((J0 - gain) / J0, 1e-12) if J0 > 0 else 1.0
-                new = float(n_eff * np.log(ratio) + sum(dof) * np.log(n_eff))
-                if new < dbic:
-                    picked = (g, u, kap, new, dof)
-                    break
-            if picked is None:
+            if not trials:
                 break
-            g, u, kap, new, dof = picked
+            g, u, kap = max(trials)
+            if not np.isfinite(g) or g <= 0.0 or g <= best * (1.0 + opts.min_gain):
+                break
+            gain, dof = self._insample(cs, [*chosen, (u, kap)])
+            ratio = max((J0 - gain) / J0, 1e-12) if J0 > 0 else 1.0
+            new = float(n_eff * np.log(ratio) + sum(dof) * np.log(n_eff))
+            if new >= dbic:
+                break
             chosen.append((u, kap))
             path.append(g / max(float(sides.Jho[d]), 1e-300))
             best, dbic, edf = g, new, dof

@@ -446,18 +446,20 @@ class ShapeColumns:
     def _forward(
         self, sides: _Sides, d: int, EEs: Sequence[FloatArray], n_eff: float, opts: _Options
     ) -> _Row:
-        """:meth:`_entered` with any unit entering first, and with a memory of the controls
-        entering first: the path of the lower in-sample dBIC (ties: any unit first); each
-        step of either raised the held-out gain. A memory's columns are secants that hold a
-        persisting memory only in part, so in the first step a force that stands in for it
-        can lead on the held-out gain while it explains far less (a steering gear's play: a
-        yaw moment in delta led, 56 % against 49 % of the held-out J, with an in-sample dBIC
-        of -4 against -170, and ended the selection); and the controls act upstream of every
-        force."""
-        rows = [self._entered(sides, d, EEs, n_eff, opts, None)]
+        """:meth:`_entered` over the forces alone, and with a memory of the controls entering
+        first and any unit after it: the path of the lower in-sample dBIC (ties: the forces);
+        each step of either raised the held-out gain. The two kinds are not mixed in one
+        greedy path: a memory's columns are secants that hold a persisting memory only in
+        part, so a memory and a force that stands in for it each lead where the other is
+        right and end the selection there (a steering gear's play: a yaw moment in delta led,
+        56 % against 49 % of the held-out J, with an in-sample dBIC of -4 against -170; a
+        drift-angle hinge: a memory led and nothing was chosen). The controls act upstream
+        of every force, so a memory goes first on its path."""
         memory = {u for u, unit in enumerate(self.units) if unit.group.control}
+        forces = set(range(len(self.units))) - memory
+        rows = [self._entered(sides, d, EEs, n_eff, opts, forces, forces)]
         if memory & set(self._candidates()):
-            rows.append(self._entered(sides, d, EEs, n_eff, opts, memory))
+            rows.append(self._entered(sides, d, EEs, n_eff, opts, memory, None))
         return min(rows, key=lambda row: row[-1])
 
     def _entered(
@@ -468,11 +470,12 @@ class ShapeColumns:
         n_eff: float,
         opts: _Options,
         lead: set[int] | None,
+        only: set[int] | None,
     ) -> _Row:
         """Forward selection of (unit, kappa) for residual vector d: the best held-out gain
         summed over both pairs, kept while it raises the held-out gain by ``min_gain`` of the
-        gain so far and lowers the in-sample dBIC. ``lead``: the units that may enter first
-        (None: any)."""
+        gain so far and lowers the in-sample dBIC. ``lead``: the units that may enter first,
+        ``only``: the units that may enter at all (None: any)."""
         cs = [c[:, d] for c in sides.c]
         ehs = [e[:, d] for e in sides.eh]
         J0 = float(sides.J0[d])
@@ -487,7 +490,7 @@ class ShapeColumns:
         chosen: list[tuple[int, float]] = []
         path: list[float] = []
         best, dbic, edf = 0.0, 0.0, []
-        pool = self._candidates()
+        pool = [u for u in self._candidates() if only is None or u in only]
         for _ in range(opts.max_groups):
             allowed = pool if chosen or lead is None else [u for u in pool if u in lead]
             taken = {u for u, _ in chosen}

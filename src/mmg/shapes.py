@@ -10,6 +10,12 @@ with S [m^2/s^2] the scaling (U^2, the rudder inflow U_R^2, (n_p D_p)^2, the app
 U_ref^2: :data:`SCALES`), m a dimensionless multiplier (another variable, a quadrant indicator,
 or 1) and B_j cubic B-splines on a uniform knot grid over [lo, hi]. z is clamped to [lo, hi]
 before the basis is evaluated, so a shape is held constant outside the range it was learnt on.
+
+A *memory* group (``D~ed[lo:hi]/n``, ``P~en[lo:hi]/n``: :data:`CONTROLS`) changes a control
+instead of a force, in the effect's ``inputs`` hook: the acting rudder angle is
+delta = delta_log - e_delta f_D(z), e_delta = delta_log - delta_prev the gap to the acting angle
+of the step before and z = asinh(e_delta / 1 deg); f, searched in [0, 1], is the share of the
+gap left open in one step (a lag, a rate limit or play, :func:`memory_steps`).
 A group may instead multiply an *existing force* of the model (the hull's sway force Y_H, the
 rudder's normal force F_N, ...: :data:`FORCES`): then C += f_C(z) F (times L_pp, or divided by
 it, between a force and a moment), and f is a dimensionless share of that force.
@@ -21,7 +27,8 @@ The effect's name is its spec (:func:`parse`, :func:`shape_name`), e.g.
     group  := comps "~" var "[" lo ":" hi "]/" n ["*" mult] ["@" scale]
             | comps "~" var "[" lo ":" hi "]:" form ["*" mult] ["@" scale]
             | comps "~1" ["*" mult] ["@" scale]
-    comps  := X, Y, N or several in this order (one shape per component)
+    comps  := X, Y, N or several in this order (one shape per component); D with the
+              rudder's gap ed, P with the propeller's gap en (a memory, below)
     form   := a closed form g of :data:`FORMS`, e.g. ``up(0.3)``, ``odd``, ``sin(2)``
 
 A group with a closed form (``N~beta[-0.6:0.6]:up(0.3)``) is f_C(z) = a_C + b_C g(z) / g_max:

@@ -16,6 +16,7 @@ instead of a force, in the effect's ``inputs`` hook: the acting rudder angle is
 delta = delta_log - e_delta f_D(z), e_delta = delta_log - delta_prev the gap to the acting angle
 of the step before and z = asinh(e_delta / 1 deg); f, searched in [0, 1], is the share of the
 gap left open in one step (a lag, a rate limit or play, :func:`memory_steps`).
+
 A group may instead multiply an *existing force* of the model (the hull's sway force Y_H, the
 rudder's normal force F_N, ...: :data:`FORCES`): then C += f_C(z) F (times L_pp, or divided by
 it, between a force and a moment), and f is a dimensionless share of that force.
@@ -163,7 +164,7 @@ class Control:
     log: str  # the logged value's argument of the inputs hook
     prev: str  # the acting value of the step before
     quantum: float
-    variable: str  # its gap's key in VARIABLES
+    column: int  # its column in a recording's controls (delta, n_p)
 
 
 #: the components of groups in a probe's order: forces X, Y, N, memories of D (rudder angle)
@@ -178,10 +179,8 @@ COMPONENTS = "XYNDP"
 #: are 0.56 deg and 0.08 rev/s), logarithmic beyond, so one knot grid spans a play of a degree
 #: and a reversal of 70 deg.
 CONTROLS: dict[str, Control] = {
-    "D": Control(
-        "delta", "rad", "rudder angle", "delta_log", "delta_prev", math.radians(1.0), "ed"
-    ),
-    "P": Control("n_p", "rev/s", "propeller speed", "n_log", "n_prev", 0.5, "en"),
+    "D": Control("delta", "rad", "rudder angle", "delta_log", "delta_prev", math.radians(1.0), 0),
+    "P": Control("n_p", "rev/s", "propeller speed", "n_log", "n_prev", 0.5, 1),
 }
 #: quadrant indicators (multipliers only): [u < 0], [u >= 0], [n_p < 0], [n_p >= 0]
 INDICATORS: dict[str, tuple[str, str]] = {
@@ -437,9 +436,7 @@ class Group:
         if self.scale and m in FORCES:
             raise ValueError(f"a shape times the force {m} takes no scale")
         default = VARIABLES[self.variable].scale if self.variable != "1" else "U2"
-        if (
-            self.scale and self.scale == default
-        ):  # one spelling of each group: the default scale is implied
+        if self.scale == default:  # one spelling of each group: the default scale is implied
             object.__setattr__(self, "scale", "")
 
     @property
@@ -645,7 +642,7 @@ def variable_values(
     var = VARIABLES.get(name)
     if var is not None and var.control:  # the log's own gaps: the acting control is the logged
         k = CONTROLS[var.control]  # one where no memory acts
-        log = c[:, 0 if var.control == "D" else 1]
+        log = c[:, k.column]
         return np.asarray(np.arcsinh(np.diff(log, prepend=log[:1]) / k.quantum))
     if name == "JP":
         return np.array(
@@ -767,15 +764,21 @@ def _group_lines(g: int, group: Group) -> list[str]:
         lines.append(f"    z = min(max({code}, {lo!r}), {hi!r})")
         b = ["1.0", f"({parse_form(group.form).code('z')}) * {1.0 / form_scale(group)!r}"]
     else:
-        lines.append(f"    s = {_clamped(group)}")
-        for j in range(group.n):
-            lines.append(f"    b{j} = _b3(s {'+' if j < 1 else '-'} {abs(float(j - 1))!r})")
+        lines += _basis_lines(group)
         b = [f"b{j}" for j in range(group.n)]
     setup, factor = _factors(group)
     lines += setup
     for c in group.components:
         terms = " + ".join(f"e.s{g}_{c}{j} * {bj}" for j, bj in enumerate(b))
         lines.append(f"    {c} += ({factor[c]}) * ({terms})")
+    return lines
+
+
+def _basis_lines(group: Group) -> list[str]:
+    """The spline group's clamped variable ``s`` and its basis functions ``b0`` .. ``b<n-1>``."""
+    lines = [f"    s = {_clamped(group)}"]
+    for j in range(group.n):
+        lines.append(f"    b{j} = _b3(s {'+' if j < 1 else '-'} {abs(float(j - 1))!r})")
     return lines
 
 
@@ -791,9 +794,7 @@ def _gap_lines(group: Group) -> list[str]:
 
 def _memory_lines(g: int, group: Group) -> list[str]:
     """The inputs hook's code of memory group ``g``: the control less the share of its gap."""
-    lines = [f"    # {group.text}", *_gap_lines(group), f"    s = {_clamped(group)}"]
-    for j in range(group.n):
-        lines.append(f"    b{j} = _b3(s {'+' if j < 1 else '-'} {abs(float(j - 1))!r})")
+    lines = [f"    # {group.text}", *_gap_lines(group), *_basis_lines(group)]
     c = group.control
     terms = " + ".join(f"e.s{g}_{c}{j} * b{j}" for j in range(group.n))
     lines.append(f"    {CONTROLS[c].symbol} -= gap * ({terms})")

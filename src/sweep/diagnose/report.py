@@ -200,7 +200,9 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
                     }
                 )
                 if group.control:
-                    entry["memory"] = _memory_entry(group, coef, d.extra.get("time_step", 0.1))
+                    # a report.json written before the time step was kept: the recordings' 0.1 s
+                    dt = d.extra.get("time_step", 0.1)
+                    entry["memory"] = _memory_entry(group, coef, dt)
                 forms = [] if group.form else closest_forms(group, coef)
                 entry["closest"] = [asdict(c) for c in forms]
                 entry["named"] = bool(group.form) or (bool(forms) and forms[0].r2 >= CLOSE)

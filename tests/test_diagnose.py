@@ -171,7 +171,7 @@ def test_planted_rudder_offset_beats_the_librarys_proposals(runs, tmp_path):
 
 @pytest.mark.integration  # a planted case, end to end
 @CANDIDATES
-def test_no_planted_effect_gives_verdict_none(runs, tmp_path):
+def test_no_planted_effect_gives_verdict_none(runs, tmp_path, capsys):
     """Nothing planted, the measurement noise coloured (AR(1), 0.6 between samples): the library
     and the learned shapes are tried too, and nothing is accepted."""
     case = tmp_path / "case"
@@ -188,6 +188,23 @@ def test_no_planted_effect_gives_verdict_none(runs, tmp_path):
     assert report["fitted_effect_params"] == {}
     gen = report["generalisation"]
     assert gen is not None and not gen["significant"] and gen["J"] < gen["limit"]
+    assert report["taken"] is False
+
+    # what the best refused candidate would do: taken with --take, re-identified on all the
+    # training windows (the stages resume), and stated as not accepted
+    best = report["candidates"][0]["effect"]
+    assert _diagnose(case, out, "--no-tracking", "--take", "best") == 0
+    taken = json.loads((out / "report.json").read_text())
+    assert taken["taken"] is True and taken["finding"] == best
+    assert not any(c["accepted"] for c in taken["candidates"])
+    assert "NOT accepted" in taken["statement"] or "taken with --take" in taken["statement"]
+    assert taken["J_before"] == report["J_before"]
+    assert taken["verdict"] != "none" and taken["confirmation"]["effect"] == best
+    # a name that is not among the candidates: one line naming them, exit 2
+    assert _diagnose(case, out, "--no-tracking", "--take", "no_such_effect") == 2
+    err = capsys.readouterr().err
+    assert "--take 'no_such_effect': no such candidate" in err and best in err
+    assert "Traceback" not in err
 
 
 @pytest.mark.integration  # a planted case, end to end

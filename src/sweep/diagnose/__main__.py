@@ -154,6 +154,14 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     ap.add_argument("--max-delta-bic", type=float, default=d.max_delta_bic)
     ap.add_argument(
+        "--take",
+        default=d.take,
+        metavar="EFFECT",
+        help="re-identify with this candidate whatever the verdict (its name in the ranking, "
+        "'best' or 'shape'), to see what it does on the test recordings; the report says it "
+        "was taken, and whether it was accepted",
+    )
+    ap.add_argument(
         "--no-discovery",
         action="store_true",
         help="do not propose terms from the library (catalog candidates only)",
@@ -236,6 +244,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
         rounds=args.rounds,
         shape_variables=_shape_variables(args.shape_variables),
         max_delta_bic=args.max_delta_bic,
+        take=args.take.strip(),
         prior_weight=args.prior_weight,
         final_prior_weight=args.final_prior_weight,
         discover=not args.no_discovery,

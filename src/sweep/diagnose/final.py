@@ -112,7 +112,13 @@ def reidentify(
     after = reidentify_with(ctx, base, before, effect, start, verdict.verdict, origin)
     confirm = delta_bic(after.f, before.f, ctx.parameter_count(effect), ctx.n_eff)
     confirmation = {"effect": verdict.effect, "delta_bic": confirm}
-    if confirm > threshold:
+    if confirm > threshold and verdict.taken:
+        ctx.log(
+            f"re-identification on all windows: {verdict.effect} changes the training J from "
+            f"{before.f:.4g} to {after.f:.4g} (dBIC {confirm:.1f} > {threshold:.1f}): kept, "
+            "taken with --take"
+        )
+    elif confirm > threshold:
         ctx.log(
             f"re-identification on all windows: {verdict.effect} changes the training J from "
             f"{before.f:.4g} to {after.f:.4g} (dBIC {confirm:.1f} > {threshold:.1f}): not "

@@ -410,6 +410,30 @@ def _none_statement(d: Diagnosis) -> str:
     return text + " " + misfit_text(d) + (" " + generalisation_text(d)).rstrip()
 
 
+def _taken(d: Diagnosis) -> bool:
+    """Whether the finding was taken with ``--take`` (not necessarily accepted)."""
+    return bool(d.extra.get("taken"))
+
+
+def _how_chosen(d: Diagnosis) -> str:
+    c = d.chosen
+    if not _taken(d):
+        return "accepted on the training runs"
+    state = "accepted" if c is not None and c.accepted else "not accepted"
+    return f"taken with --take, {state} on the training runs"
+
+
+def _acceptance_text(d: Diagnosis, c: CandidateScore) -> str:
+    if not _taken(d):
+        return f"accepted at <= {d.threshold:.1f}"
+    if c.accepted:
+        return f"accepted at <= {d.threshold:.1f}; taken with --take"
+    return (
+        f"NOT accepted: the threshold is {d.threshold:.1f} and it must carry over to held-out "
+        "runs; taken with --take to see what it does"
+    )
+
+
 def _found_statement(d: Diagnosis) -> str:
     c = d.chosen
     assert c is not None
@@ -439,7 +463,7 @@ def _found_statement(d: Diagnosis) -> str:
     text += (
         f"Fitted jointly with the 57 base parameters: {values}. "
         f"Against the base model refitted by the same procedure: dBIC = {c.delta_bic:.1f} "
-        f"(accepted at <= {d.threshold:.1f}); J on a held-out training window improves "
+        f"({_acceptance_text(d, c)}); J on a held-out training window improves "
         f"typically by {100 * c.improvement:+.1f} % (geometric mean over windows; their sum "
         f"by {100 * c.improvement_total:+.1f} %)."
     )
@@ -507,7 +531,7 @@ def harm_text(d: Diagnosis) -> str:
     kinds = [SUBSET_KIND.get(k, k) for k in h["harmed_subsets"]]
     tail = f": it does not carry over to {', '.join(kinds)}" if kinds else ""
     return (
-        f"HARM: {d.verdict_effect} (accepted on the training runs; {', '.join(parts)}{tail}). "
+        f"HARM: {d.verdict_effect} ({_how_chosen(d)}; {', '.join(parts)}{tail}). "
         "Use the model before, or add training recordings of those manoeuvres."
     )
 
@@ -583,6 +607,7 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
         "candidates": [asdict(c) for c in d.candidates],
         "fitted_effect_params": fitted,
         "finding": d.finding_name,
+        "taken": _taken(d),
         "harm": harm(d),
         "ranges": d.ranges.as_dict() if d.ranges is not None else None,
         "outside": d.settings.outside,

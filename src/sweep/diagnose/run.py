@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -186,8 +186,9 @@ def diagnose_rounds(
             f"the training windows (J {last.after.f:.4g}); what is missing beyond it, the finding "
             f"held at its values -> {round_dir(out, k)}"
         )
+        later = replace(s, take="")  # --take names a candidate of the first round
         rounds.append(
-            diagnose(last.after.params, train, test, round_dir(out, k), s, test_labels, log)
+            diagnose(last.after.params, train, test, round_dir(out, k), later, test_labels, log)
         )
     return rounds
 
@@ -326,5 +327,6 @@ def report(
             "trajectory_discovery": asdict(trajectory) if trajectory is not None else None,
             "confirmation": final.confirmation,
             "base_retry": base_retry,
+            "taken": final.verdict.taken,
         },
     )

@@ -52,6 +52,9 @@ class DiagnoseSettings:
     #: dBIC a candidate must reach; None: calibrated on the data at hand at false-alarm rate
     #: ``alpha`` (:mod:`sweep.diagnose.threshold`)
     max_delta_bic: float | None = None
+    #: a candidate taken whatever the verdict (``--take``): its name in the ranking, ``best``
+    #: (the first ranked) or ``shape`` (the first ranked learned shape); "": the verdict's
+    take: str = ""
     threshold_draws: int = THRESHOLD_DRAWS
     tie_margin: float = TIE_MARGIN
     refine_top: int = 3  # leading candidates (by dBIC) refined before the verdict
@@ -131,6 +134,7 @@ class DiagnoseSettings:
             "workers",
             "min_improvement",
             "max_delta_bic",
+            "take",
             "tie_margin",
             "discover_alternatives",
             "final_prior_weight",  # (in the final stages' names)

@@ -29,6 +29,8 @@ class Verdict:
     scores: list[CandidateScore]
     verdict: str
     effect: str
+    #: the effect was taken with ``--take``, accepted or not (a what-if: no confirmation)
+    taken: bool = False
 
 
 def verdict_name(effect: str, significant: bool) -> str:
@@ -120,7 +122,34 @@ def decide(
         )
         + f" -> verdict: {verdict}"
     )
+    if s.take:
+        effect = _taken(ctx, ranked, s.take)
+        return Verdict(ranked, verdict_name(effect, significant), effect, taken=True)
     return Verdict(ranked, verdict, effect)
+
+
+def _taken(ctx: Context, ranked: Sequence[CandidateScore], take: str) -> str:
+    """The candidate ``--take`` names among the ``ranked`` ones (``best``: the first, ``shape``:
+    the first learned shape that is not a closed form); logged. Raises ValueError naming the
+    candidates when there is none such."""
+    if take == "best":
+        found = ranked[:1]
+    elif take == "shape":
+        found = [
+            c for c in ranked if c.effect.startswith(SHAPE_PREFIX) and not is_closed_form(c.effect)
+        ][:1]
+    else:
+        found = [c for c in ranked if c.effect == take]
+    if not found:
+        names = ", ".join(c.effect for c in ranked) or "none"
+        raise ValueError(
+            f"--take {take!r}: no such candidate in this diagnosis; its candidates: {names} "
+            "(or 'best', 'shape')"
+        )
+    c = found[0]
+    state = "accepted" if c.accepted else "not accepted"
+    ctx.log(f"--take: {c.effect} taken whatever the verdict ({state})")
+    return c.effect
 
 
 def carries_to_other_sessions(null: AcceptanceNull, c: CandidateScore) -> bool:

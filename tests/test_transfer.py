@@ -73,3 +73,27 @@ def test_the_held_out_conditions_are_those_of_carrying_over():
     # the run far worse than its noise J refuses a generated candidate on the held-out runs
     losses = {"a": -0.1, "b": -0.1, "c": 1.0}
     assert not null.carries_over(0.2, losses, changes, generated=True)
+
+
+def test_a_transfer_must_also_hold_across_sessions_when_checked_there():
+    """A candidate that passes the transfer check within the sessions is refused when the same
+    check across sessions (held as fitted on some days' runs) makes more runs worse; not
+    checked there (one session), the transfer within decides."""
+    from sweep.diagnose.scoring import CandidateScore
+    from sweep.diagnose.verdict import transferred
+
+    null = _null(limit=1.0)
+    c = CandidateScore("shape:N~U[0:0.4]/8*v", "", "shapes", {}, 1.0, 1.0, 0.1, -50.0)
+    assert not transferred(null, c)  # not checked
+    c.transfer_checked = True
+    c.transfer_gain, c.transfer_run_changes = 0.5, {"a": -0.3, "b": -0.1, "c": 0.2}
+    c.heldout_gain = 0.5
+    assert transferred(null, c)
+    c.session_transfer_checked = True
+    c.session_transfer_gain = 0.3
+    c.session_transfer_run_changes = {"a": -0.3, "b": 0.1, "c": 0.2}  # 2 of 3 runs worse
+    assert not transferred(null, c)
+    c.session_transfer_run_changes = {"a": -0.3, "b": -0.1, "c": 0.2}
+    assert transferred(null, c)
+    c.session_transfer_gain = -0.1  # the other days' runs worse in sum
+    assert not transferred(null, c)

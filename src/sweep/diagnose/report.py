@@ -1181,19 +1181,27 @@ def _transfer_md(d: Diagnosis) -> list[str]:
         "effect. It carries over when the summed J falls, more runs get better than worse, no "
         "run gets worse by more than the limit of a catalog effect's held-out run, and the gain "
         "on runs the effect was not fitted on beats the held-out null here or on the held-out "
-        "runs.",
+        "runs. When it passes and the runs are of several sessions, it must pass the same "
+        "check across sessions (held as fitted on some sessions' runs, the base refitted on "
+        "the others').",
         "",
         "| effect | J against the control refitted alike | runs better | worst run "
         "| carries over |",
         "|---|---:|---:|---:|:-:|",
     ]
     for c in checked:
-        ch = c.transfer_run_changes
-        md.append(
-            f"| {c.effect} | {100 * c.transfer_change:+.1f} % | "
-            f"{sum(v < 0 for v in ch.values())} of {len(ch)} | "
-            f"{100 * max(ch.values(), default=0.0):+.0f} % | {'yes' if c.carries_over else 'no'} |"
-        )
+        rows = [("", c.transfer_change, c.transfer_run_changes)]
+        if c.session_transfer_checked:
+            rows.append(
+                (" (across sessions)", c.session_transfer_change, c.session_transfer_run_changes)
+            )
+        for where, change, ch in rows:
+            md.append(
+                f"| {c.effect}{where} | {100 * change:+.1f} % | "
+                f"{sum(v < 0 for v in ch.values())} of {len(ch)} | "
+                f"{100 * max(ch.values(), default=0.0):+.0f} % | "
+                f"{'yes' if c.carries_over else 'no'} |"
+            )
     return md
 
 
@@ -1202,6 +1210,8 @@ def _carries_md(c: CandidateScore) -> str:
     time does not (:mod:`sweep.diagnose.sessions`)."""
     if c.carries_over:
         return "yes (transfer check)" if c.transfer_checked else "yes"
+    if c.session_transfer_checked and c.sessions_carry:
+        return "no (transfer check across sessions)"
     if not c.sessions_carry:
         return "no (one session)" if c.sessions == "one session" else "no (other sessions)"
     return "no"

@@ -86,6 +86,12 @@ class CandidateScore:
     transfer_gain: float = 0.0
     transfer_change: float = 0.0
     transfer_run_changes: dict[str, float] = field(default_factory=dict)
+    #: ... when it passed and the runs are of several sessions, the same check across sessions
+    #: (held as fitted on some sessions' runs, the base refitted on the others')
+    session_transfer_checked: bool = False
+    session_transfer_gain: float = 0.0
+    session_transfer_change: float = 0.0
+    session_transfer_run_changes: dict[str, float] = field(default_factory=dict)
 
     @property
     def runs_better(self) -> int:

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from mmg.effect import DISCOVERED_PREFIX
+from mmg.effect import DISCOVERED_PREFIX, Effect
 from mmg.library import term
 from mmg.shapes import SHAPE_PREFIX, parse
 from sweep.diagnose.candidates import (
@@ -71,19 +71,9 @@ def check_sessions(ctx: Context, base: Fit, cands: Candidates) -> None:
             + " (tied to heading, position or time) cannot be checked on another session's runs"
         )
         return
-    settings = refine_settings(ctx)
-    split = ctx.session_w
-    control = fold_fits(ctx, base, "control-sessions", (), settings, split=split)
     by_name = {e.name: e for e in cands.effects}
     for c in tied:
-        eff = by_name[c.effect]
-        values = effect_values(cands.best_fold[c.effect].params, (eff,))
-        starts = [
-            replace(f, params=with_effects(f.params, (eff,), values), effects=(eff,))
-            for f in control.fits
-        ]
-        name = f"{CANDIDATE}{c.effect}-sessions"
-        folds = fold_fits(ctx, base, name, (eff,), settings, starts, split=split)
+        control, folds = session_fits(ctx, base, cands, by_name[c.effect])
         _record(c, folds, control)
         ctx.log(
             f"sessions: {c.effect} fitted on some sessions' runs and judged on the others': "
@@ -91,6 +81,26 @@ def check_sessions(ctx: Context, base: Fit, cands: Candidates) -> None:
             f"{sum(v < 0 for v in c.session_run_changes.values())} of "
             f"{len(c.session_run_changes)} runs better"
         )
+
+
+def session_fits(
+    ctx: Context, base: Fit, cands: Candidates, eff: Effect
+) -> tuple[FoldFits, FoldFits]:
+    """(the control, the candidate ``eff``) fitted on the runs of some sessions and judged on
+    the others' (stages ``control-sessions-foldJ``, ``candidate-c-NAME-sessions-foldJ``; fold
+    J fits half J of ``ctx.session_w``), the candidate from the control's fits with its values
+    of its best fold fit. Needs runs of several sessions."""
+    assert ctx.session_w is not None
+    settings = refine_settings(ctx)
+    split = ctx.session_w
+    control = fold_fits(ctx, base, "control-sessions", (), settings, split=split)
+    values = effect_values(cands.best_fold[eff.name].params, (eff,))
+    starts = [
+        replace(f, params=with_effects(f.params, (eff,), values), effects=(eff,))
+        for f in control.fits
+    ]
+    name = f"{CANDIDATE}{eff.name}-sessions"
+    return control, fold_fits(ctx, base, name, (eff,), settings, starts, split=split)
 
 
 def _record(c: CandidateScore, folds: FoldFits, control: FoldFits) -> None:

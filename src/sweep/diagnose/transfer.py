@@ -36,16 +36,19 @@ The procedure is described in the user guide (docs/guide/diagnosis.md).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
 
+from mmg import Effect
+from sweep.data.recordings import Recording
 from sweep.diagnose.candidates import Candidates, candidate_settings, run_changes
 from sweep.diagnose.context import Context
-from sweep.diagnose.fit import Fit
+from sweep.diagnose.fit import Fit, FitSettings
 from sweep.diagnose.floor import run_of
 from sweep.diagnose.scoring import CandidateScore, generated, heldout_per_window
-from sweep.diagnose.sessions import place_or_time
+from sweep.diagnose.sessions import place_or_time, session_fits
 from sweep.diagnose.store import stage_label
 from sweep.diagnose.threshold import AcceptanceNull, more_better
 from sweep.diagnose.verdict import carries_to_other_sessions
@@ -54,6 +57,8 @@ from sweep.diagnose.verdict import carries_to_other_sessions
 REFERENCE = "control-transfer"
 #: the stages of a candidate: ``transfer-NAME-foldJ``, its effect from the other fold held
 TRANSFER = "transfer-"
+#: ... of the check across sessions: ``transfer-sessions-NAME-foldJ``
+SESSIONS = "sessions-"
 
 
 def needs_transfer(ctx: Context, null: AcceptanceNull, threshold: float, c: CandidateScore) -> bool:
@@ -75,9 +80,12 @@ def needs_transfer(ctx: Context, null: AcceptanceNull, threshold: float, c: Cand
     )
 
 
-def check_transfer(ctx: Context, cands: Candidates, null: AcceptanceNull, threshold: float) -> None:
+def check_transfer(
+    ctx: Context, base: Fit, cands: Candidates, null: AcceptanceNull, threshold: float
+) -> None:
     """The transfer check of every leading candidate that needs it (:func:`needs_transfer`),
-    recorded in its score; logged."""
+    recorded in its score; when it passes and the runs are of several sessions, the same check
+    across sessions; logged."""
     leaders = set(cands.leaders)
     todo = [
         c for c in cands.scores if c.effect in leaders and needs_transfer(ctx, null, threshold, c)
@@ -86,45 +94,77 @@ def check_transfer(ctx: Context, cands: Candidates, null: AcceptanceNull, thresh
         return
     # Levenberg-Marquardt alone, as the candidates' first fits
     settings = replace(candidate_settings(ctx), budget=0, effect_only_budget=0)
-    halves = (ctx.fit_w, ctx.held_w)
+    by_name = {e.name: e for e in cands.effects}
+    for c in todo:
+        eff = by_name[c.effect]
+        halves = (ctx.fit_w, ctx.held_w)
+        fits = cands.folds[c.effect].fits
+        gain, change, changes = _transfer(ctx, halves, cands.control.fits, fits, eff, "", settings)
+        c.transfer_gain, c.transfer_change, c.transfer_run_changes = gain, change, changes
+        c.transfer_checked = True
+        ctx.log(
+            f"transfer: {c.effect} held as fitted on one half of the runs, the base refitted on "
+            f"the other: {_summary(change, changes)}"
+        )
+        if ctx.session_w is None or not null.transfers(gain, changes, c.heldout_gain):
+            continue
+        control, folds = session_fits(ctx, base, cands, eff)
+        gain, change, changes = _transfer(
+            ctx, ctx.session_w, control.fits, folds.fits, eff, SESSIONS, settings
+        )
+        c.session_transfer_gain, c.session_transfer_change = gain, change
+        c.session_transfer_run_changes = changes
+        c.session_transfer_checked = True
+        ctx.log(
+            f"transfer across sessions: {c.effect} held as fitted on some sessions' runs, the "
+            f"base refitted on the others': {_summary(change, changes)}"
+        )
+
+
+def _summary(change: float, changes: dict[str, float]) -> str:
+    worst = max(changes.values(), default=0.0)
+    better = sum(v < 0 for v in changes.values())
+    return (
+        f"their J {100 * change:+.1f} % against the control refitted alike ({better} of "
+        f"{len(changes)} runs better, worst run {100 * worst:+.1f} %)"
+    )
+
+
+def _transfer(
+    ctx: Context,
+    halves: tuple[list[Recording], list[Recording]],
+    control: Sequence[Fit],
+    fits: Sequence[Fit],
+    eff: Effect,
+    prefix: str,
+    settings: FitSettings,
+) -> tuple[float, float, dict[str, float]]:
+    """(gain [J], relative change, per run its relative change): on each half J the control's
+    fit of it (``control[J]``) continued (stage ``control-transfer-PREFIXfoldJ``), against the
+    base refitted alike with ``eff`` held as fitted on the other half (``fits[1 - J]``; stage
+    ``transfer-PREFIXNAME-foldJ``)."""
+    held = replace(settings, fixed_effects=True)
     reference: list[float] = []
+    J: list[float] = []
     for j, half in enumerate(halves):
-        # the control's fit of this half, continued (fold j of the control fits this half)
-        start = cands.control.fits[j].params
+        start = control[j].params
         ref = ctx.staged(
-            f"{REFERENCE}-fold{j}",
+            f"{REFERENCE}-{prefix}fold{j}",
             (),
             lambda h=half, p=start: ctx.refit(h, p, (), settings, REFERENCE),  # type: ignore[misc]
         )
         reference += heldout_per_window(half, ref.params, ctx.settings.objective)
-    J_ref = np.asarray(reference)
-    runs = tuple(run_of(w) for half in halves for w in half)
-    held = replace(settings, fixed_effects=True)
-    by_name = {e.name: e for e in cands.effects}
-    for c in todo:
-        eff = by_name[c.effect]
-        folds = cands.folds[c.effect]
-        J: list[float] = []
-        for j, half in enumerate(halves):
-            # the effect as fitted on the other half (its first fold fit: the refinement keeps
-            # only the scores), on the control's (refined) fit of this half
-            start = replace(cands.control.fits[j].params, effects=folds.fits[1 - j].params.effects)
-            fit: Fit = ctx.staged(
-                f"{TRANSFER}{stage_label(c.effect, (eff,))}-fold{j}",
-                (eff,),
-                lambda h=half, p=start, e=eff: ctx.refit(h, p, (e,), held, e.name),  # type: ignore[misc]
-            )
-            J += heldout_per_window(half, fit.params, ctx.settings.objective)
-        J_t = np.asarray(J)
-        c.transfer_gain = float(J_ref.sum() - J_t.sum())
-        c.transfer_change = float(J_t.sum() / max(J_ref.sum(), 1e-300) - 1.0)
-        c.transfer_run_changes = run_changes(J_t, J_ref, runs)
-        c.transfer_checked = True
-        worst = max(c.transfer_run_changes.values(), default=0.0)
-        better = sum(v < 0 for v in c.transfer_run_changes.values())
-        ctx.log(
-            f"transfer: {c.effect} held as fitted on one half of the runs, the base refitted on "
-            f"the other: their J {100 * c.transfer_change:+.1f} % against the control refitted "
-            f"alike ({better} of {len(c.transfer_run_changes)} runs better, worst run "
-            f"{100 * worst:+.1f} %)"
+        # the effect as fitted on the other half (its first fold fit: the refinement keeps only
+        # the scores), on the control's fit of this half
+        start = replace(control[j].params, effects=fits[1 - j].params.effects)
+        fit: Fit = ctx.staged(
+            f"{TRANSFER}{prefix}{stage_label(eff.name, (eff,))}-fold{j}",
+            (eff,),
+            lambda h=half, p=start, e=eff: ctx.refit(h, p, (e,), held, e.name),  # type: ignore[misc]
         )
+        J += heldout_per_window(half, fit.params, ctx.settings.objective)
+    J_ref, J_t = np.asarray(reference), np.asarray(J)
+    runs = tuple(run_of(w) for half in halves for w in half)
+    gain = float(J_ref.sum() - J_t.sum())
+    change = float(J_t.sum() / max(J_ref.sum(), 1e-300) - 1.0)
+    return gain, change, run_changes(J_t, J_ref, runs)

@@ -92,10 +92,7 @@ def decide(
         c.sessions_carry = carries_to_other_sessions(null, c)
         c.carries_over = (
             null.carries_over(c.heldout_gain, c.run_losses, c.run_changes, generated(c.effect))
-            or (
-                c.transfer_checked
-                and null.transfers(c.transfer_gain, c.transfer_run_changes, c.heldout_gain)
-            )
+            or transferred(null, c)
         ) and c.sessions_carry
         c.accepted = (
             c.refined == refined
@@ -152,6 +149,18 @@ def _taken(ctx: Context, ranked: Sequence[CandidateScore], take: str) -> str:
     return c.effect
 
 
+def transferred(null: AcceptanceNull, c: CandidateScore) -> bool:
+    """Whether a candidate passes the transfer check (:mod:`sweep.diagnose.transfer`), and,
+    when it was checked across sessions too, passes it there."""
+    if not c.transfer_checked:
+        return False
+    if not null.transfers(c.transfer_gain, c.transfer_run_changes, c.heldout_gain):
+        return False
+    return not c.session_transfer_checked or null.transfers(
+        c.session_transfer_gain, c.session_transfer_run_changes, c.session_transfer_gain
+    )
+
+
 def carries_to_other_sessions(null: AcceptanceNull, c: CandidateScore) -> bool:
     """Whether a candidate tied to heading, position or time carries over to another session's
     runs (:mod:`sweep.diagnose.sessions`; True for any other candidate)."""
@@ -169,6 +178,8 @@ def _carry_text(c: CandidateScore) -> str:
         return ": carries over by the transfer check"
     if c.carries_over:
         return ""
+    if c.session_transfer_checked and c.sessions_carry:
+        return ": does not carry over (the transfer check across sessions)"
     if not c.sessions_carry:
         if c.sessions == "one session":
             return ": tied to heading, position or time, and all training runs are of one session"

@@ -95,5 +95,10 @@ def test_a_transfer_must_also_hold_across_sessions_when_checked_there():
     assert not transferred(null, c)
     c.session_transfer_run_changes = {"a": -0.3, "b": -0.1, "c": 0.2}
     assert transferred(null, c)
+    c.session_transfer_gain = 0.05  # below the held-out null (0.1): the size is judged within
+    assert transferred(null, c)
+    c.session_transfer_run_changes = {"a": -0.3, "b": -0.1, "c": 1.5}  # one run beyond the limit
+    assert not transferred(null, c)
+    c.session_transfer_run_changes = {"a": -0.3, "b": -0.1, "c": 0.2}
     c.session_transfer_gain = -0.1  # the other days' runs worse in sum
     assert not transferred(null, c)

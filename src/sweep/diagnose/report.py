@@ -1181,9 +1181,10 @@ def _transfer_md(d: Diagnosis) -> list[str]:
         "effect. It carries over when the summed J falls, more runs get better than worse, no "
         "run gets worse by more than the limit of a catalog effect's held-out run, and the gain "
         "on runs the effect was not fitted on beats the held-out null here or on the held-out "
-        "runs. When it passes and the runs are of several sessions, it must pass the same "
-        "check across sessions (held as fitted on some sessions' runs, the base refitted on "
-        "the others').",
+        "runs. When it passes and the runs are of several sessions, it must carry over "
+        "across sessions too (held as fitted on some sessions' runs, the base refitted on the "
+        "others': their summed J falls, more runs get better than worse, none worse than the "
+        "limit).",
         "",
         "| effect | J against the control refitted alike | runs better | worst run "
         "| carries over |",

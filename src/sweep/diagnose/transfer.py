@@ -26,8 +26,10 @@ the held-out null in this check or the held-out one
 
 When the runs are of several sessions, a candidate that passes is checked once more the same
 way across sessions: held as fitted on some sessions' runs, the base refitted on the others'
-(stages ``control-transfer-sessions-foldJ``, ``transfer-sessions-NAME-foldJ``), and must pass
-there too. The two halves of the held-out split share each day's wind and water; another day's
+(stages ``control-transfer-sessions-foldJ``, ``transfer-sessions-NAME-foldJ``), and must carry
+over there too: the summed J falls, more runs get better than worse, none worse than the limit
+(:func:`sweep.diagnose.verdict.transferred`; the size of the gain is judged within the
+sessions, where the held-out null is calibrated). The two halves of the held-out split share each day's wind and water; another day's
 runs do not. On the planted weather helm (a yaw moment that needs the wind) a learned memory of
 the rudder with a moment in U times v_m passed the transfer check within the sessions (9 of 12
 runs better) and made the test recordings' J2 1.9 x worse; across sessions it made 1 of 12 runs

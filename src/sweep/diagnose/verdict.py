@@ -14,7 +14,7 @@ from mmg.shapes import SHAPE_PREFIX, is_closed_form
 from sweep.diagnose.context import Context
 from sweep.diagnose.scoring import CandidateScore, generated, rank, shape_and_form
 from sweep.diagnose.settings import DiagnoseSettings
-from sweep.diagnose.threshold import CEILING, AcceptanceNull
+from sweep.diagnose.threshold import CEILING, AcceptanceNull, more_better
 
 #: a learned shape is stated by the closed form it was named after when that form is accepted
 #: too and keeps at least this share of the shape's held-out gain
@@ -151,13 +151,21 @@ def _taken(ctx: Context, ranked: Sequence[CandidateScore], take: str) -> str:
 
 def transferred(null: AcceptanceNull, c: CandidateScore) -> bool:
     """Whether a candidate passes the transfer check (:mod:`sweep.diagnose.transfer`), and,
-    when it was checked across sessions too, passes it there."""
+    when it was checked across sessions too, carries over there: the other sessions' summed J
+    falls, more of their runs get better than worse and none worse than the limit of a catalog
+    effect's held-out run. The size of the gain is judged within the sessions only: the null's
+    held-out quantile is calibrated on the held-out split, not on the sessions'."""
     if not c.transfer_checked:
         return False
     if not null.transfers(c.transfer_gain, c.transfer_run_changes, c.heldout_gain):
         return False
-    return not c.session_transfer_checked or null.transfers(
-        c.session_transfer_gain, c.session_transfer_run_changes, c.session_transfer_gain
+    if not c.session_transfer_checked:
+        return True
+    changes = c.session_transfer_run_changes
+    return (
+        c.session_transfer_gain > 0.0
+        and more_better(changes)
+        and max(changes.values(), default=0.0) <= null.worst_run_limit
     )
 
 

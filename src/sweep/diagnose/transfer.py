@@ -29,11 +29,12 @@ way across sessions: held as fitted on some sessions' runs, the base refitted on
 (stages ``control-transfer-sessions-foldJ``, ``transfer-sessions-NAME-foldJ``), and must carry
 over there too: the summed J falls, more runs get better than worse, none worse than the limit
 (:func:`sweep.diagnose.verdict.transferred`; the size of the gain is judged within the
-sessions, where the held-out null is calibrated). The two halves of the held-out split share each day's wind and water; another day's
-runs do not. On the planted weather helm (a yaw moment that needs the wind) a learned memory of
-the rudder with a moment in U times v_m passed the transfer check within the sessions (9 of 12
-runs better) and made the test recordings' J2 1.9 x worse; across sessions it made 1 of 12 runs
-better and was refused, while the dead band's shape made 12 of 12 better there too.
+sessions, where the held-out null is calibrated). The two halves of the held-out split share
+each day's wind and water; another day's runs do not. On the planted weather helm (a yaw
+moment that needs the wind) a learned memory of the rudder with a moment in U times v_m passed
+the transfer check within the sessions (9 of 12 runs better) and made the test recordings' J2
+1.9 x worse; across sessions it made 1 of 12 runs better and was refused, while the dead
+band's shape made 12 of 12 better there too.
 
 A finding tied to position or time gets no transfer check: both halves share how the ship's
 position grows with time along a day's runs, so a shape in x0 stands in for a force that builds

@@ -112,20 +112,15 @@ def reidentify(
     after = reidentify_with(ctx, base, before, effect, start, verdict.verdict, origin)
     confirm = delta_bic(after.f, before.f, ctx.parameter_count(effect), ctx.n_eff)
     confirmation = {"effect": verdict.effect, "delta_bic": confirm}
-    if confirm > threshold and verdict.taken:
+    if confirm > threshold:
         ctx.log(
             f"re-identification on all windows: {verdict.effect} changes the training J from "
-            f"{before.f:.4g} to {after.f:.4g} (dBIC {confirm:.1f} > {threshold:.1f}): kept, "
-            "taken with --take"
+            f"{before.f:.4g} to {after.f:.4g} (dBIC {confirm:.1f} > {threshold:.1f}): "
+            + ("kept, taken with --take" if verdict.taken else "not confirmed")
         )
-    elif confirm > threshold:
-        ctx.log(
-            f"re-identification on all windows: {verdict.effect} changes the training J from "
-            f"{before.f:.4g} to {after.f:.4g} (dBIC {confirm:.1f} > {threshold:.1f}): not "
-            "confirmed"
-        )
-        fallback = replace(verdict, verdict=verdict_name("", significant), effect="")
-        return Final(before, before, fallback, confirmation, {})
+        if not verdict.taken:
+            fallback = replace(verdict, verdict=verdict_name("", significant), effect="")
+            return Final(before, before, fallback, confirmation, {})
     like: dict[str, float] = {}
     if verdict.verdict == "discovered":  # which catalog effect's force pattern it is most like
         like = resemblance(base.params, ctx.windows, effect, verdict.scores, cands.effects)

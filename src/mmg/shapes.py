@@ -414,6 +414,11 @@ class Group:
             names = ", ".join(VARIABLES)
             raise ValueError(f"unknown shape variable {self.variable!r}; known: {names}, 1")
         else:
+            # the range as the name writes it: a group built from measured quantiles is then
+            # the very group its name rebuilds, in this process and any other (one kernel,
+            # compiled once, the same force everywhere)
+            object.__setattr__(self, "lo", float(_num(self.lo)))
+            object.__setattr__(self, "hi", float(_num(self.hi)))
             if not (math.isfinite(self.lo) and math.isfinite(self.hi) and self.lo < self.hi):
                 raise ValueError(f"{self.variable}: knot range [{self.lo}, {self.hi}] is empty")
             if self.form:

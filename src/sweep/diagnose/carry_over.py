@@ -20,6 +20,7 @@ import numpy as np
 
 from mmg import Parameters, get_effect
 from mmg.domain import within
+from mmg.precompile import precompile, tasks
 from sweep.data.ranges import Departure, Ranges, departures, ranges_of
 from sweep.data.recordings import Recording
 from sweep.diagnose.context import Context
@@ -70,6 +71,10 @@ def bounded(ctx: Context, final: Final) -> tuple[Final, Ranges | None]:
     fit_effects = tuple(wrapped if e.name == name else e for e in final.after.effects)
     after = replace(final.after, params=params, effects=fit_effects)
     ctx.log(f"the finding acts in the box of the training states: {wrapped.name}")
+    # the bounded model's kernels (the test tables, the generalisation test, the trust), side
+    # by side rather than one after another at first use
+    kernel = tuple(get_effect(n) for n, _ in effects)
+    precompile(tasks([kernel], ("simulate", "moments", "derivatives")), log=ctx.log)
     return replace(final, after=after), ranges
 
 

@@ -38,6 +38,7 @@ from mmg.discovered import discovered_effect, unit_rows, with_bounds
 from mmg.integrate import derivatives_rows, effect_accelerations_rows
 from mmg.library import SEARCHED, Column, chosen_shapes, library_columns, term
 from mmg.params import N_THETA
+from mmg.precompile import precompile, tasks
 from sweep.data.recordings import Recording
 from sweep.diagnose.floor import NoiseModel, simulate_windows
 from sweep.identification.vector import effect_values
@@ -569,6 +570,10 @@ def resemblance(
     candidate's, both at their fitted values; catalog effects that add no force are left out."""
     by_name = {e.name: e for e in effects}
     fitted = {c.effect: c.params for c in scores}
+    compared = [by_name[n] for n in fitted if n in by_name and not n.startswith("discovered:")]
+    # the right-hand sides of every effect compared, compiled side by side
+    base_effects = tuple(get_effect(n) for n, _ in params.effects)
+    precompile(tasks([(*base_effects, e) for e in (chosen, *compared)], ("derivatives",)))
     ref = force_pattern(params, windows, chosen, list(fitted[chosen.name].values()))
     out: dict[str, float] = {}
     for name, vals in fitted.items():

@@ -115,7 +115,8 @@ def variable_ranges(
     """{variable: (lo, hi)}: the ``quantiles`` of each variable over the recorded samples of
     ``windows`` (with the base ``params`` for the rudder inflow and the wake), leaving out
     values beyond :data:`GUARD` (the advance ratio where the propeller stands still); a
-    variable that does not vary there (a constant propeller speed) is left out. A control's
+    variable that does not vary there (a constant propeller speed; a range narrower than 1e-4
+    of the variable's size) is left out. A control's
     gap spans [-m, m], m its largest size: the log's steps are few, and the largest matter."""
     cols: dict[str, list[FloatArray]] = {n: [] for n in names}
     for w in windows:
@@ -131,7 +132,8 @@ def variable_ranges(
         if SHAPE_VARIABLES[n].control:
             hi = float(np.max(np.abs(z)))
             lo = -hi
-        if hi - lo > 1e-6 * max(1.0, abs(lo), abs(hi)):
+        # (wider than the 6 significant digits a group's range is written with)
+        if hi - lo > 1e-4 * max(1.0, abs(lo), abs(hi)):
             out[n] = (lo, hi)
     return out
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -14,17 +15,18 @@ from benchmarks.planted import (
     generate,
     noise_levels,
     pick_windows,
+    unforeseen_spec,
     write_case,
 )
 
 from mmg import efd_parameters
 from sweep.data.parameters import load_parameters
+from sweep.data.recordings import read_recordings
 from sweep.diagnose.__main__ import main
 from sweep.diagnose.base import routes_agree
 from sweep.diagnose.scoring import delta_bic
 from sweep.diagnose.windows import cut_windows, split_windows
 from tests.conftest import SHARED_EFFECTS, kernels, shared_effects
-from tests.planted_cases import plant_case, read_runs, run_diagnosis
 
 pytestmark = pytest.mark.kernels(*kernels((), "simulate", "moments", "derivatives"))
 #: the kernels of the candidates the end-to-end cases fit (--candidates rudder_offset,current)
@@ -33,10 +35,39 @@ CANDIDATES = pytest.mark.kernels(
     *kernels(("current",), "simulate", "moments"),
 )
 
+KINDS = ("random", "turning", "zigzag")
+
 
 @pytest.fixture(scope="module")
 def runs(data_dir: Path) -> dict[str, list]:
-    return read_runs(data_dir)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return {k: read_recordings(data_dir / "data" / k) for k in KINDS}
+
+
+def _case(runs: dict[str, list], spec: PlantedSpec, directory: Path, phi: float = 0.0) -> None:
+    """Four training windows and one test window of the EFD ship with ``spec`` planted
+    (measurement noise coloured by ``phi``, the AR(1) correlation between samples)."""
+    rng = np.random.default_rng(3)
+    wins = pick_windows(runs, {"random": 3, "turning": 1, "zigzag": 1}, rng)
+    noise = noise_levels([r for v in runs.values() for r in v])
+    recs, diverged = generate(wins, efd_parameters(), spec, noise, rng, phi=phi)
+    assert not diverged
+    write_case(directory, recs[1:], recs[:1], spec, efd_parameters())
+
+
+def _diagnose(case: Path, out: Path, *extra: str) -> int:
+    return main(
+        [
+            "--params", "efd",
+            "--train", str(case / "train"),
+            "--test", str(case / "test"),
+            "--out", str(out),
+            "--budget", "200",
+            "--candidates", "rudder_offset,current",
+            *extra,
+        ]
+    )  # fmt: skip
 
 
 @pytest.mark.integration  # a planted case, end to end
@@ -48,10 +79,10 @@ def test_planted_rudder_offset_is_found_end_to_end(runs, tmp_path, capsys):
     :func:`test_planted_rudder_offset_beats_the_librarys_proposals` (slow: their kernels depend
     on what the discovery proposes, some minutes of compilation on a cold cache)."""
     case = tmp_path / "case"
-    plant_case(runs, PlantedSpec("rudder_offset", {"delta_0": 0.05}), case)
+    _case(runs, PlantedSpec("rudder_offset", {"delta_0": 0.05}), case)
     out = tmp_path / "out"
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    assert run_diagnosis(case, out, "--tracking-uri", uri, "--no-discovery", "--no-shapes") == 0
+    assert _diagnose(case, out, "--tracking-uri", uri, "--no-discovery", "--no-shapes") == 0
     report = json.loads((out / "report.json").read_text())
     assert report["verdict"] == "rudder_offset"
     assert report["fitted_effect_params"]["delta_0"] == pytest.approx(0.05, rel=0.2)
@@ -112,11 +143,11 @@ def test_planted_rudder_offset_is_found_end_to_end(runs, tmp_path, capsys):
 
     # a second run resumes every stage instead of fitting again; the re-identification's prior
     # is in its stages' names, so another weight refits those two stages only
-    assert run_diagnosis(case, out, "--no-tracking", "--no-discovery", "--no-shapes") == 0
+    assert _diagnose(case, out, "--no-tracking", "--no-discovery", "--no-shapes") == 0
     err = capsys.readouterr().err
     assert err.count("resumed from") >= 5 and "final-w0.01-base.json" in err
     args = ("--no-tracking", "--no-discovery", "--no-shapes", "--final-prior-weight", "0.02")
-    assert run_diagnosis(case, out, *args) == 0
+    assert _diagnose(case, out, *args) == 0
     err = capsys.readouterr().err
     assert "final-w0.02-base: J =" in err
     assert re.search(r"final-w0\.02-3[cb]-rudder_offset: J =", err)
@@ -128,9 +159,9 @@ def test_planted_rudder_offset_beats_the_librarys_proposals(runs, tmp_path):
     """The same case with the library's proposals fitted beside the catalog's candidates: the
     planted catalog effect still ranks first and is the verdict."""
     case = tmp_path / "case"
-    plant_case(runs, PlantedSpec("rudder_offset", {"delta_0": 0.05}), case)
+    _case(runs, PlantedSpec("rudder_offset", {"delta_0": 0.05}), case)
     out = tmp_path / "out"
-    assert run_diagnosis(case, out, "--no-tracking") == 0
+    assert _diagnose(case, out, "--no-tracking") == 0
     report = json.loads((out / "report.json").read_text())
     assert report["verdict"] == "rudder_offset"
     assert report["candidates"][0]["effect"] == "rudder_offset"
@@ -144,9 +175,9 @@ def test_no_planted_effect_gives_verdict_none(runs, tmp_path, capsys):
     """Nothing planted, the measurement noise coloured (AR(1), 0.6 between samples): the library
     and the learned shapes are tried too, and nothing is accepted."""
     case = tmp_path / "case"
-    plant_case(runs, PlantedSpec("none"), case, phi=0.6)
+    _case(runs, PlantedSpec("none"), case, phi=0.6)
     out = tmp_path / "out"
-    assert run_diagnosis(case, out, "--no-tracking") == 0
+    assert _diagnose(case, out, "--no-tracking") == 0
     report = json.loads((out / "report.json").read_text())
     assert report["verdict"] == "none"
     assert not any(c["accepted"] for c in report["candidates"])
@@ -162,7 +193,7 @@ def test_no_planted_effect_gives_verdict_none(runs, tmp_path, capsys):
     # what the best refused candidate would do: taken with --take, re-identified on all the
     # training windows (the stages resume), and stated as not accepted
     best = report["candidates"][0]["effect"]
-    assert run_diagnosis(case, out, "--no-tracking", "--take", "best") == 0
+    assert _diagnose(case, out, "--no-tracking", "--take", "best") == 0
     taken = json.loads((out / "report.json").read_text())
     assert taken["taken"] is True and taken["finding"] == best
     assert not any(c["accepted"] for c in taken["candidates"])
@@ -170,7 +201,7 @@ def test_no_planted_effect_gives_verdict_none(runs, tmp_path, capsys):
     assert taken["J_before"] == report["J_before"]
     assert taken["verdict"] != "none" and taken["confirmation"]["effect"] == best
     # a name that is not among the candidates: one line naming them, exit 2
-    assert run_diagnosis(case, out, "--no-tracking", "--take", "no_such_effect") == 2
+    assert _diagnose(case, out, "--no-tracking", "--take", "no_such_effect") == 2
     err = capsys.readouterr().err
     assert "--take 'no_such_effect': no such candidate" in err and best in err
     assert "Traceback" not in err
@@ -187,10 +218,10 @@ def test_a_finding_that_leaves_more_missing_is_followed_by_a_second_round(runs, 
     model with it (held at its values) and names the other; the final model carries both."""
     case = tmp_path / "case"
     values = {"b_psi": 0.02, "b_v": 0.0, "delta_0": 0.08}
-    plant_case(runs, PlantedSpec("heading_bias+rudder_offset", values), case)
+    _case(runs, PlantedSpec("heading_bias+rudder_offset", values), case)
     out = tmp_path / "out"
     args = ("--no-tracking", "--no-discovery", "--no-shapes", "--rounds", "2")
-    assert run_diagnosis(case, out, *args, "--candidates", "rudder_offset,heading_bias") == 0
+    assert _diagnose(case, out, *args, "--candidates", "rudder_offset,heading_bias") == 0
     first = json.loads((out / "report.json").read_text())
     second = json.loads((out / "round-2" / "report.json").read_text())
     assert first["remainder"]["significant"]
@@ -236,7 +267,7 @@ def test_an_effect_only_the_test_recordings_excite_is_flagged_unexplained(runs, 
     write_case(case, train, test, PlantedSpec("none"), ship)
     out = tmp_path / "out"
     # (catalog candidates only: the verdict rests on the floor and the test recordings)
-    assert run_diagnosis(case, out, "--no-tracking", "--no-discovery", "--no-shapes") == 0
+    assert _diagnose(case, out, "--no-tracking", "--no-discovery", "--no-shapes") == 0
     report = json.loads((out / "report.json").read_text())
     assert report["verdict"] == "unexplained"
     assert not report["misfit"]["significant"]
@@ -249,20 +280,132 @@ def test_an_effect_only_the_test_recordings_excite_is_flagged_unexplained(runs, 
     assert "does the model carry over" in (out / "report.md").read_text()
 
 
+@pytest.mark.integration  # a planted case, end to end
+@pytest.mark.kernels(
+    *kernels(("propeller_walk",), "simulate", "moments"),
+    *kernels(("current",), "simulate", "moments"),
+)
+def test_a_finding_fitted_in_one_regime_is_held_beyond_it_and_the_test_run_is_named(
+    data_dir, tmp_path
+):
+    """A propeller walk planted in turning runs at a constant 10 rev/s: the finding is fitted in
+    that regime only, so it is held at its 10-rev/s force beyond it, and the berthing test
+    run, whose propeller turns at up to 17.5 rev/s and astern, is named as leaving the ranges."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        turns = [r for r in read_recordings(data_dir / "data" / "turning") if "cut" in r.name]
+        berthing = read_recordings(data_dir / "data" / "berthing")
+    rng = np.random.default_rng(5)
+    wins = pick_windows({"turning": turns, "berthing": berthing}, {"turning": 4}, rng)
+    wins += pick_windows({"berthing": berthing[:1]}, {"berthing": 1}, rng)
+    spec = PlantedSpec("propeller_walk", {"C_Yw": 4e-4, "C_Nw": -2e-4})
+    noise = noise_levels([*turns, *berthing])
+    recs, diverged = generate(wins, efd_parameters(), spec, noise, rng)
+    assert not diverged
+    case, out = tmp_path / "case", tmp_path / "out"
+    write_case(case, recs[:4], recs[4:], spec, efd_parameters())
+    args: tuple[str, ...] = ("--no-tracking", "--no-discovery", "--no-shapes")
+    args += ("--candidates", "propeller_walk,current")
+    assert _diagnose(case, out, *args) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["verdict"] == "propeller_walk"
+    found = report["finding"]
+    assert found.startswith("propeller_walk@held(") and ",n_p=10:10)" in found
+    assert report["ranges"]["intervals"]["n_p"]["max"] == 10.0
+    # held: beyond the fitted n_p the force is the one at 10 rev/s
+    from mmg import get_effect
+
+    held = get_effect(found)
+    e = held.param_type(**report["fitted_effect_params"])
+    p = efd_parameters()
+    assert held.force is not None
+    force = held.force
+    at = [force(0.3, 0.0, 0.0, 0.0, 0.0, n, 0.0, 0.0, e, p.theta, p.ship) for n in (10, 17)]
+    assert at[0] == at[1] and abs(at[0][2]) > 0
+    # the berthing run leaves the ranges: named with the variable and by how much
+    named = {(d["recording"], d["variable"]) for d in report["departures"]}
+    test_name = sorted((case / "test").iterdir())[0].stem
+    assert (test_name, "n_p") in named
+    md = (out / "report.md").read_text()
+    assert "## Where the finding holds" in md and f"{test_name}: n_p to" in md
+    assert report["J_after_unbounded"]["J2"]["Total"] > 0
+    # the parameters after carry the bounded finding; evaluated on a recording beyond its box,
+    # the command names the recording
+    after = json.loads((out / "params_after.json").read_text())
+    assert found in after["effects"]
+    from sweep.evaluate import run as evaluate_run
+
+    table = evaluate_run(
+        ["--params", str(out / "params_after.json"), "--recordings", str(case / "test")]
+    )
+    assert table["J2"]["Total"] == pytest.approx(report["J_after"]["J2"]["Total"], rel=1e-9)
+    assert {(d["effect"], d["variable"]) for d in table["departures"]} >= {(found, "n_p")}
+
+
+@pytest.mark.integration  # a planted case, end to end
+@pytest.mark.kernels(*kernels(("rudder_offset",), "simulate", "moments"))
+def test_a_form_no_library_term_expresses_is_learned_as_a_shape_end_to_end(runs, tmp_path):
+    """Cross-flow drag that sets in beyond a drift angle of 30 deg (a hinge in |sin beta|, of
+    the planted set no library term expresses): no catalog candidate and no library term (off
+    here) fits it; the learned shape of the side force and yaw moment in the drift angle is
+    found, fitted with the 57 parameters, accepted, named or plotted, and the re-identified
+    model fits the test recording better."""
+    # random runs only: their slow, crabbing stretches pass 30 deg of drift in every window, so
+    # that each half of the windows sees the hinge
+    rng = np.random.default_rng(3)
+    wins = pick_windows(runs, {"random": 5}, rng)
+    noise = noise_levels([r for v in runs.values() for r in v])
+    spec = unforeseen_spec("drift_hinge", 2.0)
+    recs, diverged = generate(wins, efd_parameters(), spec, noise, rng)
+    assert not diverged
+    case = tmp_path / "case"
+    write_case(case, recs[1:], recs[:1], spec, efd_parameters())
+    out = tmp_path / "out"
+    args = ("--no-tracking", "--no-discovery", "--candidates", "rudder_offset")
+    assert _diagnose(case, out, *args) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["shapes"]["proposed"]
+    # the random runs are of one day: the shapes use the ship's state and controls alone
+    assert "beta" in report["shapes"]["variables"]
+    assert not {"psi", "x0", "y0", "t"} & set(report["shapes"]["variables"])
+    assert report["verdict"] == "shape", report["statement"]
+    groups = report["shape"]["groups"]
+    assert {g["variable"] for g in groups} & {"beta", "v", "rp"}
+    # named afterwards: the closest closed forms were fitted as a candidate of their own; the
+    # finding is the formula or the shape, with its confidence band and its closest forms
+    form = report["shapes"]["form"]
+    assert form and form in {c["effect"] for c in report["candidates"]}
+    assert all(g["closest"] or g["closed_form"] or g["variable"] == "1" for g in groups)
+    assert all(g["band"] and min(g["band"]) > 0 for g in groups if g["variable"] != "1")
+    assert (out / "shapes.png").stat().st_size > 0
+    md = (out / "report.md").read_text()
+    assert "## Learned shape of the missing force" in md
+    assert "(without heading, position and time, which one session's runs cannot check)" in md
+    before, after = report["J_before"]["J2"]["Total"], report["J_after"]["J2"]["Total"]
+    assert after < before
+    # the learned shape is rebuilt from its name: the parameter file evaluates elsewhere
+    from sweep.evaluate import run as evaluate_run
+
+    table = evaluate_run(
+        ["--params", str(out / "params_after.json"), "--recordings", str(case / "test")]
+    )
+    assert table["J2"]["Total"] == pytest.approx(after, rel=1e-9)
+
+
 def test_user_mistakes_are_one_line_errors(runs, tmp_path, capsys):
     case = tmp_path / "case"
-    plant_case(runs, PlantedSpec("none"), case)
-    assert run_diagnosis(case, tmp_path / "o1", "--candidates", "warp_drive") == 2
+    _case(runs, PlantedSpec("none"), case)
+    assert _diagnose(case, tmp_path / "o1", "--candidates", "warp_drive") == 2
     assert "unknown effect" in capsys.readouterr().err
-    assert run_diagnosis(case, tmp_path / "o1", "--prior-weight", "-1") == 2
+    assert _diagnose(case, tmp_path / "o1", "--prior-weight", "-1") == 2
     assert "--prior-weight must be >= 0" in capsys.readouterr().err
-    assert run_diagnosis(case, tmp_path / "o1", "--final-prior-weight", "nan") == 2
+    assert _diagnose(case, tmp_path / "o1", "--final-prior-weight", "nan") == 2
     assert "--final-prior-weight must be >= 0" in capsys.readouterr().err
-    assert run_diagnosis(case, tmp_path / "o1", "--base-descent", "-5") == 2
+    assert _diagnose(case, tmp_path / "o1", "--base-descent", "-5") == 2
     assert "--base-descent must be >= 0" in capsys.readouterr().err
-    assert run_diagnosis(case, tmp_path / "o1", "--base-retry-agreement", "-0.1") == 2
+    assert _diagnose(case, tmp_path / "o1", "--base-retry-agreement", "-0.1") == 2
     assert "--base-retry-agreement must be >= 0" in capsys.readouterr().err
-    assert run_diagnosis(case, tmp_path / "o1", "--rounds", "0") == 2
+    assert _diagnose(case, tmp_path / "o1", "--rounds", "0") == 2
     assert "--rounds must be >= 1" in capsys.readouterr().err
     one = tmp_path / "one"
     one.mkdir()
@@ -439,10 +582,10 @@ def test_a_second_base_start_runs_when_asked_and_the_lower_end_is_the_base(runs,
     """``--base-retry-agreement 0``: a misfit above the floor always gets the second CMA-ES
     start; the lower of the two ends is the base the rest of the diagnosis starts from."""
     case = tmp_path / "case"
-    plant_case(runs, PlantedSpec("rudder_offset", {"delta_0": 0.05}), case)
+    _case(runs, PlantedSpec("rudder_offset", {"delta_0": 0.05}), case)
     out = tmp_path / "out"
     extra = ("--no-discovery", "--no-shapes", "--no-tracking", "--candidates", "rudder_offset")
-    assert run_diagnosis(case, out, "--base-retry-agreement", "0", *extra) == 0
+    assert _diagnose(case, out, "--base-retry-agreement", "0", *extra) == 0
     report = json.loads((out / "report.json").read_text())
     err = capsys.readouterr().err
     retry = report["base_retry"]

@@ -3,23 +3,18 @@ recordings cover (sweep.data.ranges)."""
 
 from __future__ import annotations
 
-import json
 import math
 import pickle
 import re
-import warnings
 from typing import Any
 
 import numpy as np
 import pytest
-from benchmarks.planted import PlantedSpec, generate, noise_levels, pick_windows, write_case
 
 from mmg import efd_parameters, get_effect
 from mmg.domain import Domain, parse_spec, split_name, within
 from sweep.data.ranges import departures, ranges_of
-from sweep.data.recordings import Recording, read_recordings
-from tests.conftest import kernels
-from tests.planted_cases import run_diagnosis
+from sweep.data.recordings import Recording
 
 BOX = Domain({"u": 0.2, "n_p": 3.0}, {"u": 1.3, "n_p": 5.0})
 
@@ -157,64 +152,3 @@ def test_ranges_and_the_recordings_that_leave_them():
     # a short excursion (at most 1 % of the samples) is not named
     blip = _recording("blip", np.full(200, 0.8), np.r_[np.full(198, 8.0), 11.0, 11.0])
     assert departures(rng, [blip]) == []
-
-
-@pytest.mark.integration  # a planted case, end to end
-@pytest.mark.kernels(
-    *kernels((), "simulate", "moments", "derivatives"),
-    *kernels(("propeller_walk",), "simulate", "moments"),
-    *kernels(("current",), "simulate", "moments"),
-)
-def test_a_finding_fitted_in_one_regime_is_held_beyond_it_and_the_test_run_is_named(
-    data_dir, tmp_path
-):
-    """A propeller walk planted in turning runs at a constant 10 rev/s: the finding is fitted in
-    that regime only, so it is held at its 10-rev/s force beyond it, and the berthing test
-    run, whose propeller turns at up to 17.5 rev/s and astern, is named as leaving the ranges."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        turns = [r for r in read_recordings(data_dir / "data" / "turning") if "cut" in r.name]
-        berthing = read_recordings(data_dir / "data" / "berthing")
-    rng = np.random.default_rng(5)
-    wins = pick_windows({"turning": turns, "berthing": berthing}, {"turning": 4}, rng)
-    wins += pick_windows({"berthing": berthing[:1]}, {"berthing": 1}, rng)
-    spec = PlantedSpec("propeller_walk", {"C_Yw": 4e-4, "C_Nw": -2e-4})
-    noise = noise_levels([*turns, *berthing])
-    recs, diverged = generate(wins, efd_parameters(), spec, noise, rng)
-    assert not diverged
-    case, out = tmp_path / "case", tmp_path / "out"
-    write_case(case, recs[:4], recs[4:], spec, efd_parameters())
-    args: tuple[str, ...] = ("--no-tracking", "--no-discovery", "--no-shapes")
-    args += ("--candidates", "propeller_walk,current")
-    assert run_diagnosis(case, out, *args) == 0
-    report = json.loads((out / "report.json").read_text())
-    assert report["verdict"] == "propeller_walk"
-    found = report["finding"]
-    assert found.startswith("propeller_walk@held(") and ",n_p=10:10)" in found
-    assert report["ranges"]["intervals"]["n_p"]["max"] == 10.0
-    # held: beyond the fitted n_p the force is the one at 10 rev/s
-    held = get_effect(found)
-    e = held.param_type(**report["fitted_effect_params"])
-    p = efd_parameters()
-    assert held.force is not None
-    force = held.force
-    at = [force(0.3, 0.0, 0.0, 0.0, 0.0, n, 0.0, 0.0, e, p.theta, p.ship) for n in (10, 17)]
-    assert at[0] == at[1] and abs(at[0][2]) > 0
-    # the berthing run leaves the ranges: named with the variable and by how much
-    named = {(d["recording"], d["variable"]) for d in report["departures"]}
-    test_name = sorted((case / "test").iterdir())[0].stem
-    assert (test_name, "n_p") in named
-    md = (out / "report.md").read_text()
-    assert "## Where the finding holds" in md and f"{test_name}: n_p to" in md
-    assert report["J_after_unbounded"]["J2"]["Total"] > 0
-    # the parameters after carry the bounded finding; evaluated on a recording beyond its box,
-    # the command names the recording
-    after = json.loads((out / "params_after.json").read_text())
-    assert found in after["effects"]
-    from sweep.evaluate import run as evaluate_run
-
-    table = evaluate_run(
-        ["--params", str(out / "params_after.json"), "--recordings", str(case / "test")]
-    )
-    assert table["J2"]["Total"] == pytest.approx(report["J_after"]["J2"]["Total"], rel=1e-9)
-    assert {(d["effect"], d["variable"]) for d in table["departures"]} >= {(found, "n_p")}

@@ -73,8 +73,8 @@ def bounded(ctx: Context, final: Final) -> tuple[Final, Ranges | None]:
     ctx.log(f"the finding acts in the box of the training states: {wrapped.name}")
     # the bounded model's kernels (the test tables, the generalisation test, the trust), side
     # by side rather than one after another at first use
-    kernel = tuple(get_effect(n) for n, _ in effects)
-    precompile(tasks([kernel], ("simulate", "moments", "derivatives")), log=ctx.log)
+    bounded_effects = tuple(get_effect(n) for n, _ in effects)
+    precompile(tasks([bounded_effects], ("simulate", "moments", "derivatives")), log=ctx.log)
     return replace(final, after=after), ranges
 
 

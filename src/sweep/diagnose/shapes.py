@@ -116,8 +116,8 @@ def variable_ranges(
     ``windows`` (with the base ``params`` for the rudder inflow and the wake), leaving out
     values beyond :data:`GUARD` (the advance ratio where the propeller stands still); a
     variable that does not vary there (a constant propeller speed; a range narrower than 1e-4
-    of the variable's size) is left out. A control's
-    gap spans [-m, m], m its largest size: the log's steps are few, and the largest matter."""
+    of the variable's size) is left out. A control's gap spans [-m, m], m its largest size:
+    the log's steps are few, and the largest matter."""
     cols: dict[str, list[FloatArray]] = {n: [] for n in names}
     for w in windows:
         for n in names:

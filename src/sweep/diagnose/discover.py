@@ -570,18 +570,19 @@ def resemblance(
     candidate's, both at their fitted values; catalog effects that add no force are left out."""
     by_name = {e.name: e for e in effects}
     fitted = {c.effect: c.params for c in scores}
-    compared = [by_name[n] for n in fitted if n in by_name and not n.startswith("discovered:")]
+    compared = [
+        by_name[n]
+        for n in fitted
+        if n in by_name and n != chosen.name and not n.startswith("discovered:")
+    ]
     # the right-hand sides of every effect compared, compiled side by side
     base_effects = tuple(get_effect(n) for n, _ in params.effects)
     precompile(tasks([(*base_effects, e) for e in (chosen, *compared)], ("derivatives",)))
     ref = force_pattern(params, windows, chosen, list(fitted[chosen.name].values()))
     out: dict[str, float] = {}
-    for name, vals in fitted.items():
-        eff = by_name.get(name)
-        if eff is None or name == chosen.name or eff.name.startswith("discovered:"):
-            continue
-        pat = force_pattern(params, windows, eff, list(vals.values()))
+    for eff in compared:
+        pat = force_pattern(params, windows, eff, list(fitted[eff.name].values()))
         den = float(np.linalg.norm(pat) * np.linalg.norm(ref))
         if den > 0:
-            out[name] = float(pat @ ref / den)
+            out[eff.name] = float(pat @ ref / den)
     return dict(sorted(out.items(), key=lambda kv: -abs(kv[1])))

@@ -26,9 +26,11 @@ from sweep.diagnose.__main__ import main
 from sweep.diagnose.base import routes_agree
 from sweep.diagnose.scoring import delta_bic
 from sweep.diagnose.windows import cut_windows, split_windows
-from tests.conftest import SHARED_EFFECTS, kernels, shared_effects
+from tests.conftest import SHARED_EFFECTS, kernels, probe_kernels, shared_effects
 
-pytestmark = pytest.mark.kernels(*kernels((), "simulate", "moments", "derivatives"))
+pytestmark = pytest.mark.kernels(
+    *kernels((), "simulate", "moments", "derivatives"), *probe_kernels()
+)
 #: the kernels of the candidates the end-to-end cases fit (--candidates rudder_offset,current)
 CANDIDATES = pytest.mark.kernels(
     *kernels(("rudder_offset",), "simulate", "moments"),

@@ -24,9 +24,11 @@ from sweep.diagnose.__main__ import main
 from sweep.diagnose.floor import NoiseModel, calibrated_noise, misfit_test, noise_floor
 from sweep.diagnose.windows import cut_windows
 from sweep.identification.vector import with_effects
-from tests.conftest import kernels
+from tests.conftest import kernels, probe_kernels
 
-pytestmark = pytest.mark.kernels(*kernels((), "simulate", "moments", "derivatives"))
+pytestmark = pytest.mark.kernels(
+    *kernels((), "simulate", "moments", "derivatives"), *probe_kernels()
+)
 
 KINDS = ("random", "turning", "zigzag")
 

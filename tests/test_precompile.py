@@ -48,4 +48,4 @@ def test_tasks_name_unknown_entry_points() -> None:
     assert tasks([(), ()], ("simulate",)) == [((), "simulate"), ((), "simulate")]
     with pytest.raises(ValueError, match="unknown kernel entry point"):
         tasks([()], ("simulate", "jacobian"))
-    assert set(ENTRIES) == {"simulate", "moments", "derivatives"}
+    assert set(ENTRIES) == {"simulate", "moments", "derivatives", "accelerations"}

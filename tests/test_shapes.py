@@ -7,6 +7,7 @@ import pickle
 import subprocess
 import sys
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,7 @@ from mmg.shapes import (
     curve,
     difference_penalty,
     form_scale,
+    groups_of,
     is_closed_form,
     parse,
     parse_form,
@@ -171,14 +173,17 @@ def test_the_hook_adds_the_scaled_shapes() -> None:
 
 
 def test_the_probe_gives_the_force_of_each_coefficient() -> None:
-    """The probe (parameters G, C, J, A) gives exactly the force of the shape effect with its
-    coefficient (G, C, J) at A and every other at 0, ahead and astern; A = 0 gives nothing."""
+    """The probe (parameters G, C, J, A and the knot range L, U) gives exactly the force of the
+    shape effect with its coefficient (G, C, J) at A and every other at 0, ahead and astern;
+    A = 0 gives nothing."""
     p = efd_parameters()
     eff = get_effect(HOOK_SPEC)
     probe = get_effect(HOOK_SPEC + "#probe")
-    assert probe.param_names == ("G", "C", "J", "A") and probe.neutral() == (0.0,) * 4
+    assert probe.param_names == ("G", "C", "J", "A", "L", "U")
+    assert probe.neutral() == (0.0,) * 5 + (1.0,)
     rows = probe_rows(eff, 0.7)
-    assert rows.shape == (22, 4) and rows[12].tolist() == [1.0, 2.0, 0.0, 0.7]
+    g1 = groups_of(eff)[1]
+    assert rows.shape == (22, 6) and rows[12].tolist() == [1.0, 2.0, 0.0, 0.7, g1.lo, g1.hi]
     assert eff.force_at is not None and probe.force_at is not None
     shape_force, probe_force = eff.force_at, probe.force_at
     for u, v_m in ((0.5, -0.08), (-0.3, 0.05)):
@@ -189,8 +194,36 @@ def test_the_probe_gives_the_force_of_each_coefficient() -> None:
             want = shape_force(*args, eff.param_type(*values), p.theta, p.ship)
             got = probe_force(*args, probe.param_type(*row), p.theta, p.ship)
             assert got == pytest.approx(want, rel=1e-12, abs=1e-300), (i, u)
-        nothing = probe_force(*args, probe.param_type(1.0, 2.0, 3.0, 0.0), p.theta, p.ship)
+        off = probe.param_type(1.0, 2.0, 3.0, 0.0, 0.0, 1.0)
+        nothing = probe_force(*args, off, p.theta, p.ship)
         assert nothing == (0.0, 0.0, 0.0)
+
+
+def test_probes_of_one_structure_share_their_code_whatever_the_ranges() -> None:
+    """A probe's ranges come with its lanes: the probes of the same groups over other ranges
+    are one module (one kernel), and a probe made for more groups gives each of the effect's
+    coefficients at the row :func:`probe_rows` maps it to."""
+    p = efd_parameters()
+    eff = get_effect(HOOK_SPEC)
+    gs = groups_of(eff)
+    other = tuple(replace(g, lo=g.lo - 0.1, hi=g.hi + 0.3) if g.variable != "1" else g for g in gs)
+    assert shape_name(other) != shape_name(gs)
+    assert probe_effect(other).param_type is probe_effect(gs).param_type
+    assert shape_effect(other).param_type is not eff.param_type  # the effect's own are constants
+    wider = (Group("XYN", "U", 0.0, 1.0, 6), *gs)
+    probe = probe_effect(wider)
+    rows = probe_rows(eff, 0.7, wider)
+    assert rows[:, 0].min() == 1.0  # the effect's groups are the probe's groups 1, 2, ...
+    assert probe.force_at is not None and eff.force_at is not None
+    args = (12.0, 1.0, 2.0, 0.5, -0.08, 0.02, 0.3, 0.1, 10.0, 1.0, 0.5)
+    for i, row in enumerate(rows):
+        values = np.zeros(len(rows))
+        values[i] = 0.7
+        want = eff.force_at(*args, eff.param_type(*values), p.theta, p.ship)
+        got = probe.force_at(*args, probe.param_type(*row), p.theta, p.ship)
+        assert got == pytest.approx(want, rel=1e-12, abs=1e-300), i
+    with pytest.raises(ValueError, match="no group of the structure"):
+        probe_rows(eff, 0.7, wider[:1])
 
 
 def test_variables_from_recorded_samples() -> None:

@@ -27,6 +27,7 @@ ENTRIES: dict[str, str] = {
     "simulate": "simulate_lanes",  # mmg.simulate_batch
     "moments": "moments_lanes",  # mmg.integrate.segment_moments (the objective)
     "derivatives": "rhs_rows",  # mmg.integrate.derivatives / derivatives_rows
+    "accelerations": "effect_rows",  # mmg.integrate.effect_accelerations_rows (its last effect's)
 }
 
 
@@ -41,7 +42,13 @@ def is_compiled(effects: tuple[Effect, ...], entry: str) -> bool:
 
 def _compile(names: tuple[str, ...], entry: str) -> float:
     """In a worker: compile ``entry`` of the kernel for the named effects; seconds taken."""
-    from mmg.integrate import Segments, derivatives, segment_moments, simulate_batch
+    from mmg.integrate import (
+        Segments,
+        derivatives,
+        effect_accelerations_rows,
+        segment_moments,
+        simulate_batch,
+    )
 
     t0 = time.perf_counter()
     effects = tuple(get_effect(n) for n in names)
@@ -58,6 +65,8 @@ def _compile(names: tuple[str, ...], entry: str) -> float:
     elif entry == "moments":
         seg = Segments(x0, u, u, np.array([2]), np.zeros((1, 3, 7)), np.zeros((1, 7)))
         segment_moments(seg, theta[None], effects=effects)
+    elif entry == "accelerations":
+        effect_accelerations_rows(x0[0], u[0, 0], u[0, 0], theta[None], effects)
     else:
         derivatives(x0[0], u[0, 0], u[0, 0], theta, effects=effects)
     return time.perf_counter() - t0

@@ -76,6 +76,8 @@ PROBE_SUFFIX = "#probe"
 #: search interval of a spline coefficient, [-DEFAULT_BOUND, DEFAULT_BOUND] (dimensionless: a
 #: non-dimensional force in the group's scaling, or a share of the multiplying force)
 DEFAULT_BOUND = 1.0
+#: a probe's knot range [L, U] lies within [-PROBE_RANGE, PROBE_RANGE] (any variable's unit)
+PROBE_RANGE = 1e12
 #: the fewest basis functions of a spline (one cubic piece) and the most
 MIN_BASIS = 4
 MAX_BASIS = 40
@@ -460,6 +462,12 @@ class Group:
         return out
 
     @property
+    def structure(self) -> str:
+        """The group as a spec writes it without its knot range (``XYN~beta/8*Y_H``): what the
+        code of its probe depends on (:func:`probe_effect`)."""
+        return re.sub(r"\[[^\]]*\]", "", self.text)
+
+    @property
     def control(self) -> str:
         """The letter of the control whose memory this group is ("" for a force)."""
         return VARIABLES[self.variable].control if self.variable != "1" else ""
@@ -742,6 +750,13 @@ def _clamped(group: Group) -> str:
     return f"(min(max({VARIABLES[group.variable].code}, {lo!r}), {hi!r}) {shift}) * {1.0 / h!r}"
 
 
+def _lane_clamped(group: Group) -> str:
+    """Like :func:`_clamped`, with the knot range [L, U] of the probe's lane (its parameters)
+    instead of constants: a probe's code is then the same for every range."""
+    code = VARIABLES[group.variable].code
+    return f"(min(max({code}, e.L), e.U) - e.L) * ({float(group.n - 3)!r} / (e.U - e.L))"
+
+
 def _factors(group: Group) -> tuple[list[str], dict[str, str]]:
     """(lines that set ``mult``, the factor of each component's shape): the scaling (with q and
     L_pp) times the multiplier, or the multiplying force (and the lever L_pp)."""
@@ -812,11 +827,11 @@ def _probe_memory_lines(groups: Sequence[Group]) -> list[str]:
     for g, group in enumerate(groups):
         if not group.control:
             continue
-        lines += [f"    # {group.text}", f"    w = 1.0 if e.G == {float(g)!r} else 0.0"]
+        lines += [f"    # {group.structure}", f"    w = 1.0 if e.G == {float(g)!r} else 0.0"]
         lines += _gap_lines(group)
         lines.append(
             f"    {CONTROLS[group.control].symbol} -= w * gap * e.A * "
-            f"_b3({_clamped(group)} - (e.J - 1.0))"
+            f"_b3({_lane_clamped(group)} - (e.J - 1.0))"
         )
     return lines
 
@@ -828,9 +843,9 @@ def _probe_lines(groups: Sequence[Group]) -> list[str]:
     for g, group in enumerate(groups):
         if group.control:
             continue
-        lines += [f"    # {group.text}", f"    w = 1.0 if e.G == {float(g)!r} else 0.0"]
+        lines += [f"    # {group.structure}", f"    w = 1.0 if e.G == {float(g)!r} else 0.0"]
         if group.variable != "1":
-            lines += [f"    z += w * ({_clamped(group)})", "    spline += w"]
+            lines += [f"    z += w * ({_lane_clamped(group)})", "    spline += w"]
         setup, factor = _factors(group)
         lines += setup
         lines += [f"    f{c} += w * ({factor[c]})" for c in group.components]
@@ -869,7 +884,10 @@ def _source(name: str, groups: Sequence[Group], key: str, probe: bool = False) -
             "    C: float  # the component (0: X, 1: Y, 2: N, 3: D, 4: P)",
             "    J: float  # the basis function (0 .. n - 1)",
             "    A: float  # its coefficient (0: no force)",
+            "    L: float  # the group's knot range [L, U] in the variable's unit",
+            "    U: float",
         ]
+        name = "probe of " + "+".join(g.structure for g in groups)  # the same for any range
     else:
         for g, group in enumerate(groups):
             if group.control:
@@ -995,10 +1013,13 @@ def shape_effect(groups: Sequence[Group] | str, bound: float = DEFAULT_BOUND) ->
 def probe_effect(groups: Sequence[Group] | str) -> Effect:
     """The probe of ``groups``: the force of one coefficient of their shape effect at a time,
     chosen by its parameters (G: group, C: component 0/1/2 for X/Y/N, J: basis function,
-    A: the coefficient's value; A = 0 is neutral). Each lane of a batch sets its own, so one
-    simulation batch gives the trajectory column of every coefficient at the cost of a single
-    basis function per lane; the shape effect itself evaluates all of them in every lane (30 x
-    the base model's time for 460 coefficients). Named ``<shape effect's name>#probe``."""
+    A: the coefficient's value, A = 0 is neutral; L, U: the group's knot range). Each lane of a
+    batch sets its own, so one simulation batch gives the trajectory column of every
+    coefficient at the cost of a single basis function per lane; the shape effect itself
+    evaluates all of them in every lane (30 x the base model's time for 460 coefficients).
+    The ranges are the lanes' own, not constants of the code: the probes of groups of one
+    structure (:attr:`Group.structure`) share one module and one compiled kernel, whatever the
+    ranges. Named ``<shape effect's name>#probe``."""
     gs = parse(groups) if isinstance(groups, str) else tuple(groups)
     if any(g.form for g in gs):
         raise ValueError("a closed form is fitted directly; only splines have a probe")
@@ -1006,21 +1027,20 @@ def probe_effect(groups: Sequence[Group] | str) -> Effect:
     effect = _generated.get(name)
     if effect is None:
         module, key = _module(name, gs, probe=True)
-        roles = (
-            "group",
-            "component (0: X, 1: Y, 2: N, 3: D, 4: P)",
-            "basis function",
-            "coefficient",
+        table = (
+            ("G", 0.0, 0.0, len(gs) - 1, "group"),
+            ("C", 0.0, 0.0, 4.0, "component (0: X, 1: Y, 2: N, 3: D, 4: P)"),
+            ("J", 0.0, 0.0, MAX_BASIS - 1, "basis function"),
+            ("A", 0.0, 0.0, 1.0, "coefficient"),
+            ("L", 0.0, -PROBE_RANGE, PROBE_RANGE, "lower end of the group's knot range"),
+            ("U", 1.0, -PROBE_RANGE, PROBE_RANGE, "upper end of the group's knot range"),
         )
         effect = ShapeEffect(
             name=name,
             description="one coefficient at a time of " + shape_name(gs),
             regime="shapes",
             params=tuple(
-                EffectParam(p, "-", 0.0, 0.0, hi, role)
-                for p, hi, role in zip(
-                    "GCJA", (len(gs) - 1, 4, MAX_BASIS - 1, 1.0), roles, strict=True
-                )
+                EffectParam(p, "-", neutral, lo, hi, role) for p, neutral, lo, hi, role in table
             ),
             param_type=getattr(module, f"ShapeParams_{key}"),
             **_hooks(module, gs, key),
@@ -1029,13 +1049,23 @@ def probe_effect(groups: Sequence[Group] | str) -> Effect:
     return effect
 
 
-def probe_rows(effect: Effect, step: float) -> FloatArray:
-    """(k, 4) parameter rows of the probe of ``effect`` (a shape effect with k coefficients):
-    row i sets the shape effect's coefficient i to ``step`` (G, C, J, A)."""
+def probe_rows(effect: Effect, step: float, probe: Sequence[Group] | None = None) -> FloatArray:
+    """(k, 6) parameter rows of a probe for ``effect`` (a shape effect with k coefficients):
+    row i sets the shape effect's coefficient i to ``step`` (G, C, J, A, L, U). ``probe``: the
+    groups the probe was made for (default: the effect's own); each of the effect's groups is
+    the probe's group of its structure, at its own range. Raises ValueError for a group whose
+    structure the probe lacks."""
+    groups = groups_of(effect)
+    index = {g.structure: k for k, g in enumerate(groups if probe is None else probe)}
     rows = []
-    for g, group in enumerate(groups_of(effect)):
+    for group in groups:
+        g = index.get(group.structure)
+        if g is None:
+            raise ValueError(f"the probe has no group of the structure {group.structure}")
+        # a constant's lanes carry the neutral range (the other groups' code divides by U - L)
+        lo, hi = (group.lo, group.hi) if group.variable != "1" else (0.0, 1.0)
         for c in group.components:
-            rows += [(g, COMPONENTS.index(c), j, step) for j in range(group.n)]
+            rows += [(g, COMPONENTS.index(c), j, step, lo, hi) for j in range(group.n)]
     return np.asarray(rows, dtype=np.float64)
 
 

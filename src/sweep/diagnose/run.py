@@ -26,8 +26,12 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from mmg import Parameters
+from mmg.discovered import discovered_effect
 from mmg.domain import inner_name
+from mmg.effect import Effect
+from mmg.library import SEARCHED
 from mmg.precompile import precompile, tasks
+from mmg.shapes import probe_effect
 from sweep.data.ranges import Departure, Ranges
 from sweep.data.recordings import Recording
 from sweep.diagnose.base import identify_base, second_start
@@ -45,6 +49,7 @@ from sweep.diagnose.proposals import Proposals, propose
 from sweep.diagnose.scoring import CandidateScore
 from sweep.diagnose.sessions import check_sessions
 from sweep.diagnose.settings import DiagnoseSettings
+from sweep.diagnose.shapes import probe_groups
 from sweep.diagnose.shaping import ShapeProposal, propose_shape
 from sweep.diagnose.transfer import check_transfer
 from sweep.diagnose.trust import trust_of
@@ -216,15 +221,31 @@ class StageClock:
         return ", ".join(f"{k} {v:.0f} s" for k, v in self.seconds.items())
 
 
+def probe_tasks(ctx: Context) -> list[tuple[tuple[Effect, ...], str]]:
+    """The kernels that the discovery's library columns (every searched term, through one
+    generated effect) and the shapes' columns (one probe for every candidate group: its
+    ranges come with the lanes) simulate and evaluate, with the stages that use them on."""
+    s = ctx.settings
+    out = []
+    if s.discover:
+        library = discovered_effect(list(SEARCHED))
+        out += tasks([ctx.with_base((library,))], ("simulate", "accelerations"))
+    if s.shapes:
+        out += tasks([ctx.with_base((probe_effect(probe_groups([])),))], ("simulate",))
+    return out
+
+
 def run_stages(ctx: Context, t0: float) -> Diagnosis:
     """The stages in order; ``t0`` [s, ``time.perf_counter``] is when the diagnosis began."""
     s = ctx.settings
     clock = StageClock()
-    # the kernels of the base model and of every catalog effect, compiled side by side where
-    # the cache lacks them (one after another as the stages reach them took minutes)
+    # the kernels of the base model, of every catalog effect and of the probes of the library
+    # and of the shapes, compiled side by side where the cache lacks them (one after another as
+    # the stages reach them took minutes)
     precompile(
         tasks([ctx.base_effects], ("simulate", "moments", "derivatives"))
-        + tasks(ctx.with_base((e,)) for e in ctx.candidate_effects()),
+        + tasks(ctx.with_base((e,)) for e in ctx.candidate_effects())
+        + probe_tasks(ctx),
         log=ctx.log,
     )
     clock.lap("compilation")

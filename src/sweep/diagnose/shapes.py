@@ -22,8 +22,8 @@ freedom (the trace of the hat matrix) in place of the number of coefficients;
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -152,6 +152,17 @@ def candidate_groups(
     ``products`` and a constant times each quadrant indicator; a control's gap gives the
     memory of that control (one component, :data:`N_MEMORY_BASIS` functions)."""
     ranges = variable_ranges(windows, params, sorted({*variables, *(v for v, _ in products)}))
+    return _groups(ranges, variables, products, quadrants, n)
+
+
+def _groups(
+    ranges: Mapping[str, tuple[float, float]],
+    variables: Sequence[str],
+    products: Sequence[tuple[str, str]],
+    quadrants: Sequence[str],
+    n: int,
+) -> list[Group]:
+    """The candidate groups of the variables that have a knot range in ``ranges``."""
     groups = [
         Group(c, v, *ranges[v], N_MEMORY_BASIS)
         if (c := SHAPE_VARIABLES[v].control)
@@ -162,6 +173,21 @@ def candidate_groups(
     groups += [Group("XYN", v, *ranges[v], n, m) for v, m in products if v in ranges]
     groups += [Group("XYN", "1", multiplier=q) for q in quadrants]
     return groups
+
+
+def probe_groups(groups: Sequence[Group]) -> list[Group]:
+    """The groups a probe of ``groups`` is made for: every candidate of the default settings
+    (their structure; ranges come with the probe's lanes, :func:`mmg.shapes.probe_rows`),
+    then those of ``groups`` of another structure. Diagnoses of other data, with other
+    variables, then share one probe kernel, compiled once."""
+    unit = {v: (0.0, 1.0) for v in {*VARIABLES, *(v for v, _ in PRODUCTS)}}
+    out = _groups(unit, VARIABLES, PRODUCTS, QUADRANTS, N_BASIS)
+    seen = {g.structure for g in out}
+    for g in groups:
+        if g.structure not in seen:
+            seen.add(g.structure)
+            out.append(replace(g, lo=0.0, hi=1.0) if g.variable != "1" else g)
+    return out
 
 
 @dataclass(frozen=True)
@@ -350,14 +376,15 @@ class ShapeColumns:
         """(S, M, T) columns of every coefficient of the candidate effect, simulated through its
         probe (one basis function per lane), in batches."""
         lin = self.lin
-        probe = probe_effect(self.groups)
+        within = probe_groups(self.groups)
+        probe = probe_effect(within)
         obj = Objective(
             lin.windows, lin.objective, effects=(*lin.base_effects, probe), ship=lin.params.ship
         )
-        th = np.concatenate([lin.theta, np.zeros(len(probe.params))])
+        th = np.concatenate([lin.theta, probe.neutral()])
         r0 = residual_vectors(obj, th[None])[0][0]  # (S, M)
         S, M = r0.shape
-        units = probe_rows(self.effect, step)  # (T, 4)
+        units = probe_rows(self.effect, step, within)  # (T, 6)
         units[units[:, 1] >= COMPONENTS.index("D"), 3] = MEMORY_STEP
         T = units.shape[0]
         lib = np.empty((S, M, T), dtype=dtype)

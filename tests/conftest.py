@@ -33,18 +33,20 @@ def kernels(effects: tuple[str, ...], *entries: str) -> tuple[tuple[tuple[str, .
     return tuple((effects, entry) for entry in entries or ENTRIES)
 
 
-def probe_kernels() -> tuple[tuple[tuple[str, ...], str], ...]:
+def probe_kernels(library: bool = True) -> tuple[tuple[tuple[str, ...], str], ...]:
     """The kernels of a diagnosis's probes on the base model: the library's columns (every
-    searched term in one generated effect) and the shapes' columns (one probe for every
-    candidate group), as :func:`sweep.diagnose.run.probe_tasks` compiles them."""
+    searched term in one generated effect; not with ``library`` False) and the shapes' columns
+    (one probe for every candidate group), as :func:`sweep.diagnose.run.probe_tasks` compiles
+    them."""
     from mmg.effect import DISCOVERED_PREFIX
     from mmg.library import SEARCHED
     from mmg.shapes import PROBE_SUFFIX, shape_name
     from sweep.diagnose.shapes import probe_groups
 
-    library = DISCOVERED_PREFIX + "+".join(SEARCHED)
+    every_term = DISCOVERED_PREFIX + "+".join(SEARCHED)
     probe = shape_name(probe_groups([])) + PROBE_SUFFIX
-    return (*kernels((library,), "simulate", "accelerations"), *kernels((probe,), "simulate"))
+    terms = kernels((every_term,), "simulate", "accelerations") if library else ()
+    return (*terms, *kernels((probe,), "simulate"))
 
 
 def shared_effects() -> tuple[Effect, ...]:

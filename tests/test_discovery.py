@@ -31,6 +31,41 @@ pytestmark = pytest.mark.kernels(
 )
 
 KINDS = ("random", "turning", "zigzag")
+#: the library terms of the tests that compare forces point by point
+POINT_TERMS = ("Y_vav", "E_x0", "E_y0", "N_scdnn", "Y_Usy", "N_Usy", "N_b300", "N_bt")
+
+
+def point_effects() -> tuple:
+    """The effects of the tests that compare derivatives point by point, in one kernel: planted
+    forms and library terms side by side, each test setting its own and leaving the others at
+    their neutral values, which add exactly nothing (a kernel each cost 20-30 s to compile)."""
+    from benchmarks.planted import UNLISTED
+
+    planted = tuple(UNLISTED[k] for k in ("earth_force", "wash_yaw", "reverse_sway", "bank"))
+    return (*planted, discovered_effect(list(POINT_TERMS)))
+
+
+#: values of the others than their neutral ones: the planted bank's neutral width, 0, would make
+#: its force 0 x tanh(0 / 0) (its strength C_b = 0 still makes it vanish)
+POINT_OTHERS = {"W_b": 1.0}
+
+
+def point_params(p, **values: float):
+    """``p`` carrying :func:`point_effects`, ``values`` by parameter name, the rest neutral."""
+    effects = point_effects()
+    table = [q for e in effects for q in e.params]
+    unknown = set(values) - {q.name for q in table}
+    assert not unknown, unknown
+    given = {**POINT_OTHERS, **values}
+    return with_effects(p, effects, [given.get(q.name, q.neutral) for q in table])
+
+
+def point_derivatives(x, u, w, p, t: float = 0.0, **values: float) -> np.ndarray:
+    """The state derivatives at one point (time ``t``) with :func:`point_params` (finite: two
+    NaN in the same place would compare equal)."""
+    d = derivatives(x, u, w, point_params(p, **values), point_effects(), t=np.array(t))
+    assert np.all(np.isfinite(d)), d
+    return d
 
 
 @pytest.fixture(scope="module")
@@ -51,9 +86,9 @@ def test_generated_effect_adds_its_term_through_the_mass_matrix():
     x = np.array([0.0, 0.4, 0.0, -0.06, 0.2, 0.01])
     u = np.array([0.1, 10.0])
     w = np.array([1.0, 0.3])
-    d0 = derivatives(x, u, w, with_effects(p, (eff,)), (eff,))
-    d1 = derivatives(x, u, w, with_effects(p, (eff,), [0.5]), (eff,))
-    d2 = derivatives(x, u, w, with_effects(p, (eff,), [1.0]), (eff,))
+    d0 = point_derivatives(x, u, w, p)
+    d1 = point_derivatives(x, u, w, p, C_Y_vav=0.5)
+    d2 = point_derivatives(x, u, w, p, C_Y_vav=1.0)
     assert d1[1] == pytest.approx(d0[1], abs=1e-15)
     assert d1[3] != pytest.approx(d0[3], abs=1e-9)
     np.testing.assert_allclose(d2 - d0, 2.0 * (d1 - d0), rtol=1e-9, atol=1e-15)  # linear in C
@@ -130,18 +165,18 @@ def test_earth_fixed_force_terms_are_a_basin_force_resolved_through_the_heading(
     assert eff.param_names == ("C_E_x0", "C_E_y0")
     assert "X += 0.5 rho L_pp d C_E_x0 U_ref^2 cos(psi)" in eff.description
     planted = UNLISTED["earth_force"]
+    assert [q.name for q in planted.params] == ["F_e", "chi_e"]
     F, chi = 0.05, 2.2
     q = 0.5 * ESSO_OSAKA.rho * ESSO_OSAKA.L_pp * ESSO_OSAKA.d  # the terms' U_ref^2 is 1 m^2/s^2
     p = efd_parameters()
     u = np.array([0.1, 10.0])
     w = np.array([1.0, 0.3])
+    terms = {"C_E_x0": F * np.cos(chi) / q, "C_E_y0": F * np.sin(chi) / q}
     for psi in (0.0, 0.7, -2.5, 4.0):
         x = np.array([0.0, 0.4, 0.0, -0.06, psi, 0.01])
-        d0 = derivatives(x, u, w, with_effects(p, (eff,)), (eff,))
-        d_terms = derivatives(
-            x, u, w, with_effects(p, (eff,), [F * np.cos(chi) / q, F * np.sin(chi) / q]), (eff,)
-        )
-        d_true = derivatives(x, u, w, with_effects(p, (planted,), [F, chi]), (planted,))
+        d0 = point_derivatives(x, u, w, p)
+        d_terms = point_derivatives(x, u, w, p, **terms)
+        d_true = point_derivatives(x, u, w, p, F_e=F, chi_e=chi)
         assert d_true[1] != pytest.approx(d0[1], abs=1e-9)
         np.testing.assert_allclose(d_terms, d_true, rtol=1e-9, atol=1e-14)
 
@@ -194,15 +229,16 @@ def test_the_rudder_normal_force_term_is_the_planted_wash_moment_at_every_angle(
     eff = get_effect(effect_name(["N_scdnn"]))
     assert "sin(delta) cos(delta) (n_p D_p)^2" in eff.description
     planted = UNLISTED["wash_yaw"]
+    assert [q.name for q in planted.params] == ["C_d"]
     C_d = 2e-4
     p = efd_parameters()
     x = np.array([0.0, 0.4, 0.0, -0.06, 0.3, 0.01])
     w = np.array([1.0, 0.3])
     for delta in (-0.6, -0.1, 0.25, 0.61):
         u = np.array([delta, 8.0])
-        d0 = derivatives(x, u, w, with_effects(p, (eff,)), (eff,))
-        d_term = derivatives(x, u, w, with_effects(p, (eff,), [2.0 * C_d]), (eff,))
-        d_true = derivatives(x, u, w, with_effects(p, (planted,), [C_d]), (planted,))
+        d0 = point_derivatives(x, u, w, p)
+        d_term = point_derivatives(x, u, w, p, C_N_scdnn=2.0 * C_d)
+        d_true = point_derivatives(x, u, w, p, C_d=C_d)
         assert d_true[5] != pytest.approx(d0[5], abs=1e-9)
         np.testing.assert_allclose(d_term, d_true, rtol=1e-9, atol=1e-14)
 
@@ -217,6 +253,7 @@ def test_the_planted_reverse_sway_is_in_the_papers_own_form():
     assert FAMILY["reverse_sway"] == "in_form"
     assert PlantedSpec("reverse_sway", {"C_r": 1e-4}).expected == "none"
     planted = UNLISTED["reverse_sway"]
+    assert [q.name for q in planted.params] == ["C_r"]
     C_r = 3e-4
     p = efd_parameters()
     shifted = p.replace(
@@ -227,7 +264,7 @@ def test_the_planted_reverse_sway_is_in_the_papers_own_form():
     for u_ship, n_p in ((0.5, -10.0), (0.15, -10.0), (0.02, -10.0), (-0.2, -8.0), (0.5, 10.0)):
         x = np.array([0.0, u_ship, 0.0, 0.03, 0.4, 0.005])
         ctl = np.array([0.1, n_p])
-        d_true = derivatives(x, ctl, w, with_effects(p, (planted,), [C_r]), (planted,))
+        d_true = point_derivatives(x, ctl, w, p, C_r=C_r)
         d_base = derivatives(x, ctl, w, p)
         d_form = derivatives(x, ctl, w, shifted if n_p < 0 else p)
         np.testing.assert_allclose(d_form, d_true, rtol=1e-10, atol=1e-14)
@@ -444,18 +481,17 @@ def test_a_step_across_the_basin_is_a_library_term_with_a_centre_and_a_width():
     assert eff.param_names == ("C_Y_Usy", "c_Y_Usy", "W_Y_Usy", "C_N_Usy", "c_N_Usy", "W_N_Usy")
     assert "U^2 tanh((y0 - c_Y_Usy) / W_Y_Usy)" in eff.description
     planted = UNLISTED["bank"]
+    assert [q.name for q in planted.params] == ["C_b", "y_b", "W_b"]
     C_b, y_b, W_b = 0.003, 1.5, 2.5
     p = efd_parameters()
     u = np.array([0.1, 10.0])
     w = np.array([1.0, 0.3])
-    terms = with_effects(p, (eff,), [C_b, y_b, W_b, -0.2 * C_b, y_b, W_b])
-    true = with_effects(p, (planted,), [C_b, y_b, W_b])
-    neutral = with_effects(p, (eff,))
+    terms = dict(zip(eff.param_names, [C_b, y_b, W_b, -0.2 * C_b, y_b, W_b], strict=True))
     for y0 in (-6.0, 0.5, 1.5, 2.0, 9.0):
         x = np.array([3.0, 0.4, y0, -0.06, 0.3, 0.01])
-        d_terms = derivatives(x, u, w, terms, (eff,), t=np.array(50.0))
-        d_true = derivatives(x, u, w, true, (planted,), t=np.array(50.0))
-        d0 = derivatives(x, u, w, neutral, (eff,), t=np.array(50.0))
+        d_terms = point_derivatives(x, u, w, p, 50.0, **terms)
+        d_true = point_derivatives(x, u, w, p, 50.0, C_b=C_b, y_b=y_b, W_b=W_b)
+        d0 = point_derivatives(x, u, w, p, 50.0)
         if y0 != y_b:
             assert abs(d_true[3] - d0[3]) > 1e-6
         np.testing.assert_allclose(d_terms, d_true, rtol=1e-9, atol=1e-14)
@@ -523,13 +559,14 @@ def test_former_fixed_time_constant_terms_still_load_and_equal_the_shaped_term()
     assert "N_b300" in TERMS and "N_b300" not in SEARCHED and "N_bt" in SEARCHED
     old = get_effect(effect_name(["N_b300"]))
     new = get_effect(effect_name(["N_bt"]))
+    assert old.param_names == ("C_N_b300",) and new.param_names == ("C_N_bt", "tau_N_bt")
     p = efd_parameters()
     x = np.array([3.0, 0.4, 1.0, -0.06, 0.3, 0.01])
     u = np.array([0.1, 10.0])
     w = np.array([1.0, 0.3])
     for t in (0.0, 120.0, 900.0):
-        d_old = derivatives(x, u, w, with_effects(p, (old,), [0.01]), (old,), t=np.array(t))
-        d_new = derivatives(x, u, w, with_effects(p, (new,), [0.01, 300.0]), (new,), t=np.array(t))
+        d_old = point_derivatives(x, u, w, p, t, C_N_b300=0.01)
+        d_new = point_derivatives(x, u, w, p, t, C_N_bt=0.01, tau_N_bt=300.0)
         np.testing.assert_allclose(d_old, d_new, rtol=1e-12, atol=1e-15)
 
 

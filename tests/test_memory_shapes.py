@@ -70,9 +70,9 @@ def test_the_probe_gives_the_acting_control_of_each_coefficient() -> None:
     p = efd_parameters()
     eff, probe = get_effect(SPEC), probe_effect(SPEC)
     rows = probe_rows(eff, 0.4)
-    assert rows.shape == (21, 6) and rows[5].tolist()[:4] == [1.0, 3.0, 0.0, 0.4]
+    assert rows.shape == (21, 7) and rows[5].tolist()[:4] == [1.0, 3.0, 0.0, 0.4]
     assert rows[15].tolist()[:4] == [2.0, 4.0, 0.0, 0.4]
-    assert rows[5].tolist()[4:] == [groups_of(eff)[1].lo, groups_of(eff)[1].hi]
+    assert rows[5].tolist()[4:6] == [groups_of(eff)[1].lo, groups_of(eff)[1].hi]
     assert probe.inputs is not None and probe.force_at is not None and eff.inputs is not None
     for d_log, d_prev, n_log, n_prev in ((0.3, 0.05, 10.0, 9.0), (-0.1, 0.01, -5.0, 8.0)):
         for i, row in enumerate(rows):

@@ -37,7 +37,7 @@ from mmg.shapes import (
     variable_values,
 )
 from sweep.data.recordings import Recording, read_recordings
-from tests.conftest import kernels
+from tests.conftest import kernels, probe_kernels
 
 #: the effect of the hook tests: a shape in beta (Y and N), a share of the hull's sway force
 #: in N, a surge force astern, a shape in U times v_m'
@@ -179,11 +179,12 @@ def test_the_probe_gives_the_force_of_each_coefficient() -> None:
     p = efd_parameters()
     eff = get_effect(HOOK_SPEC)
     probe = get_effect(HOOK_SPEC + "#probe")
-    assert probe.param_names == ("G", "C", "J", "A", "L", "U")
-    assert probe.neutral() == (0.0,) * 5 + (1.0,)
+    assert probe.param_names == ("G", "C", "J", "A", "L", "U", "H")
+    assert probe.neutral() == (0.0,) * 5 + (1.0, 1.0)
     rows = probe_rows(eff, 0.7)
     g1 = groups_of(eff)[1]
-    assert rows.shape == (22, 6) and rows[12].tolist() == [1.0, 2.0, 0.0, 0.7, g1.lo, g1.hi]
+    assert rows.shape == (22, 7) and rows[12].tolist()[:6] == [1.0, 2.0, 0.0, 0.7, g1.lo, g1.hi]
+    assert rows[12, 6] == pytest.approx((g1.n - 3) / (g1.hi - g1.lo), rel=1e-15)
     assert eff.force_at is not None and probe.force_at is not None
     shape_force, probe_force = eff.force_at, probe.force_at
     for u, v_m in ((0.5, -0.08), (-0.3, 0.05)):
@@ -194,7 +195,7 @@ def test_the_probe_gives_the_force_of_each_coefficient() -> None:
             want = shape_force(*args, eff.param_type(*values), p.theta, p.ship)
             got = probe_force(*args, probe.param_type(*row), p.theta, p.ship)
             assert got == pytest.approx(want, rel=1e-12, abs=1e-300), (i, u)
-        off = probe.param_type(1.0, 2.0, 3.0, 0.0, 0.0, 1.0)
+        off = probe.param_type(1.0, 2.0, 3.0, 0.0, 0.0, 1.0, 1.0)
         nothing = probe_force(*args, off, p.theta, p.ship)
         assert nothing == (0.0, 0.0, 0.0)
 
@@ -332,7 +333,7 @@ def small_case(data_dir: Path):
 @pytest.mark.kernels(
     *kernels((), "simulate", "moments"),
     *kernels((SELECT_SPEC,), "simulate"),
-    *kernels((SELECT_SPEC + "#probe",), "simulate"),
+    *probe_kernels(library=False),
 )
 def test_the_selection_finds_a_planted_shape_and_nothing_in_noise(small_case) -> None:
     """A yaw moment N = 0.5 rho L^2 d U^2 f(beta) (f oscillating, up to 0.01) planted in

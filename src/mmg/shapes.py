@@ -463,9 +463,9 @@ class Group:
 
     @property
     def structure(self) -> str:
-        """The group as a spec writes it without its knot range (``XYN~beta/8*Y_H``): what the
-        code of its probe depends on (:func:`probe_effect`)."""
-        return re.sub(r"\[[^\]]*\]", "", self.text)
+        """The group as a spec writes it without its knot range and number of basis functions
+        (``XYN~beta*Y_H``): what the code of its probe depends on (:func:`probe_effect`)."""
+        return re.sub(r"\[[^\]]*\](/\d+)?", "", self.text)
 
     @property
     def control(self) -> str:
@@ -751,10 +751,11 @@ def _clamped(group: Group) -> str:
 
 
 def _lane_clamped(group: Group) -> str:
-    """Like :func:`_clamped`, with the knot range [L, U] of the probe's lane (its parameters)
-    instead of constants: a probe's code is then the same for every range."""
+    """Like :func:`_clamped`, with the knot range [L, U] and the knots per unit H = 1 / h of the
+    probe's lane (its parameters) instead of constants: a probe's code is then the same for
+    every range and number of basis functions."""
     code = VARIABLES[group.variable].code
-    return f"(min(max({code}, e.L), e.U) - e.L) * ({float(group.n - 3)!r} / (e.U - e.L))"
+    return f"(min(max({code}, e.L), e.U) - e.L) * e.H"
 
 
 def _factors(group: Group) -> tuple[list[str], dict[str, str]]:
@@ -886,6 +887,7 @@ def _source(name: str, groups: Sequence[Group], key: str, probe: bool = False) -
             "    A: float  # its coefficient (0: no force)",
             "    L: float  # the group's knot range [L, U] in the variable's unit",
             "    U: float",
+            "    H: float  # its knots per unit of the variable, (n - 3) / (U - L)",
         ]
         name = "probe of " + "+".join(g.structure for g in groups)  # the same for any range
     else:
@@ -1013,13 +1015,14 @@ def shape_effect(groups: Sequence[Group] | str, bound: float = DEFAULT_BOUND) ->
 def probe_effect(groups: Sequence[Group] | str) -> Effect:
     """The probe of ``groups``: the force of one coefficient of their shape effect at a time,
     chosen by its parameters (G: group, C: component 0/1/2 for X/Y/N, J: basis function,
-    A: the coefficient's value, A = 0 is neutral; L, U: the group's knot range). Each lane of a
+    A: the coefficient's value, A = 0 is neutral; L, U: the group's knot range, H: its knots
+    per unit of the variable). Each lane of a
     batch sets its own, so one simulation batch gives the trajectory column of every
     coefficient at the cost of a single basis function per lane; the shape effect itself
     evaluates all of them in every lane (30 x the base model's time for 460 coefficients).
-    The ranges are the lanes' own, not constants of the code: the probes of groups of one
+    The knots are the lanes' own, not constants of the code: the probes of groups of one
     structure (:attr:`Group.structure`) share one module and one compiled kernel, whatever the
-    ranges. Named ``<shape effect's name>#probe``."""
+    ranges and numbers of basis functions. Named ``<shape effect's name>#probe``."""
     gs = parse(groups) if isinstance(groups, str) else tuple(groups)
     if any(g.form for g in gs):
         raise ValueError("a closed form is fitted directly; only splines have a probe")
@@ -1034,6 +1037,7 @@ def probe_effect(groups: Sequence[Group] | str) -> Effect:
             ("A", 0.0, 0.0, 1.0, "coefficient"),
             ("L", 0.0, -PROBE_RANGE, PROBE_RANGE, "lower end of the group's knot range"),
             ("U", 1.0, -PROBE_RANGE, PROBE_RANGE, "upper end of the group's knot range"),
+            ("H", 1.0, 0.0, PROBE_RANGE, "knots per unit of the variable, (n - 3) / (U - L)"),
         )
         effect = ShapeEffect(
             name=name,
@@ -1050,8 +1054,8 @@ def probe_effect(groups: Sequence[Group] | str) -> Effect:
 
 
 def probe_rows(effect: Effect, step: float, probe: Sequence[Group] | None = None) -> FloatArray:
-    """(k, 6) parameter rows of a probe for ``effect`` (a shape effect with k coefficients):
-    row i sets the shape effect's coefficient i to ``step`` (G, C, J, A, L, U). ``probe``: the
+    """(k, 7) parameter rows of a probe for ``effect`` (a shape effect with k coefficients):
+    row i sets the shape effect's coefficient i to ``step`` (G, C, J, A, L, U, H). ``probe``: the
     groups the probe was made for (default: the effect's own); each of the effect's groups is
     the probe's group of its structure, at its own range. Raises ValueError for a group whose
     structure the probe lacks."""
@@ -1062,10 +1066,11 @@ def probe_rows(effect: Effect, step: float, probe: Sequence[Group] | None = None
         g = index.get(group.structure)
         if g is None:
             raise ValueError(f"the probe has no group of the structure {group.structure}")
-        # a constant's lanes carry the neutral range (the other groups' code divides by U - L)
-        lo, hi = (group.lo, group.hi) if group.variable != "1" else (0.0, 1.0)
+        knots = (0.0, 1.0, 1.0)  # a constant's lanes: the neutral knots
+        if group.variable != "1":  # H as the shape effect's own code computes 1 / h
+            knots = (group.lo, group.hi, 1.0 / ((group.hi - group.lo) / (group.n - 3)))
         for c in group.components:
-            rows += [(g, COMPONENTS.index(c), j, step, lo, hi) for j in range(group.n)]
+            rows += [(g, COMPONENTS.index(c), j, step, *knots) for j in range(group.n)]
     return np.asarray(rows, dtype=np.float64)
 
 

@@ -177,7 +177,8 @@ def _groups(
 
 def probe_groups(groups: Sequence[Group]) -> list[Group]:
     """The groups a probe of ``groups`` is made for: every candidate of the default settings
-    (their structure; ranges come with the probe's lanes, :func:`mmg.shapes.probe_rows`),
+    (their structure; knot ranges and spacings come with the probe's lanes,
+    :func:`mmg.shapes.probe_rows`),
     then those of ``groups`` of another structure. Diagnoses of other data, with other
     variables, then share one probe kernel, compiled once."""
     unit = {v: (0.0, 1.0) for v in {*VARIABLES, *(v for v, _ in PRODUCTS)}}
@@ -384,7 +385,7 @@ class ShapeColumns:
         th = np.concatenate([lin.theta, probe.neutral()])
         r0 = residual_vectors(obj, th[None])[0][0]  # (S, M)
         S, M = r0.shape
-        units = probe_rows(self.effect, step, within)  # (T, 6)
+        units = probe_rows(self.effect, step, within)  # (T, 7)
         units[units[:, 1] >= COMPONENTS.index("D"), 3] = MEMORY_STEP
         T = units.shape[0]
         lib = np.empty((S, M, T), dtype=dtype)

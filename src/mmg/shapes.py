@@ -1016,10 +1016,10 @@ def probe_effect(groups: Sequence[Group] | str) -> Effect:
     """The probe of ``groups``: the force of one coefficient of their shape effect at a time,
     chosen by its parameters (G: group, C: component 0/1/2 for X/Y/N, J: basis function,
     A: the coefficient's value, A = 0 is neutral; L, U: the group's knot range, H: its knots
-    per unit of the variable). Each lane of a
-    batch sets its own, so one simulation batch gives the trajectory column of every
-    coefficient at the cost of a single basis function per lane; the shape effect itself
-    evaluates all of them in every lane (30 x the base model's time for 460 coefficients).
+    per unit of the variable). Each lane of a batch sets its own, so one simulation batch gives
+    the trajectory column of every coefficient at the cost of a single basis function per lane;
+    the shape effect itself evaluates all of them in every lane (30 x the base model's time for
+    460 coefficients).
     The knots are the lanes' own, not constants of the code: the probes of groups of one
     structure (:attr:`Group.structure`) share one module and one compiled kernel, whatever the
     ranges and numbers of basis functions. Named ``<shape effect's name>#probe``."""

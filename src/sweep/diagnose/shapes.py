@@ -178,9 +178,8 @@ def _groups(
 def probe_groups(groups: Sequence[Group]) -> list[Group]:
     """The groups a probe of ``groups`` is made for: every candidate of the default settings
     (their structure; knot ranges and spacings come with the probe's lanes,
-    :func:`mmg.shapes.probe_rows`),
-    then those of ``groups`` of another structure. Diagnoses of other data, with other
-    variables, then share one probe kernel, compiled once."""
+    :func:`mmg.shapes.probe_rows`), then those of ``groups`` of another structure. Diagnoses of
+    other data, with other variables, then share one probe kernel, compiled once."""
     unit = {v: (0.0, 1.0) for v in {*VARIABLES, *(v for v, _ in PRODUCTS)}}
     out = _groups(unit, VARIABLES, PRODUCTS, QUADRANTS, N_BASIS)
     seen = {g.structure for g in out}

@@ -49,3 +49,12 @@ def test_tasks_name_unknown_entry_points() -> None:
     with pytest.raises(ValueError, match="unknown kernel entry point"):
         tasks([()], ("simulate", "jacobian"))
     assert set(ENTRIES) == {"simulate", "moments", "derivatives", "accelerations"}
+
+
+def test_a_long_generated_name_is_cut_in_the_log_with_its_count() -> None:
+    from mmg.precompile import _short
+
+    assert _short("propeller_walk") == "propeller_walk"
+    name = "discovered:" + "+".join(f"X_t{k}" for k in range(50))
+    short = _short(name)
+    assert short.startswith(name[:100]) and short.endswith("... (50 terms or groups)")

@@ -82,6 +82,15 @@ def tasks(
     return [(tuple(effects), entry) for effects in effect_sets for entry in entries]
 
 
+def _short(name: str, width: int = 100) -> str:
+    """An effect's name for a log line: a long generated one (the library's every term, the
+    shapes' probe: hundreds of characters) cut after ``width`` characters, with its count of
+    terms or groups."""
+    if len(name) <= width:
+        return name
+    return f"{name[:width]}... ({name.count('+') + 1} terms or groups)"
+
+
 def precompile(
     wanted: Iterable[tuple[tuple[Effect, ...], str]],
     processes: int | None = None,
@@ -114,7 +123,7 @@ def precompile(
             future.result()  # a failure here would fail the same way in the run: say it now
             done += 1
             if log is not None:
-                label = " + ".join(names) or "the base model"
+                label = " + ".join(_short(n) for n in names) or "the base model"
                 log(
                     f"compiled {entry} for {label} ({done}/{len(missing)}, "
                     f"{time.perf_counter() - t0:.0f} s)"

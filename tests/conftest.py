@@ -38,15 +38,13 @@ def probe_kernels(library: bool = True) -> tuple[tuple[tuple[str, ...], str], ..
     searched term in one generated effect; not with ``library`` False) and the shapes' columns
     (one probe for every candidate group), as :func:`sweep.diagnose.run.probe_tasks` compiles
     them."""
-    from mmg.effect import DISCOVERED_PREFIX
-    from mmg.library import SEARCHED
-    from mmg.shapes import PROBE_SUFFIX, shape_name
-    from sweep.diagnose.shapes import probe_groups
+    from sweep.diagnose.run import probes
 
-    every_term = DISCOVERED_PREFIX + "+".join(SEARCHED)
-    probe = shape_name(probe_groups([])) + PROBE_SUFFIX
-    terms = kernels((every_term,), "simulate", "accelerations") if library else ()
-    return (*terms, *kernels((probe,), "simulate"))
+    return tuple(
+        kernel
+        for probe, entries in probes(discover=library)
+        for kernel in kernels((probe.name,), *entries)
+    )
 
 
 def shared_effects() -> tuple[Effect, ...]:

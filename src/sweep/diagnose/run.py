@@ -221,18 +221,26 @@ class StageClock:
         return ", ".join(f"{k} {v:.0f} s" for k, v in self.seconds.items())
 
 
-def probe_tasks(ctx: Context) -> list[tuple[tuple[Effect, ...], str]]:
-    """The kernels that the discovery's library columns (every searched term, through one
-    generated effect) and the shapes' columns (one probe for every candidate group: its
-    ranges come with the lanes) simulate and evaluate, with the stages that use them on."""
-    s = ctx.settings
-    out = []
-    if s.discover:
-        library = discovered_effect(list(SEARCHED))
-        out += tasks([ctx.with_base((library,))], ("simulate", "accelerations"))
-    if s.shapes:
-        out += tasks([ctx.with_base((probe_effect(probe_groups([])),))], ("simulate",))
+def probes(discover: bool = True, shapes: bool = True) -> list[tuple[Effect, tuple[str, ...]]]:
+    """(effect, kernel entry points) of the probes that the discovery's library columns (every
+    searched term, through one generated effect) and the shapes' columns (one probe for every
+    candidate group: its knots come with the lanes) simulate and evaluate."""
+    out: list[tuple[Effect, tuple[str, ...]]] = []
+    if discover:
+        out.append((discovered_effect(list(SEARCHED)), ("simulate", "accelerations")))
+    if shapes:
+        out.append((probe_effect(probe_groups([])), ("simulate",)))
     return out
+
+
+def probe_tasks(ctx: Context) -> list[tuple[tuple[Effect, ...], str]]:
+    """The kernels of :func:`probes` on the base model, with the stages that use them on."""
+    s = ctx.settings
+    return [
+        task
+        for probe, entries in probes(s.discover, s.shapes)
+        for task in tasks([ctx.with_base((probe,))], entries)
+    ]
 
 
 def run_stages(ctx: Context, t0: float) -> Diagnosis:

@@ -47,6 +47,19 @@ def probe_kernels(library: bool = True) -> tuple[tuple[tuple[str, ...], str], ..
     )
 
 
+def planted_case_args(case: Path, out: Path) -> list[str]:
+    """The diagnosis's arguments for a small planted case (``case``/train, ``case``/test) of the
+    end-to-end tests: the EFD parameters, a budget of 200, two catalog candidates."""
+    return [
+        "--params", "efd",
+        "--train", str(case / "train"),
+        "--test", str(case / "test"),
+        "--out", str(out),
+        "--budget", "200",
+        "--candidates", "rudder_offset,current",
+    ]  # fmt: skip
+
+
 def shared_effects() -> tuple[Effect, ...]:
     """The effects of :data:`SHARED_EFFECTS`, in that order."""
     from mmg import get_effect

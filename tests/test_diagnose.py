@@ -26,7 +26,13 @@ from sweep.diagnose.__main__ import main
 from sweep.diagnose.base import routes_agree
 from sweep.diagnose.scoring import delta_bic
 from sweep.diagnose.windows import cut_windows, split_windows
-from tests.conftest import SHARED_EFFECTS, kernels, probe_kernels, shared_effects
+from tests.conftest import (
+    SHARED_EFFECTS,
+    kernels,
+    planted_case_args,
+    probe_kernels,
+    shared_effects,
+)
 
 pytestmark = pytest.mark.kernels(
     *kernels((), "simulate", "moments", "derivatives"), *probe_kernels()
@@ -59,17 +65,7 @@ def _case(runs: dict[str, list], spec: PlantedSpec, directory: Path, phi: float 
 
 
 def _diagnose(case: Path, out: Path, *extra: str) -> int:
-    return main(
-        [
-            "--params", "efd",
-            "--train", str(case / "train"),
-            "--test", str(case / "test"),
-            "--out", str(out),
-            "--budget", "200",
-            "--candidates", "rudder_offset,current",
-            *extra,
-        ]
-    )  # fmt: skip
+    return main([*planted_case_args(case, out), *extra])
 
 
 @pytest.mark.integration  # a planted case, end to end

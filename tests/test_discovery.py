@@ -24,7 +24,7 @@ from sweep.diagnose.__main__ import main
 from sweep.diagnose.floor import NoiseModel, calibrated_noise, misfit_test, noise_floor
 from sweep.diagnose.windows import cut_windows
 from sweep.identification.vector import with_effects
-from tests.conftest import kernels, probe_kernels
+from tests.conftest import kernels, planted_case_args, probe_kernels
 
 pytestmark = pytest.mark.kernels(
     *kernels((), "simulate", "moments", "derivatives"), *probe_kernels()
@@ -352,12 +352,7 @@ def _case(runs: dict, spec: PlantedSpec, directory: Path) -> None:
 def _diagnose(case: Path, out: Path) -> dict:
     code = main(
         [
-            "--params", "efd",
-            "--train", str(case / "train"),
-            "--test", str(case / "test"),
-            "--out", str(out),
-            "--budget", "200",
-            "--candidates", "rudder_offset,current",
+            *planted_case_args(case, out),
             "--no-tracking",
             "--no-shapes",  # (the library's terms are tested here; the shapes in test_diagnose)
         ]

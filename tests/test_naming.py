@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mmg.shapes import Group, basis, curve
-from sweep.diagnose.naming import CLOSE, closest_forms, form_group
+from mmg.shapes import SYMMETRIC, Group, basis, curve
+from sweep.diagnose.naming import CLOSE, closest_forms, families, form_group
 
 
 def _coefficients(group: Group, f) -> list[float]:
@@ -22,6 +22,17 @@ def _coefficients(group: Group, f) -> list[float]:
         (lambda z: 0.02 * np.maximum(z - 0.2, 0.0), "hinge", "max(beta - 0.2, 0)"),
         (lambda z: -0.01 * np.sin(3 * z), "harmonic", "sin(3 beta)"),
         (lambda z: 0.3 + 0.05 * z * np.abs(z), "odd square", "beta|beta|"),
+        # a threshold reached on both sides of the ship: a side force beyond |beta| = 0.35
+        (
+            lambda z: np.copysign(np.maximum(np.abs(z) - 0.35, 0.0), z),
+            "symmetric hinge",
+            "sign(beta) max(|beta| - 0.35, 0)",
+        ),
+        (
+            lambda z: 0.1 - 0.02 * np.maximum(np.abs(z) - 0.5, 0.0),
+            "symmetric hinge",
+            "max(|beta| - 0.5, 0)",
+        ),
     ],
 )
 def test_a_shape_is_named_by_the_closed_form_it_was_made_of(f, family, formula):
@@ -49,3 +60,29 @@ def test_the_closest_form_becomes_a_group_with_the_same_curve():
     z = np.linspace(-1.5, 2.0, 50)
     want = best.a + best.b * np.maximum(np.clip(z, -1.0, 1.4) - 0.2, 0.0)
     np.testing.assert_allclose(curve(named, ab, z), want, atol=1e-12)
+
+
+def test_symmetric_hinges_are_tried_only_where_the_range_takes_both_signs():
+    """Corners at 20-80 % of the smaller side's size; none for a range of one sign."""
+    both = [f.text for f in families(-1.0, 1.4, angle=False) if f.key in SYMMETRIC]
+    assert both == [f"{k}({c})" for c in ("0.2", "0.35", "0.5", "0.65", "0.8") for k in SYMMETRIC]
+    assert not [f for f in families(0.1, 1.4, angle=False) if f.key in SYMMETRIC]
+
+
+def test_forms_are_fitted_where_the_training_samples_lie():
+    """A shape that is a hinge where the samples are and turns down beyond them, at the end of
+    its range that no sample reaches: fitted at the samples' quantiles it is named a hinge that
+    keeps nearly all of it; on an even grid of the range the end weighs as much as the middle
+    and no form comes close."""
+    group = Group("N", "beta", -1.0, 1.4, 12)
+
+    def f(z):
+        return 0.02 * np.maximum(z - 0.2, 0.0) - 0.1 * np.maximum(z - 1.0, 0.0)
+
+    coef = _coefficients(group, f)
+    samples = np.random.default_rng(3).uniform(-1.0, 0.95, 20_000)
+    at = np.quantile(samples, np.linspace(0.0, 1.0, 201))
+    on_data = closest_forms(group, coef, at=at)[0]
+    assert (on_data.family, on_data.formula) == ("hinge", "max(beta - 0.2, 0)")
+    assert on_data.r2 > 0.99
+    assert closest_forms(group, coef)[0].r2 < CLOSE

@@ -3,6 +3,7 @@ kernel, and the selection of shape groups on the linearised trajectory columns."
 
 from __future__ import annotations
 
+import math
 import pickle
 import subprocess
 import sys
@@ -15,6 +16,7 @@ import pytest
 
 from mmg import efd_parameters, get_effect
 from mmg.hull import hull_forces
+from mmg.model import rudder_inflow_at
 from mmg.params import N_THETA
 from mmg.shapes import (
     Form,
@@ -431,9 +433,45 @@ def test_a_closed_form_group_round_trips_and_adds_a_plus_b_g() -> None:
         probe_effect(FORM_SPEC)
     for bad, why in (
         ("shape:N~beta[-0.5:0.5]:up(0.9)", "is 0 over"),
+        ("shape:N~beta[-0.5:0.5]:absup(0.6)", "is 0 over"),
+        ("shape:N~beta[-0.5:0.5]:oddup(-0.1)", "must not be negative"),
         ("shape:N~beta[-0.5:0.5]:warp", "unknown closed form"),
         ("shape:N~beta[-0.5:0.5]:step(0.1)", "takes 2 number"),
         ("shape:N~beta[-0.5:0.5]:up(x)", "not numbers"),
     ):
         with pytest.raises(KeyError, match=why):
             get_effect(bad)
+
+
+SYMMETRIC_SPEC = "shape:Y~v[-0.1:0.08]:oddup(0.02)+N~delta[-0.6:0.6]:absup(0.3)"
+
+
+def test_symmetric_hinges_act_on_both_sides_alike_in_numpy_and_in_the_hook() -> None:
+    """sign(z) max(|z| - c, 0) and max(|z| - c, 0): the hook's force is the numpy curve."""
+    groups = parse(SYMMETRIC_SPEC)
+    assert shape_name(groups) == SYMMETRIC_SPEC
+    z = np.array([-0.3, -0.05, 0.0, 0.01, 0.05, 0.3])
+    np.testing.assert_allclose(
+        curve(groups[0], [0.0, 1.0], z),
+        np.copysign(np.maximum(np.abs(np.clip(z, -0.1, 0.08)) - 0.02, 0.0), z) / 0.08,
+    )
+    assert groups[1].closed("N", 0.0, 0.3) == (
+        "N += 0.5 rho L_pp^2 d U_R^2 (0 + 1 max(|delta| - 0.3, 0))  [N m]"
+    )
+    eff = get_effect(SYMMETRIC_SPEC)
+    p = efd_parameters()
+    th, sh = p.theta, p.ship
+    q = 0.5 * sh.rho * sh.L_pp * sh.d
+    e = eff.param_type(0.001, 0.02, -0.003, 0.01)
+    assert eff.force_at is not None
+    for v_m, delta in ((0.06, 0.5), (-0.06, -0.5), (0.01, 0.1)):
+        u, r = 0.4, 0.01
+        X, Y, N = eff.force_at(12.0, 1.0, 2.0, u, v_m, r, 0.3, delta, 10.0, 1.0, 0.5, e, th, sh)
+        U2 = u * u + v_m * v_m
+        g_Y = math.copysign(max(abs(v_m) - 0.02, 0.0), v_m) / 0.08
+        g_N = max(abs(delta) - 0.3, 0.0) / 0.3
+        assert X == 0.0
+        assert pytest.approx(q * U2 * (0.001 + 0.02 * g_Y), rel=1e-12) == Y
+        u_R, v_R = rudder_inflow_at(u, v_m, r, 10.0, th, sh)
+        UR2 = u_R * u_R + v_R * v_R
+        assert pytest.approx(q * sh.L_pp * UR2 * (-0.003 + 0.01 * g_N), rel=1e-12) == N

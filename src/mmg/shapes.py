@@ -296,6 +296,8 @@ class Form:
             raise ValueError(f"closed form {self.key!r}: its numbers must be finite")
         if self.key == "step" and self.args[1] <= 0.0:
             raise ValueError("closed form 'step': its width must be positive")
+        if self.key in SYMMETRIC and self.args[0] < 0.0:
+            raise ValueError(f"closed form {self.key!r}: its corner |z| must not be negative")
 
     @property
     def text(self) -> str:
@@ -322,6 +324,8 @@ class Form:
             "abs": lambda: np.abs(x),
             "up": lambda: np.maximum(x - a[0], 0.0),
             "down": lambda: np.maximum(a[0] - x, 0.0),
+            "absup": lambda: np.maximum(np.abs(x) - a[0], 0.0),
+            "oddup": lambda: np.copysign(np.maximum(np.abs(x) - a[0], 0.0), x),
             "step": lambda: np.tanh((x - a[0]) / a[1]),
             "sin": lambda: np.sin(a[0] * x),
             "cos": lambda: np.cos(a[0] * x),
@@ -331,7 +335,10 @@ class Form:
 
 #: closed forms g(z): key -> (how many numbers, formula, code); {z} the variable, {a[i]} its
 #: numbers. A naval architect's families: powers and their abs forms, hinges (a threshold),
-#: a smooth step (a saturation), harmonics (of an angle).
+#: a smooth step (a saturation), harmonics (of an angle). A threshold in a variable that changes
+#: sign with the side of the ship (drift angle, sway, yaw rate, rudder angle) is reached on
+#: both sides at once: the symmetric hinges ``absup`` (even, e.g. a share of a force beyond
+#: |beta| = c) and ``oddup`` (odd, e.g. a side force beyond it, on the side it comes from).
 FORMS: dict[str, tuple[int, str, str]] = {
     "lin": (0, "{z}", "{z}"),
     "sq": (0, "{z}^2", "{z} * {z}"),
@@ -340,10 +347,18 @@ FORMS: dict[str, tuple[int, str, str]] = {
     "abs": (0, "|{z}|", "abs({z})"),
     "up": (1, "max({z} - {a[0]}, 0)", "max({z} - {a[0]}, 0.0)"),
     "down": (1, "max({a[0]} - {z}, 0)", "max({a[0]} - {z}, 0.0)"),
+    "absup": (1, "max(|{z}| - {a[0]}, 0)", "max(abs({z}) - {a[0]}, 0.0)"),
+    "oddup": (
+        1,
+        "sign({z}) max(|{z}| - {a[0]}, 0)",
+        "math.copysign(max(abs({z}) - {a[0]}, 0.0), {z})",
+    ),
     "step": (2, "tanh(({z} - {a[0]}) / {a[1]})", "math.tanh(({z} - {a[0]}) / {a[1]})"),
     "sin": (1, "sin({a[0]} {z})", "math.sin({a[0]} * {z})"),
     "cos": (1, "cos({a[0]} {z})", "math.cos({a[0]} * {z})"),
 }
+#: the symmetric hinges: their corner is a size |z| (not negative)
+SYMMETRIC = ("absup", "oddup")
 #: points over [lo, hi] on which a closed form's largest |g| is taken
 FORM_GRID = 201
 

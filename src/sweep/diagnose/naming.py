@@ -3,9 +3,13 @@
 A learned shape f(z) (:mod:`mmg.shapes`) is compared, over the range it was learnt on, with
 families a naval architect writes forces in: a constant, powers z, z^2, z^3 and their abs forms
 z|z|, |z|; hinges max(z - c, 0) and max(c - z, 0) and steps tanh((z - c) / w) at interior
-points c; and, for an angle, sin(k z) and cos(k z), k = 1, 2, 3. Each family is fitted as
-a + b g(z) by least squares on an even grid of z; the share of the shape's variance it keeps
-(R^2) ranks them.
+points c; for a variable that takes both signs, the symmetric hinges max(|z| - c, 0) and
+sign(z) max(|z| - c, 0) (a threshold reached on both sides of the ship at once); and, for an
+angle, sin(k z) and cos(k z), k = 1, 2, 3. Each family is fitted as
+a + b g(z) by least squares at the values z took on the training samples (where the shape acts
+on the data; an even grid of z over the range when none are given); the share of the shape's
+variance there that it keeps (R^2) ranks them. Over an even grid, the range's ends, which few
+samples reach and where the spline is least determined, weigh as much as its middle.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from mmg.shapes import VARIABLES, Form, Group, curve, form_scale
+from mmg.shapes import SYMMETRIC, VARIABLES, Form, Group, curve, form_scale
 
 FloatArray = NDArray[np.float64]
 
@@ -48,6 +52,8 @@ FAMILY = {
     "abs": "abs",
     "up": "hinge",
     "down": "hinge",
+    "absup": "symmetric hinge",
+    "oddup": "symmetric hinge",
     "step": "step",
     "sin": "harmonic",
     "cos": "harmonic",
@@ -61,25 +67,41 @@ def _round(x: float) -> float:
 
 def families(lo: float, hi: float, angle: bool) -> list[Form]:
     """Every closed form tried over [lo, hi]: powers and abs forms; hinges and steps at 20, 35,
-    50, 65 and 80 % of the range (a step 10 % of the range wide); for an angle, harmonics."""
+    50, 65 and 80 % of the range (a step 10 % of the range wide); where the range takes both
+    signs, the symmetric hinges at 20, 35, 50, 65 and 80 % of the smaller side's size
+    min(-lo, hi) (beyond it a hinge acts on one side only: an ordinary hinge); for an angle,
+    harmonics."""
     out = [Form(k) for k in ("lin", "sq", "odd", "cube", "abs")]
     width = hi - lo
+    side = min(-lo, hi)
     for q in (0.2, 0.35, 0.5, 0.65, 0.8):
         c = _round(lo + q * width)
         out += [Form("up", (c,)), Form("down", (c,)), Form("step", (c, _round(0.1 * width)))]
+        if side > 0.0:
+            out += [Form(k, (_round(q * side),)) for k in SYMMETRIC]
     if angle:
         out += [Form(k, (float(m),)) for m in (1, 2, 3) for k in ("sin", "cos")]
     return out
 
 
-def closest_forms(group: Group, coefficients: list[float], top: int = 3) -> list[ClosedForm]:
+def closest_forms(
+    group: Group, coefficients: list[float], top: int = 3, at: FloatArray | None = None
+) -> list[ClosedForm]:
     """The ``top`` closed forms closest to one component's shape of ``group`` (its n
     coefficients), best first (none for a constant group or a memory: a share of a gap on an
-    asinh scale is stated as the steps it lets the control take, not as a form in z)."""
+    asinh scale is stated as the steps it lets the control take, not as a form in z). ``at``:
+    the values of the group's variable on the training samples, where the forms are fitted
+    (held within the range, as the shape holds them); None or fewer than :data:`GRID`
+    values: an even grid over the range."""
     if group.variable == "1" or group.control:
         return []
     var = VARIABLES[group.variable]
     z = np.linspace(group.lo, group.hi, GRID)
+    if at is not None:
+        at = np.asarray(at, dtype=np.float64)
+        at = at[np.isfinite(at)]
+        if at.size >= GRID:
+            z = np.clip(at, group.lo, group.hi)
     f = curve(group, coefficients, z)
     total = float(((f - f.mean()) ** 2).sum())
     if total <= 0.0:

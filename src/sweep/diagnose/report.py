@@ -203,7 +203,12 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
                     # a report.json written before the time step was kept: the recordings' 0.1 s
                     dt = d.extra.get("time_step", 0.1)
                     entry["memory"] = _memory_entry(group, coef, dt)
-                forms = [] if group.form else closest_forms(group, coef)
+                at = d.shape.samples.get(group.variable) if d.shape is not None else None
+                forms = (
+                    []
+                    if group.form
+                    else closest_forms(group, coef, at=None if at is None else np.asarray(at))
+                )
                 entry["closest"] = [asdict(c) for c in forms]
                 entry["named"] = bool(group.form) or (bool(forms) and forms[0].r2 >= CLOSE)
             groups.append(entry)

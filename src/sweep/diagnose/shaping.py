@@ -11,18 +11,21 @@ The procedure is described in the user guide (docs/guide/diagnosis.md).
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 
 from mmg import Effect, Parameters
-from mmg.shapes import DEFAULT_BOUND, Group, shape_effect
+from mmg.shapes import DEFAULT_BOUND, Group, shape_effect, variable_values
+from sweep.data.recordings import Recording
 from sweep.diagnose.calibration import Calibration
 from sweep.diagnose.context import Context
 from sweep.diagnose.discover import null_sets
-from sweep.diagnose.naming import ClosedForm, closest_forms, form_group
+from sweep.diagnose.naming import GRID, ClosedForm, closest_forms, form_group
 from sweep.diagnose.shapes import (
+    GUARD,
     SHIP_VARIABLES,
     VARIABLES,
     ShapeColumns,
@@ -49,6 +52,9 @@ class ShapeProposal:
     form_start: list[float] | None = None
     #: the variables the candidate groups were made of (:func:`default_variables`)
     variables: tuple[str, ...] = ()
+    #: {variable: its values at evenly spaced quantiles of the training samples} of the chosen
+    #: groups (:func:`sample_values`): where closed forms are fitted to their shapes
+    samples: dict[str, list[float]] = field(default_factory=dict)
 
     @property
     def effect(self) -> Effect:
@@ -88,10 +94,13 @@ class ShapeProposal:
 
 
 def named_form(
-    selection: ShapeSelection,
+    selection: ShapeSelection, samples: Mapping[str, Sequence[float]] | None = None
 ) -> tuple[list[ClosedForm | None], Effect | None, list[float]]:
     """Each chosen group's closest closed form, and the effect of those forms (constant groups
-    kept as they are) with its coefficients fitted to the shapes (None if nothing is left)."""
+    kept as they are) with its coefficients fitted to the shapes (None if nothing is left).
+    ``samples``: {variable: its values at evenly spaced quantiles of the training samples}
+    (:func:`sample_values`), where the forms are fitted
+    (:func:`sweep.diagnose.naming.closest_forms`)."""
     named: list[ClosedForm | None] = []
     groups: list[Group] = []
     start: list[float] = []
@@ -104,7 +113,8 @@ def named_form(
                 groups.append(Group(comp, "1", multiplier=group.multiplier, scale=group.scale))
                 start += c
                 continue
-            best = closest_forms(group, c, top=1)
+            at = None if samples is None else samples.get(group.variable)
+            best = closest_forms(group, c, top=1, at=None if at is None else np.asarray(at))
             named.append(best[0] if best else None)
             if best:
                 g, ab = form_group(group, comp, best[0])
@@ -115,6 +125,25 @@ def named_form(
         return named, None, []
     start = [float(np.clip(v, -DEFAULT_BOUND, DEFAULT_BOUND)) for v in start]
     return named, shape_effect(groups), start
+
+
+def sample_values(
+    windows: Sequence[Recording], params: Parameters, groups: Sequence[Group]
+) -> dict[str, list[float]]:
+    """{variable: its values at :data:`~sweep.diagnose.naming.GRID` evenly spaced quantiles of
+    the recorded samples of ``windows``} for the variables of the spline ``groups`` (with the
+    base ``params`` for the rudder inflow and the wake; a sub-model's guard value left out):
+    the training data's distribution of each variable, where a shape's closed form is fitted."""
+    names = {g.variable for g in groups if g.variable != "1" and not g.control and not g.form}
+    out: dict[str, list[float]] = {}
+    for n in sorted(names):
+        z = np.concatenate(
+            [variable_values(n, w.t, w.x, w.u, w.w, params.theta, params.ship) for w in windows]
+        )
+        z = z[np.isfinite(z) & (np.abs(z) < GUARD)]
+        if z.size:
+            out[n] = [float(v) for v in np.quantile(z, np.linspace(0.0, 1.0, GRID))]
+    return out
 
 
 def default_variables(ctx: Context) -> tuple[str, ...]:
@@ -153,7 +182,8 @@ def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapePr
         f"dBIC {selection.dbic:.1f} against the null's {s.alpha:.0%} quantile {threshold:.1f} "
         f"-> {'proposed' if proposed else 'not proposed'}"
     )
-    named, form, start = named_form(selection) if proposed else ([], None, [])
+    samples = sample_values(ctx.windows, params, selection.groups) if proposed else {}
+    named, form, start = named_form(selection, samples) if proposed else ([], None, [])
     if form is not None:
         ctx.log(
             "shapes named: "
@@ -162,7 +192,7 @@ def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapePr
         )
     seconds = time.perf_counter() - t0
     out = ShapeProposal(
-        selection, null, threshold, proposed, seconds, named, form, start, tuple(variables)
+        selection, null, threshold, proposed, seconds, named, form, start, tuple(variables), samples
     )
     if proposed:
         ctx.penalties[out.effect.name] = out.penalty()
@@ -174,4 +204,10 @@ def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapePr
     return out
 
 
-__all__ = ["ShapeProposal", "default_variables", "named_form", "propose_shape"]
+__all__ = [
+    "ShapeProposal",
+    "default_variables",
+    "named_form",
+    "propose_shape",
+    "sample_values",
+]

@@ -1,0 +1,105 @@
+"""What a form could reach: the final model of a diagnosed planted case re-identified with a form
+given by hand, judged on the case's test recordings against the true model.
+
+A planted case counts as explained when the model with the finding reaches 1.5 x the true
+model's test J2. When a case is not explained, is it the form of the finding, or could no form
+do better from these training windows? This refits the case's base model re-identified without
+a finding (the stage ``final-w<W>-base`` of its diagnosis) with each form in turn, the way the
+diagnosis re-identifies a finding (the same settings, from the base, the form's parameters from
+neutral), and prints its training J and its test J2 over the true model's:
+
+    PYTHONPATH=. python benchmarks/refit_forms.py CASE_DIR FORM [FORM ...]
+
+CASE_DIR is a case of ``benchmarks/diagnose_planted.py --out DIR`` (``DIR/case-NNN-R``: its
+``train``, ``test``, ``truth.json`` and ``diagnosis/stages``); a FORM is a registered effect's
+name (a catalog effect, ``discovered:...``, ``shape:...``, with or without a closed form) or
+``truth``: the planted form itself, started at its planted values, its search interval four
+times their size (an upper bound on what any form can reach from these windows).
+Figures from it are development figures: the forms are chosen by someone who knows the case.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+from benchmarks.planted import PlantedSpec, true_model
+from mmg import Effect, Parameters, efd_parameters, get_effect
+from sweep.data.objective import Objective
+from sweep.data.recordings import read_recordings
+from sweep.diagnose.context import Context, stderr_log
+from sweep.diagnose.final import final_prefix, final_settings
+from sweep.diagnose.settings import DiagnoseSettings
+from sweep.identification.vector import with_effects
+
+#: the planted form itself, as a FORM argument
+TRUTH = "truth"
+
+
+def truth_form(spec: PlantedSpec, effects: tuple[Effect, ...]) -> tuple[Effect, ...]:
+    """The planted effects with search intervals around their planted values (+-4 x their size,
+    at least +-1): the planted forms' own intervals (+-1e9) leave the search no scale."""
+    out = []
+    for e in effects:
+        params = []
+        for p in e.params:
+            v = abs(spec.values.get(p.name, p.neutral))
+            params.append(p._replace(lower=min(-1.0, -4.0 * v), upper=max(1.0, 4.0 * v)))
+        out.append(replace(e, params=tuple(params)))
+    return tuple(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("case", type=Path, help="a case directory of benchmarks/diagnose_planted.py")
+    ap.add_argument("forms", nargs="+", help=f"effect names, or {TRUTH!r}")
+    args = ap.parse_args(argv)
+    case: Path = args.case
+    for part in ("train", "test", "truth.json", "diagnosis/stages"):
+        if not (case / part).exists():
+            print(f"error: {case / part} is missing: not a diagnosed planted case", file=sys.stderr)
+            return 2
+    truth = json.loads((case / "truth.json").read_text())
+    spec = PlantedSpec(**truth["spec"])
+    ship = Parameters.from_dict(truth["ship"])
+    train, test = read_recordings(case / "train"), read_recordings(case / "test")
+    settings = DiagnoseSettings()
+    ctx = Context.open(
+        efd_parameters(), train, test, case / "diagnosis", settings, None, stderr_log
+    )
+    before = ctx.store.load(f"{final_prefix(ctx)}-base", ())
+    if before is None:
+        print(f"error: {case} has no stage {final_prefix(ctx)}-base", file=sys.stderr)
+        return 2
+    true_params, true_effects = true_model(ship, spec)
+    J_true = float(Objective(test, "J2", effects=true_effects).evaluate(true_params)[0])
+    J_before = float(Objective(test, "J2").evaluate(before.params)[0])
+    print(f"{case.name} ({spec.form}): true model's test J2 {J_true:.4g}")
+    print(
+        f"  {'base':<60} training J {before.f:8.4g}  test J2 {J_before:8.4g} "
+        f"({J_before / J_true:.2f} x)"
+    )
+    fit_settings = replace(final_settings(ctx), effect_only_share=0.0, effect_only_budget=0)
+    for name in args.forms:
+        if name == TRUTH:
+            effects = truth_form(spec, true_effects)
+            values = [v for _, vals in true_params.effects for _, v in vals]
+            start = with_effects(before.params, effects, values or None)
+        else:
+            try:
+                effects = (get_effect(name),)
+            except (KeyError, ValueError) as err:
+                print(f"error: {name}: {err}", file=sys.stderr)
+                return 2
+            start = with_effects(before.params, effects)
+        after = ctx.refit(ctx.windows, start, effects, fit_settings, name)
+        J = float(Objective(test, "J2", effects=effects).evaluate(after.params)[0])
+        print(f"  {name:<60} training J {after.f:8.4g}  test J2 {J:8.4g} ({J / J_true:.2f} x)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -31,7 +31,7 @@ from mmg import Effect, Parameters, efd_parameters, get_effect
 from sweep.data.objective import Objective
 from sweep.data.recordings import read_recordings
 from sweep.diagnose.context import Context, stderr_log
-from sweep.diagnose.final import final_prefix, final_settings
+from sweep.diagnose.final import final_prefix, finding_settings
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.identification.vector import with_effects
 
@@ -82,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
         f"  {'base':<60} training J {before.f:8.4g}  test J2 {J_before:8.4g} "
         f"({J_before / J_true:.2f} x)"
     )
-    fit_settings = replace(final_settings(ctx), effect_only_share=0.0, effect_only_budget=0)
+    fit_settings = finding_settings(ctx)
     for name in args.forms:
         if name == TRUTH:
             effects = truth_form(spec, true_effects)

@@ -47,6 +47,12 @@ def final_settings(ctx: Context) -> FitSettings:
     )
 
 
+def finding_settings(ctx: Context) -> FitSettings:
+    """The re-identification of the base with a finding: :func:`final_settings` without the
+    effect-only search (the finding starts from its fold fit or its values)."""
+    return replace(final_settings(ctx), effect_only_share=0.0, effect_only_budget=0)
+
+
 def final_prefix(ctx: Context) -> str:
     """The final stages' names carry their prior's weight (the settings' fingerprint does not)."""
     return f"final-w{ctx.settings.final_prior_weight:g}"
@@ -78,7 +84,7 @@ def reidentify_with(
     effect's values from ``start`` (it had absorbed part of the effect), and ``before`` with the
     effect at neutral (so that the model with the effect never ends above the base)."""
     chosen = (effect,)
-    settings = replace(final_settings(ctx), effect_only_share=0.0, effect_only_budget=0)
+    settings = finding_settings(ctx)
 
     def three_starts() -> Fit:
         starts = (

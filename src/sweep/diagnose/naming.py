@@ -14,6 +14,7 @@ samples reach and where the spline is least determined, weigh as much as its mid
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,23 +86,26 @@ def families(lo: float, hi: float, angle: bool) -> list[Form]:
 
 
 def closest_forms(
-    group: Group, coefficients: list[float], top: int = 3, at: FloatArray | None = None
+    group: Group,
+    coefficients: list[float],
+    top: int = 3,
+    at: Sequence[float] | FloatArray | None = None,
 ) -> list[ClosedForm]:
     """The ``top`` closed forms closest to one component's shape of ``group`` (its n
     coefficients), best first (none for a constant group or a memory: a share of a gap on an
     asinh scale is stated as the steps it lets the control take, not as a form in z). ``at``:
-    the values of the group's variable on the training samples, where the forms are fitted
-    (held within the range, as the shape holds them); None or fewer than :data:`GRID`
-    values: an even grid over the range."""
+    values of the group's variable where the forms are fitted, e.g. at quantiles of the
+    training samples (held within the range, as the shape holds them); None or fewer than
+    :data:`GRID` values: an even grid over the range."""
     if group.variable == "1" or group.control:
         return []
     var = VARIABLES[group.variable]
     z = np.linspace(group.lo, group.hi, GRID)
     if at is not None:
-        at = np.asarray(at, dtype=np.float64)
-        at = at[np.isfinite(at)]
-        if at.size >= GRID:
-            z = np.clip(at, group.lo, group.hi)
+        given = np.asarray(at, dtype=np.float64)
+        given = given[np.isfinite(given)]
+        if given.size >= GRID:
+            z = np.clip(given, group.lo, group.hi)
     f = curve(group, coefficients, z)
     total = float(((f - f.mean()) ** 2).sum())
     if total <= 0.0:

@@ -204,11 +204,7 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
                     dt = d.extra.get("time_step", 0.1)
                     entry["memory"] = _memory_entry(group, coef, dt)
                 at = d.shape.samples.get(group.variable) if d.shape is not None else None
-                forms = (
-                    []
-                    if group.form
-                    else closest_forms(group, coef, at=None if at is None else np.asarray(at))
-                )
+                forms = [] if group.form else closest_forms(group, coef, at=at)
                 entry["closest"] = [asdict(c) for c in forms]
                 entry["named"] = bool(group.form) or (bool(forms) and forms[0].r2 >= CLOSE)
             groups.append(entry)

@@ -118,14 +118,8 @@ def variable_ranges(
     variable that does not vary there (a constant propeller speed; a range narrower than 1e-4
     of the variable's size) is left out. A control's gap spans [-m, m], m its largest size:
     the log's steps are few, and the largest matter."""
-    cols: dict[str, list[FloatArray]] = {n: [] for n in names}
-    for w in windows:
-        for n in names:
-            cols[n].append(variable_values(n, w.t, w.x, w.u, w.w, params.theta, params.ship))
     out: dict[str, tuple[float, float]] = {}
-    for n in names:
-        z = np.concatenate(cols[n])
-        z = z[np.isfinite(z) & (np.abs(z) < GUARD)]
+    for n, z in sampled(windows, params, names).items():
         if z.size == 0:
             continue
         lo, hi = (float(v) for v in np.quantile(z, quantiles))
@@ -135,6 +129,21 @@ def variable_ranges(
         # (wider than the 6 significant digits a group's range is written with)
         if hi - lo > 1e-4 * max(1.0, abs(lo), abs(hi)):
             out[n] = (lo, hi)
+    return out
+
+
+def sampled(
+    windows: Sequence[Recording], params: Parameters, names: Sequence[str]
+) -> dict[str, FloatArray]:
+    """{variable: its values on the recorded samples of ``windows``} (with the base ``params``
+    for the rudder inflow and the wake), leaving out values that are not finite or beyond
+    :data:`GUARD` (a sub-model's guard, not a state)."""
+    out: dict[str, FloatArray] = {}
+    for n in names:
+        z = np.concatenate(
+            [variable_values(n, w.t, w.x, w.u, w.w, params.theta, params.ship) for w in windows]
+        )
+        out[n] = z[np.isfinite(z) & (np.abs(z) < GUARD)]
     return out
 
 

@@ -18,19 +18,19 @@ from typing import Any
 import numpy as np
 
 from mmg import Effect, Parameters
-from mmg.shapes import DEFAULT_BOUND, Group, shape_effect, variable_values
+from mmg.shapes import DEFAULT_BOUND, Group, shape_effect
 from sweep.data.recordings import Recording
 from sweep.diagnose.calibration import Calibration
 from sweep.diagnose.context import Context
 from sweep.diagnose.discover import null_sets
 from sweep.diagnose.naming import GRID, ClosedForm, closest_forms, form_group
 from sweep.diagnose.shapes import (
-    GUARD,
     SHIP_VARIABLES,
     VARIABLES,
     ShapeColumns,
     ShapeSelection,
     candidate_groups,
+    sampled,
 )
 from sweep.diagnose.threshold import CEILING
 
@@ -114,7 +114,7 @@ def named_form(
                 start += c
                 continue
             at = None if samples is None else samples.get(group.variable)
-            best = closest_forms(group, c, top=1, at=None if at is None else np.asarray(at))
+            best = closest_forms(group, c, top=1, at=at)
             named.append(best[0] if best else None)
             if best:
                 g, ab = form_group(group, comp, best[0])
@@ -131,19 +131,16 @@ def sample_values(
     windows: Sequence[Recording], params: Parameters, groups: Sequence[Group]
 ) -> dict[str, list[float]]:
     """{variable: its values at :data:`~sweep.diagnose.naming.GRID` evenly spaced quantiles of
-    the recorded samples of ``windows``} for the variables of the spline ``groups`` (with the
-    base ``params`` for the rudder inflow and the wake; a sub-model's guard value left out):
-    the training data's distribution of each variable, where a shape's closed form is fitted."""
-    names = {g.variable for g in groups if g.variable != "1" and not g.control and not g.form}
-    out: dict[str, list[float]] = {}
-    for n in sorted(names):
-        z = np.concatenate(
-            [variable_values(n, w.t, w.x, w.u, w.w, params.theta, params.ship) for w in windows]
-        )
-        z = z[np.isfinite(z) & (np.abs(z) < GUARD)]
-        if z.size:
-            out[n] = [float(v) for v in np.quantile(z, np.linspace(0.0, 1.0, GRID))]
-    return out
+    the recorded samples of ``windows``} for the variables of the spline ``groups``
+    (:func:`~sweep.diagnose.shapes.sampled`): the training data's distribution of each
+    variable, where a shape's closed form is fitted."""
+    names = sorted({g.variable for g in groups if g.variable != "1" and not g.control})
+    q = np.linspace(0.0, 1.0, GRID)
+    return {
+        n: [float(v) for v in np.quantile(z, q)]
+        for n, z in sampled(windows, params, names).items()
+        if z.size
+    }
 
 
 def default_variables(ctx: Context) -> tuple[str, ...]:

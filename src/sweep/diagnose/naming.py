@@ -95,8 +95,8 @@ def closest_forms(
     coefficients), best first (none for a constant group or a memory: a share of a gap on an
     asinh scale is stated as the steps it lets the control take, not as a form in z). ``at``:
     values of the group's variable where the forms are fitted, e.g. at quantiles of the
-    training samples (held within the range, as the shape holds them); None or fewer than
-    :data:`GRID` values: an even grid over the range."""
+    training samples (held within the range, as the shape holds them); None or no finite
+    value: an even grid of :data:`GRID` points over the range."""
     if group.variable == "1" or group.control:
         return []
     var = VARIABLES[group.variable]
@@ -104,7 +104,7 @@ def closest_forms(
     if at is not None:
         given = np.asarray(at, dtype=np.float64)
         given = given[np.isfinite(given)]
-        if given.size >= GRID:
+        if given.size:
             z = np.clip(given, group.lo, group.hi)
     f = curve(group, coefficients, z)
     total = float(((f - f.mean()) ** 2).sum())

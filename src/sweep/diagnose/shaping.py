@@ -179,8 +179,13 @@ def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapePr
         f"dBIC {selection.dbic:.1f} against the null's {s.alpha:.0%} quantile {threshold:.1f} "
         f"-> {'proposed' if proposed else 'not proposed'}"
     )
-    samples = sample_values(ctx.windows, params, selection.groups) if proposed else {}
-    named, form, start = named_form(selection, samples) if proposed else ([], None, [])
+    samples: dict[str, list[float]] = {}
+    named: list[ClosedForm | None] = []
+    form: Effect | None = None
+    start: list[float] = []
+    if proposed:
+        samples = sample_values(ctx.windows, params, selection.groups)
+        named, form, start = named_form(selection, samples)
     if form is not None:
         ctx.log(
             "shapes named: "

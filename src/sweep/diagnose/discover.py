@@ -524,39 +524,46 @@ def discover(
     )
 
 
-def force_pattern(
+def force_patterns(
     params: Parameters,
     windows: Sequence[Recording],
-    effect: Effect,
-    values: Sequence[float],
+    effects: Sequence[Effect],
+    values: Sequence[Sequence[float]],
     stride: int = 5,
-) -> FloatArray:
-    """(3M,) the accelerations (u_dot, v_m_dot, r_dot) that ``effect`` at ``values`` adds to the
-    model at the recorded states, every ``stride``-th sample, each channel divided by the
-    model's own acceleration RMS (an effect acting only on controls or the measurement adds
-    none here)."""
+) -> list[FloatArray]:
+    """For each of ``effects`` at its ``values``: (3M,) the accelerations (u_dot, v_m_dot,
+    r_dot) it adds to the model at the recorded states, every ``stride``-th sample, each channel
+    divided by the model's own acceleration RMS (an effect acting only on controls or the
+    measurement adds none here).
+
+    One right-hand side holds the model's effects and all of ``effects``; each pattern is taken
+    with the others at their neutral values, which add exactly nothing: one kernel to compile,
+    not one per effect."""
     base_effects = tuple(get_effect(n) for n, _ in params.effects)
-    effects = (*base_effects, effect)
     extra0 = effect_values(params, base_effects)
-    p0 = np.concatenate([params.vector(), extra0, effect.neutral()])
-    p1 = np.concatenate([params.vector(), extra0, np.asarray(values, dtype=np.float64)])
+    neutral = [np.asarray(e.neutral(), dtype=np.float64) for e in effects]
+    head = np.concatenate([params.vector(), extra0])
+    rows = [np.concatenate([head, *neutral])]
+    for i, v in enumerate(values):
+        parts = [np.asarray(v, dtype=np.float64) if j == i else n for j, n in enumerate(neutral)]
+        rows.append(np.concatenate([head, *parts]))
+    P = np.stack(rows)
     x = np.concatenate([np.asarray(w.x)[::stride] for w in windows])
     u = np.concatenate([np.asarray(w.u)[::stride] for w in windows])
     wind = np.concatenate([np.asarray(w.w)[::stride] for w in windows])
     tt = np.concatenate([np.asarray(w.t)[::stride] for w in windows])
-    n = x.shape[0]
+    n, b = x.shape[0], P.shape[0]
     d = derivatives(
-        np.broadcast_to(x, (2, n, 6)),
-        np.broadcast_to(u, (2, n, 2)),
-        np.broadcast_to(wind, (2, n, 2)),
-        np.broadcast_to(np.stack([p0, p1])[:, None, :], (2, n, p0.size)),
-        effects,
-        t=np.broadcast_to(tt, (2, n)),
+        np.broadcast_to(x, (b, n, 6)),
+        np.broadcast_to(u, (b, n, 2)),
+        np.broadcast_to(wind, (b, n, 2)),
+        np.broadcast_to(P[:, None, :], (b, n, P.shape[1])),
+        (*base_effects, *effects),
+        t=np.broadcast_to(tt, (b, n)),
     )
     a0 = d[0][:, list(ACC)]
-    da = d[1][:, list(ACC)] - a0
     scale = 1.0 / np.maximum(np.sqrt(np.mean(a0 * a0, axis=0)), 1e-12)
-    return np.asarray((da * scale).T.reshape(-1))
+    return [np.asarray(((d[k][:, list(ACC)] - a0) * scale).T.reshape(-1)) for k in range(1, b)]
 
 
 def resemblance(
@@ -575,13 +582,14 @@ def resemblance(
         for n in fitted
         if n in by_name and n != chosen.name and not n.startswith("discovered:")
     ]
-    # the right-hand sides of every effect compared, compiled side by side
     base_effects = tuple(get_effect(n) for n, _ in params.effects)
-    precompile(tasks([(*base_effects, e) for e in (chosen, *compared)], ("derivatives",)))
-    ref = force_pattern(params, windows, chosen, list(fitted[chosen.name].values()))
+    every = (chosen, *compared)
+    precompile(tasks([(*base_effects, *every)], ("derivatives",)))
+    ref, *pats = force_patterns(
+        params, windows, every, [list(fitted[e.name].values()) for e in every]
+    )
     out: dict[str, float] = {}
-    for eff in compared:
-        pat = force_pattern(params, windows, eff, list(fitted[eff.name].values()))
+    for eff, pat in zip(compared, pats, strict=True):
         den = float(np.linalg.norm(pat) * np.linalg.norm(ref))
         if den > 0:
             out[eff.name] = float(pat @ ref / den)

@@ -43,6 +43,21 @@ def test_a_domain_reads_back_from_its_spec_and_bad_specs_are_clear():
             parse_spec(bad)
 
 
+def test_a_box_read_back_from_its_spec_rounds_to_the_same_spec():
+    """A bound rounded outward to 4 digits is a fixed point: the box rebuilt from a wrapped
+    effect's name is the box it was made with, one effect and one kernel in every process (in
+    binary, 0.02521 / 1e-5 is 2520.9999...: the name said 0.0252 while the hook held 0.02521)."""
+    d = Domain({"u": 0.025215, "r": -0.0412345}, {"u": 0.42005, "r": 0.0312})
+    assert d.spec == "held(u=0.02521:0.4201,r=-0.04124:0.0312)"
+    rng = np.random.default_rng(7)
+    for x in rng.uniform(-1.0, 1.0, 2000) * 10.0 ** rng.uniform(-5.0, 3.0, 2000):
+        box = Domain({"v_m": float(x)}, {"v_m": abs(float(x)) + 1.0})
+        back = parse_spec(box.spec)
+        assert back.spec == box.spec and back.lower["v_m"] <= x
+    held = within(get_effect("propeller_walk"), d)
+    assert split_name(held.name)[1] == held.domain == d.rounded()
+
+
 def test_a_wrapped_effect_is_rebuilt_by_name_and_pickles_by_name():
     walk = get_effect("propeller_walk")
     held = within(walk, BOX)

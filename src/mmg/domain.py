@@ -40,6 +40,7 @@ import hashlib
 import math
 import re
 from dataclasses import dataclass, field, replace
+from decimal import ROUND_CEILING, ROUND_FLOOR, Decimal
 from typing import Any
 
 from mmg._generated import generated_module
@@ -113,13 +114,19 @@ class Domain:
 
 
 def _round(x: float, direction: Any) -> str:
-    """``x`` in 4 significant digits, rounded in ``direction`` (math.floor or math.ceil)."""
+    """``x`` in 4 significant digits, rounded in ``direction`` (math.floor or math.ceil).
+
+    Rounded in decimal, from the shortest text of ``x``: a bound read back from the text rounds
+    to the same text (in binary, 0.02521 / 1e-5 is 2520.9999... and fell to 0.0252), so a box
+    rebuilt from an effect's name is the box the effect was made with."""
     if not math.isfinite(x):
         return "inf" if x > 0 else "-inf"
     if x == 0.0:
         return "0"
-    scale = 10.0 ** (math.floor(math.log10(abs(x))) - 3)
-    return f"{direction(x / scale) * scale:.4g}"
+    d = Decimal(repr(float(x)))
+    mode = ROUND_FLOOR if direction is math.floor else ROUND_CEILING
+    q = d.quantize(Decimal(1).scaleb(d.adjusted() - 3), rounding=mode)
+    return f"{float(q):.4g}"
 
 
 def parse_spec(spec: str) -> Domain:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from mmg import efd_parameters, get_effect
-from mmg.domain import Domain, parse_spec, split_name, within
+from mmg.domain import Domain, DomainEffect, parse_spec, split_name, within
 from sweep.data.ranges import departures, ranges_of
 from sweep.data.recordings import Recording
 
@@ -55,6 +55,7 @@ def test_a_box_read_back_from_its_spec_rounds_to_the_same_spec():
         back = parse_spec(box.spec)
         assert back.spec == box.spec and back.lower["v_m"] <= x
     held = within(get_effect("propeller_walk"), d)
+    assert isinstance(held, DomainEffect)
     assert split_name(held.name)[1] == held.domain == d.rounded()
 
 

@@ -539,6 +539,8 @@ def force_patterns(
     One right-hand side holds the model's effects and all of ``effects``; each pattern is taken
     with the others at their neutral values, which add exactly nothing: one kernel to compile,
     not one per effect."""
+    if len(values) != len(effects):
+        raise ValueError(f"{len(effects)} effects, {len(values)} sets of values")
     base_effects = tuple(get_effect(n) for n, _ in params.effects)
     extra0 = effect_values(params, base_effects)
     neutral = [np.asarray(e.neutral(), dtype=np.float64) for e in effects]

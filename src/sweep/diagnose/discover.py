@@ -547,7 +547,7 @@ def force_patterns(
     head = np.concatenate([params.vector(), extra0])
     rows = [np.concatenate([head, *neutral])]
     for i, v in enumerate(values):
-        parts = [np.asarray(v, dtype=np.float64) if j == i else n for j, n in enumerate(neutral)]
+        parts = [np.asarray(v, dtype=np.float64) if j == i else z for j, z in enumerate(neutral)]
         rows.append(np.concatenate([head, *parts]))
     P = np.stack(rows)
     x = np.concatenate([np.asarray(w.x)[::stride] for w in windows])
@@ -563,9 +563,10 @@ def force_patterns(
         (*base_effects, *effects),
         t=np.broadcast_to(tt, (b, n)),
     )
-    a0 = d[0][:, list(ACC)]
+    acc = d[..., list(ACC)]  # (b, n, 3)
+    a0 = acc[0]
     scale = 1.0 / np.maximum(np.sqrt(np.mean(a0 * a0, axis=0)), 1e-12)
-    return [np.asarray(((d[k][:, list(ACC)] - a0) * scale).T.reshape(-1)) for k in range(1, b)]
+    return [np.asarray(((acc[k] - a0) * scale).T.reshape(-1)) for k in range(1, b)]
 
 
 def resemblance(

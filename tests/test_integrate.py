@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from typing import Any
 
 import numba
 import numpy as np
@@ -269,3 +270,32 @@ def test_the_rk4_stage_loop_compiles_to_vector_instructions(step):
     ir = fn.inspect_llvm(fn.signatures[0])
     assert re.search(r"llvm\.sqrt\.v\d+f64", ir), "no vector square root in the stage loop"
     assert re.search(r"fdiv (?:[a-z]+ )*<\d+ x double>", ir), "no vector division either"
+
+
+@pytest.mark.skipif(
+    bool(getattr(numba.config, "DISABLE_JIT", 0)), reason="inspects the compiled code"
+)
+def test_a_sub_model_compiled_first_by_the_fused_kernel_keeps_strict_arithmetic():
+    """Numba lets a callee inherit ``fastmath`` from the function that compiles it first: a
+    sub-model first compiled inside the objective's fused kernel would keep contracted
+    multiply-adds for every later kernel of the process, and the simulator's trajectories would
+    depend on the order in which a process compiled its kernels. A sub-model states its strict
+    arithmetic itself, and the fused caller still contracts its own loop."""
+    from mmg._jit import FUSED_OPTIONS, subfunction
+
+    def scaled_sum(a, b, c):
+        return a * b + c
+
+    sub: Any = subfunction(scaled_sum)  # the dispatcher (typed as the function it wraps)
+
+    def fused_caller(x):
+        s = 0.0
+        for i in range(x.shape[0]):
+            s = s * x[i] + sub(x[i], x[i], 1.0)
+        return s
+
+    caller = numba.njit(**FUSED_OPTIONS)(fused_caller)
+    caller(np.arange(3.0))  # compiles sub for the first time, from the fused caller
+    sub_ir = sub.inspect_llvm(sub.signatures[0])
+    assert re.search(r"fmul (?:[a-z]+ )*double", sub_ir) and " contract " not in sub_ir
+    assert " contract " in caller.inspect_llvm(caller.signatures[0])

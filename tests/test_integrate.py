@@ -299,3 +299,41 @@ def test_a_sub_model_compiled_first_by_the_fused_kernel_keeps_strict_arithmetic(
     sub_ir = sub.inspect_llvm(sub.signatures[0])
     assert re.search(r"fmul (?:[a-z]+ )*double", sub_ir) and " contract " not in sub_ir
     assert " contract " in caller.inspect_llvm(caller.signatures[0])
+
+
+def test_thread_shares_cover_every_chunk_once_and_an_error_reaches_the_caller():
+    """The trajectory entry points run thread t's share (chunks t, t + n_threads, ...) in a pool
+    of threads: every share runs once, with its own t, whatever the number of threads; an error
+    in any share reaches the caller."""
+    from mmg._threads import run_threads
+
+    for n in (1, 2, 5):
+        seen = np.zeros(n, np.int64)
+
+        def share(t: int, out: np.ndarray) -> None:
+            out[t] += 1
+
+        run_threads(share, n, (seen,))
+        assert seen.tolist() == [1] * n
+
+    def failing(t: int) -> None:
+        if t == 2:
+            raise RuntimeError("share 2 failed")
+
+    with pytest.raises(RuntimeError, match="share 2 failed"):
+        run_threads(failing, 3, ())
+
+
+def test_the_states_do_not_depend_on_the_number_of_threads():
+    """Thread shares only split the chunks among threads (all of the machine's, or one)."""
+    rng = np.random.default_rng(3)
+    x0, u, w = _random_inputs(rng, 40, 30)
+    theta = _perturbed(rng, 40)
+    every = simulate_batch(x0, u, w, theta, chunk=8).states
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = simulate_batch(x0, u, w, theta, chunk=8).states
+    finally:
+        numba.set_num_threads(threads)
+    assert np.array_equal(every, one)

@@ -11,7 +11,7 @@ version: editing a sub-model yields a new file and a fresh compilation, never a 
 
 Layout (structure of arrays): lanes (trajectories) are the last, contiguous axis; the kernel
 walks them in chunks of ``W`` lanes, innermost within each RK4 stage, so LLVM vectorises the
-arithmetic across trajectories; chunks run in parallel threads.
+arithmetic across trajectories; chunks run in parallel threads (:mod:`mmg._threads`).
 """
 
 from __future__ import annotations
@@ -260,7 +260,65 @@ def work_buffers(NP, Wp):
     )  # fmt: skip
 
 
-@numba.njit(parallel=True, cache=True, **JIT_OPTIONS)
+@numba.njit(cache=True, **JIT_OPTIONS)
+def simulate_thread(
+    t, x0, t_start, u_seq, w_seq, P, n_steps, lane_ids, sh, dt, lim_lin, lim_ang, W, n_threads,
+    out, bad,
+):  # fmt: skip
+    """Thread t's share of :func:`simulate_lanes`: chunks t, t + n_threads, ..."""
+    B = x0.shape[0]
+    K = u_seq.shape[1]
+    NP = P.shape[0]
+    n_chunks = (B + W - 1) // W
+    Wp = padded(W)
+    X, Pc, Mi, cur, prev, ob, Ks, Tr, inv_t_f, t_s, fb, ids, last = work_buffers(NP, Wp)
+    for c in range(t, n_chunks, n_threads):
+        lo = c * W
+        w = min(lo + W, B) - lo
+        wp = padded(w)  # lanes w..wp-1 repeat lane w-1 (vector code only); not written
+        kmax = 0
+        for i in range(wp):
+            b = lane_ids[lo + min(i, w - 1)]
+            ids[i] = b
+            kmax = max(kmax, n_steps[b])
+            last[i] = max(n_steps[b] - 1, 0)
+            inv_t_f[i] = 1.0 / (n_steps[b] * dt)  # once per lane, not per stage
+            t_s[i] = t_start[b]
+            fb[i] = -1
+            for j in range(NP):
+                Pc[j, i] = P[j, b]
+            fill_inertia(Mi, Pc, i, sh)
+            start_state(X, x0, b, Pc, ob, i)
+        for i in range(w):
+            for j in range(6):
+                out[ids[i], 0, j] = x0[ids[i], j]
+        for k in range(kmax):
+            gather_inputs(cur, u_seq, w_seq, ids, last, k, wp, Pc, dt)
+            transform_inputs(cur, prev, Pc, k, wp, dt)
+            rk4_step(
+                X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
+                Pc, Mi, sh, k, dt, inv_t_f, t_s, lim_lin, lim_ang, fb, wp,
+            )  # fmt: skip
+            for i in range(w):
+                if k < n_steps[ids[i]]:
+                    b = ids[i]
+                    cb = ob[1, i]
+                    sb = ob[2, i]
+                    out[b, k + 1, 0] = X[0, i]
+                    out[b, k + 1, 1] = X[1, i] * cb + X[3, i] * sb
+                    out[b, k + 1, 2] = X[2, i]
+                    out[b, k + 1, 3] = X[3, i] * cb - X[1, i] * sb
+                    out[b, k + 1, 4] = X[4, i] + ob[0, i]
+                    out[b, k + 1, 5] = X[5, i]
+        for i in range(w):
+            b = ids[i]
+            n = n_steps[b]
+            for k in range(n + 1, K + 1):
+                for j in range(6):
+                    out[b, k, j] = np.nan
+            bad[b] = fb[i] if fb[i] < n else -1
+
+
 def simulate_lanes(
     x0, t_start, u_seq, w_seq, P, n_steps, lane_ids, sh, dt, lim_lin, lim_ang, W, n_threads, out,
     bad,
@@ -277,61 +335,102 @@ def simulate_lanes(
     Inputs are gathered and states scattered one step at a time: W rows advancing together keep
     a few kB of cache lines live, where a whole-chunk transpose would stream them from memory.
     """
-    B = x0.shape[0]
-    K = u_seq.shape[1]
+    run_threads(
+        simulate_thread,
+        n_threads,
+        (
+            x0, t_start, u_seq, w_seq, P, n_steps, lane_ids, sh, dt, lim_lin, lim_ang, W,
+            n_threads, out, bad,
+        ),
+    )  # fmt: skip
+
+
+@numba.njit(cache=True, **FUSED_OPTIONS)
+def moments_thread(
+    t, seg_x0, seg_t0, seg_u, seg_w, seg_ref, seg_shift, seg_steps, P, lane_cand, lane_seg,
+    sh, dt, lim_lin, lim_ang, W, n_threads, mom, bad,
+):  # fmt: skip
+    """Thread t's share of :func:`moments_lanes`: chunks t, t + n_threads, ..."""
+    L = lane_cand.shape[0]
     NP = P.shape[0]
-    n_chunks = (B + W - 1) // W
+    n_chunks = (L + W - 1) // W
     Wp = padded(W)
-    for t in numba.prange(n_threads):
-        X, Pc, Mi, cur, prev, ob, Ks, Tr, inv_t_f, t_s, fb, ids, last = work_buffers(NP, Wp)
-        for c in range(t, n_chunks, n_threads):
-            lo = c * W
-            w = min(lo + W, B) - lo
-            wp = padded(w)  # lanes w..wp-1 repeat lane w-1 (vector code only); not written
-            kmax = 0
+    X, Pc, Mi, cur, prev, ob, Ks, Tr, inv_t_f, t_s, fb, seg, last = work_buffers(NP, Wp)
+    acc = np.empty((7, 5, Wp))
+    Z = np.empty((7, Wp))  # the observables of sample k, less the segment's shift
+    Rf = np.empty((7, Wp))  # the reference series at sample k
+    sh7 = np.empty((7, Wp))  # the segment's shift
+    nk = np.empty(Wp, dtype=np.int64)  # steps of the lane's segment
+    onv = np.empty(Wp)  # 1 while k <= steps, else 0
+    wt = np.empty(Wp)  # trapezoid weight of sample k
+    for c in range(t, n_chunks, n_threads):
+        lo = c * W
+        w = min(lo + W, L) - lo
+        wp = padded(w)  # lanes w..wp-1 repeat lane w-1; their moments are not written
+        kmax = 0
+        for i in range(wp):
+            s = lane_seg[lo + min(i, w - 1)]
+            seg[i] = s
+            last[i] = max(seg_steps[s] - 1, 0)
+            kmax = max(kmax, seg_steps[s])
+            inv_t_f[i] = 1.0 / (seg_steps[s] * dt)
+            t_s[i] = seg_t0[s]
+            fb[i] = -1
+            for j in range(NP):
+                Pc[j, i] = P[j, lane_cand[lo + min(i, w - 1)]]
+            fill_inertia(Mi, Pc, i, sh)
+            start_state(X, seg_x0, s, Pc, ob, i)
+            nk[i] = seg_steps[s]
+            for q in range(7):
+                sh7[q, i] = seg_shift[s, q]
+                for m in range(5):
+                    acc[q, m, i] = 0.0
+        for k in range(kmax + 1):
+            # accumulate sample k (the state before step k), one observable at a time
+            # across the lanes so that LLVM vectorises it (a lane's sums are unchanged)
             for i in range(wp):
-                b = lane_ids[lo + min(i, w - 1)]
-                ids[i] = b
-                kmax = max(kmax, n_steps[b])
-                last[i] = max(n_steps[b] - 1, 0)
-                inv_t_f[i] = 1.0 / (n_steps[b] * dt)  # once per lane, not per stage
-                t_s[i] = t_start[b]
-                fb[i] = -1
-                for j in range(NP):
-                    Pc[j, i] = P[j, b]
-                fill_inertia(Mi, Pc, i, sh)
-                start_state(X, x0, b, Pc, ob, i)
-            for i in range(w):
-                for j in range(6):
-                    out[ids[i], 0, j] = x0[ids[i], j]
-            for k in range(kmax):
-                gather_inputs(cur, u_seq, w_seq, ids, last, k, wp, Pc, dt)
-                transform_inputs(cur, prev, Pc, k, wp, dt)
-                rk4_step(
-                    X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
-                    Pc, Mi, sh, k, dt, inv_t_f, t_s, lim_lin, lim_ang, fb, wp,
-                )  # fmt: skip
-                for i in range(w):
-                    if k < n_steps[ids[i]]:
-                        b = ids[i]
-                        cb = ob[1, i]
-                        sb = ob[2, i]
-                        out[b, k + 1, 0] = X[0, i]
-                        out[b, k + 1, 1] = X[1, i] * cb + X[3, i] * sb
-                        out[b, k + 1, 2] = X[2, i]
-                        out[b, k + 1, 3] = X[3, i] * cb - X[1, i] * sb
-                        out[b, k + 1, 4] = X[4, i] + ob[0, i]
-                        out[b, k + 1, 5] = X[5, i]
-            for i in range(w):
-                b = ids[i]
-                n = n_steps[b]
-                for k in range(n + 1, K + 1):
-                    for j in range(6):
-                        out[b, k, j] = np.nan
-                bad[b] = fb[i] if fb[i] < n else -1
+                n = nk[i]
+                on = 1.0 if k <= n else 0.0
+                wt[i] = on * (0.5 if (k == 0 or k == n) else 1.0)
+                onv[i] = on
+                kk = min(k, n)
+                for q in range(7):
+                    Rf[q, i] = seg_ref[seg[i], kk, q]
+            for i in range(wp):
+                sp, cp = sincos(X[4, i] + ob[0, i])  # the logged heading
+                Z[0, i] = X[0, i] - sh7[0, i]
+                Z[1, i] = (X[1, i] * ob[1, i] + X[3, i] * ob[2, i]) - sh7[1, i]  # logged u
+                Z[2, i] = X[2, i] - sh7[2, i]
+                Z[3, i] = (X[3, i] * ob[1, i] - X[1, i] * ob[2, i]) - sh7[3, i]  # logged v_m
+                Z[4, i] = sp - sh7[4, i]
+                Z[5, i] = cp - sh7[5, i]
+                Z[6, i] = X[5, i] - sh7[6, i]
+            for q in range(7):
+                for i in range(wp):
+                    z = Z[q, i]
+                    on = onv[i]
+                    w_k = wt[i]
+                    acc[q, 0, i] += on * z
+                    acc[q, 1, i] += on * z * z
+                    acc[q, 2, i] += w_k * z
+                    acc[q, 3, i] += w_k * z * z
+                    acc[q, 4, i] += w_k * z * Rf[q, i]
+            if k == kmax:
+                break
+            gather_inputs(cur, seg_u, seg_w, seg, last, k, wp, Pc, dt)
+            transform_inputs(cur, prev, Pc, k, wp, dt)
+            rk4_step_fused(
+                X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
+                Pc, Mi, sh, k, dt, inv_t_f, t_s, lim_lin, lim_ang, fb, wp,
+            )  # fmt: skip
+        for i in range(w):
+            lane = lo + i
+            for q in range(7):
+                for m in range(5):
+                    mom[lane, q, m] = acc[q, m, i]
+            bad[lane] = fb[i] if fb[i] < seg_steps[seg[i]] else -1
 
 
-@numba.njit(parallel=True, cache=True, **FUSED_OPTIONS)
 def moments_lanes(
     seg_x0, seg_t0, seg_u, seg_w, seg_ref, seg_shift, seg_steps, P, lane_cand, lane_seg,
     sh, dt, lim_lin, lim_ang, W, n_threads, mom, bad,
@@ -346,85 +445,14 @@ def moments_lanes(
     weights w_k (1/2 at both ends, else 1): sum z, sum z^2, sum w z, sum w z^2, sum w z ref.
     bad (L,) is the first step at which the lane hit the limiter or became non-finite (-1: none).
     """
-    L = lane_cand.shape[0]
-    NP = P.shape[0]
-    n_chunks = (L + W - 1) // W
-    Wp = padded(W)
-    for t in numba.prange(n_threads):
-        X, Pc, Mi, cur, prev, ob, Ks, Tr, inv_t_f, t_s, fb, seg, last = work_buffers(NP, Wp)
-        acc = np.empty((7, 5, Wp))
-        Z = np.empty((7, Wp))  # the observables of sample k, less the segment's shift
-        Rf = np.empty((7, Wp))  # the reference series at sample k
-        sh7 = np.empty((7, Wp))  # the segment's shift
-        nk = np.empty(Wp, dtype=np.int64)  # steps of the lane's segment
-        onv = np.empty(Wp)  # 1 while k <= steps, else 0
-        wt = np.empty(Wp)  # trapezoid weight of sample k
-        for c in range(t, n_chunks, n_threads):
-            lo = c * W
-            w = min(lo + W, L) - lo
-            wp = padded(w)  # lanes w..wp-1 repeat lane w-1; their moments are not written
-            kmax = 0
-            for i in range(wp):
-                s = lane_seg[lo + min(i, w - 1)]
-                seg[i] = s
-                last[i] = max(seg_steps[s] - 1, 0)
-                kmax = max(kmax, seg_steps[s])
-                inv_t_f[i] = 1.0 / (seg_steps[s] * dt)
-                t_s[i] = seg_t0[s]
-                fb[i] = -1
-                for j in range(NP):
-                    Pc[j, i] = P[j, lane_cand[lo + min(i, w - 1)]]
-                fill_inertia(Mi, Pc, i, sh)
-                start_state(X, seg_x0, s, Pc, ob, i)
-                nk[i] = seg_steps[s]
-                for q in range(7):
-                    sh7[q, i] = seg_shift[s, q]
-                    for m in range(5):
-                        acc[q, m, i] = 0.0
-            for k in range(kmax + 1):
-                # accumulate sample k (the state before step k), one observable at a time
-                # across the lanes so that LLVM vectorises it (a lane's sums are unchanged)
-                for i in range(wp):
-                    n = nk[i]
-                    on = 1.0 if k <= n else 0.0
-                    wt[i] = on * (0.5 if (k == 0 or k == n) else 1.0)
-                    onv[i] = on
-                    kk = min(k, n)
-                    for q in range(7):
-                        Rf[q, i] = seg_ref[seg[i], kk, q]
-                for i in range(wp):
-                    sp, cp = sincos(X[4, i] + ob[0, i])  # the logged heading
-                    Z[0, i] = X[0, i] - sh7[0, i]
-                    Z[1, i] = (X[1, i] * ob[1, i] + X[3, i] * ob[2, i]) - sh7[1, i]  # logged u
-                    Z[2, i] = X[2, i] - sh7[2, i]
-                    Z[3, i] = (X[3, i] * ob[1, i] - X[1, i] * ob[2, i]) - sh7[3, i]  # logged v_m
-                    Z[4, i] = sp - sh7[4, i]
-                    Z[5, i] = cp - sh7[5, i]
-                    Z[6, i] = X[5, i] - sh7[6, i]
-                for q in range(7):
-                    for i in range(wp):
-                        z = Z[q, i]
-                        on = onv[i]
-                        w_k = wt[i]
-                        acc[q, 0, i] += on * z
-                        acc[q, 1, i] += on * z * z
-                        acc[q, 2, i] += w_k * z
-                        acc[q, 3, i] += w_k * z * z
-                        acc[q, 4, i] += w_k * z * Rf[q, i]
-                if k == kmax:
-                    break
-                gather_inputs(cur, seg_u, seg_w, seg, last, k, wp, Pc, dt)
-                transform_inputs(cur, prev, Pc, k, wp, dt)
-                rk4_step_fused(
-                    X, Ks, Tr, cur[0], cur[1], cur[2], cur[3],
-                    Pc, Mi, sh, k, dt, inv_t_f, t_s, lim_lin, lim_ang, fb, wp,
-                )  # fmt: skip
-            for i in range(w):
-                lane = lo + i
-                for q in range(7):
-                    for m in range(5):
-                        mom[lane, q, m] = acc[q, m, i]
-                bad[lane] = fb[i] if fb[i] < seg_steps[seg[i]] else -1
+    run_threads(
+        moments_thread,
+        n_threads,
+        (
+            seg_x0, seg_t0, seg_u, seg_w, seg_ref, seg_shift, seg_steps, P, lane_cand,
+            lane_seg, sh, dt, lim_lin, lim_ang, W, n_threads, mom, bad,
+        ),
+    )  # fmt: skip
 
 
 @numba.njit(inline="always", **JIT_OPTIONS)
@@ -535,6 +563,7 @@ _FORCE_ARGS = ("u_w", "v_w", "r", "psi", "delta", "n_p", "U_T", "gamma_T")
 _MMG_NAMES = (
     ("mmg._jit", "FUSED_OPTIONS"),
     ("mmg._jit", "JIT_OPTIONS"),
+    ("mmg._threads", "run_threads"),
     ("mmg.model", "Inertia"),
     ("mmg.model", "accelerations"),
     ("mmg.model", "aerodynamic_forces"),

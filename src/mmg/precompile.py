@@ -24,8 +24,8 @@ from mmg.params import N_THETA, efd_parameters
 
 #: entry point -> the compiled function of the kernel module behind it
 ENTRIES: dict[str, str] = {
-    "simulate": "simulate_lanes",  # mmg.simulate_batch
-    "moments": "moments_lanes",  # mmg.integrate.segment_moments (the objective)
+    "simulate": "simulate_thread",  # mmg.simulate_batch (its threads share)
+    "moments": "moments_thread",  # mmg.integrate.segment_moments (the objective; its threads share)
     "derivatives": "rhs_rows",  # mmg.integrate.derivatives / derivatives_rows
     "accelerations": "effect_rows",  # mmg.integrate.effect_accelerations_rows (its last effect's)
 }

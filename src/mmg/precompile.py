@@ -1,9 +1,10 @@
 """Compile the kernels a long run will need ahead of time, several at once, in worker processes.
 
-Numba compiles one function at a time per process (about half a minute per kernel entry point).
-:func:`precompile` compiles the entry points missing from Numba's on-disk cache in ``processes``
-spawned workers (Numba's thread pool does not survive a fork); the calling process then loads
-them from the cache. A warm cache costs only the check (no process is started).
+Numba compiles one function at a time per process (3-10 s per kernel entry point of the base
+model, more with effects). :func:`precompile` compiles the entry points missing from Numba's
+on-disk cache in ``processes`` spawned workers (Numba's thread pool does not survive a fork);
+the calling process then loads them from the cache. A warm cache costs only the check (no
+process is started).
 """
 
 from __future__ import annotations
@@ -111,7 +112,7 @@ def precompile(
     if log is not None:
         log(
             f"compiling {len(missing)} simulator kernel entry point(s) not yet in the cache, "
-            f"{workers} at a time (about half a minute each; first use only)"
+            f"{workers} at a time (seconds to a minute each; first use only)"
         )
     t0 = time.perf_counter()
     done = 0

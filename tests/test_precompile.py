@@ -41,7 +41,7 @@ def test_precompile_compiles_what_the_cache_lacks_once(tmp_path: Path) -> None:
     assert (before, first, after, second) == (False, 1, True, 0)
     assert "compiled derivatives for the base model (1/1" in proc.stderr
     # the worker wrote Numba's cache into the run's kernel directory
-    assert list((tmp_path / "kernels" / "__pycache__").glob("mmg_kernel_*.rhs_rows-*.nbi"))
+    assert list((tmp_path / "kernels" / "__pycache__").glob("mmg_kernel_*.rhs_share-*.nbi"))
 
 
 def test_tasks_name_unknown_entry_points() -> None:

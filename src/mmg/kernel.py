@@ -455,7 +455,7 @@ def moments_lanes(
     )  # fmt: skip
 
 
-@numba.njit(inline="always", **JIT_OPTIONS)
+@numba.njit(cache=True, **JIT_OPTIONS)
 def inertia_columns(P, sh):
     """(N_INERTIA, R) the :class:`mmg.model.Inertia` of every parameter column of P (N_PARAMS,
     R), once per call of the pointwise entries rather than at every point."""
@@ -465,15 +465,12 @@ def inertia_columns(P, sh):
     return Mi
 
 
-@numba.njit(parallel=True, cache=True, **JIT_OPTIONS)
-def rhs_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
-    """xdot for M independent points: T (M,) times [s], X (6, M), inputs (M,); point i with the
-    parameter column row[i] of P (N_PARAMS, R) (many points may share one set, without a
-    per-point copy of it) -> out (6, M). Blocks of POINT_BLOCK points run in parallel threads
-    (strict IEEE arithmetic: a point's result does not depend on its block)."""
+@numba.njit(cache=True, **JIT_OPTIONS)
+def rhs_share(t, n_threads, T, X, delta, n_p, U_T, gamma_T, P, Mi, row, sh, out):
+    """Thread t's share of :func:`rhs_rows`: blocks t, t + n_threads, ... of POINT_BLOCK points;
+    Mi (N_INERTIA, R) the inertias of the columns of P."""
     M = X.shape[1]
-    Mi = inertia_columns(P, sh)
-    for blk in numba.prange((M + POINT_BLOCK - 1) // POINT_BLOCK):
+    for blk in range(t, (M + POINT_BLOCK - 1) // POINT_BLOCK, n_threads):
         for i in range(blk * POINT_BLOCK, min(M, (blk + 1) * POINT_BLOCK)):
             sin_d, cos_d = sincos(delta[i])
             sin_g, cos_g = sincos(gamma_T[i])
@@ -485,6 +482,21 @@ def rhs_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
                 out[j, i] = d[j]
 
 
+def point_threads(M):
+    """Threads for M points: the process's Numba thread count, at most one per block."""
+    return max(1, min(numba.get_num_threads(), (M + POINT_BLOCK - 1) // POINT_BLOCK))
+
+
+def rhs_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
+    """xdot for M independent points: T (M,) times [s], X (6, M), inputs (M,); point i with the
+    parameter column row[i] of P (N_PARAMS, R) (many points may share one set, without a
+    per-point copy of it) -> out (6, M). Blocks of POINT_BLOCK points run in parallel threads
+    (strict IEEE arithmetic: a point's result does not depend on its block)."""
+    n = point_threads(X.shape[1])
+    Mi = inertia_columns(P, sh)
+    run_threads(rhs_share, n, (n, T, X, delta, n_p, U_T, gamma_T, P, Mi, row, sh, out))
+
+
 @numba.njit(inline="always", **JIT_OPTIONS)
 def last_effect_forces(t, x0, u, y0, v_m, psi, r, delta, n_p, U_T, gamma_T, P, i, sh):
     """(X, Y, N) [N, N, N m] that the force hooks of the last effect alone add at lane i of P,
@@ -493,17 +505,12 @@ def last_effect_forces(t, x0, u, y0, v_m, psi, r, delta, n_p, U_T, gamma_T, P, i
 {last_force_body}
 
 
-@numba.njit(parallel=True, cache=True, **JIT_OPTIONS)
-def effect_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
-    """The accelerations (u_dot [m/s^2], v_m_dot [m/s^2], r_dot [rad/s^2]) that the last
-    effect's forces add at M points, arguments as :func:`rhs_rows`, out (3, M).
-
-    Eq. (1) is linear in the forces, so this is what the effect changes in the right-hand side
-    at these points, up to rounding, without the rest of the model: the equation-level
-    discovery evaluates hundreds of library terms one at a time this way."""
+@numba.njit(cache=True, **JIT_OPTIONS)
+def effect_share(t, n_threads, T, X, delta, n_p, U_T, gamma_T, P, Mi, row, sh, out):
+    """Thread t's share of :func:`effect_rows`: blocks t, t + n_threads, ... of POINT_BLOCK
+    points; Mi (N_INERTIA, R) the inertias of the columns of P."""
     M = X.shape[1]
-    Mi = inertia_columns(P, sh)
-    for blk in numba.prange((M + POINT_BLOCK - 1) // POINT_BLOCK):
+    for blk in range(t, (M + POINT_BLOCK - 1) // POINT_BLOCK, n_threads):
         for i in range(blk * POINT_BLOCK, min(M, (blk + 1) * POINT_BLOCK)):
             c = row[i]
             F_X, F_Y, F_N = last_effect_forces(
@@ -514,6 +521,18 @@ def effect_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
             out[0, i], out[1, i], out[2, i] = accelerations(
                 F_X, F_Y, F_N, 0.0, 0.0, 0.0, M_c
             )  # Eq. (1), the forces' part
+
+
+def effect_rows(T, X, delta, n_p, U_T, gamma_T, P, row, sh, out):
+    """The accelerations (u_dot [m/s^2], v_m_dot [m/s^2], r_dot [rad/s^2]) that the last
+    effect's forces add at M points, arguments as :func:`rhs_rows`, out (3, M).
+
+    Eq. (1) is linear in the forces, so this is what the effect changes in the right-hand side
+    at these points, up to rounding, without the rest of the model: the equation-level
+    discovery evaluates hundreds of library terms one at a time this way."""
+    n = point_threads(X.shape[1])
+    Mi = inertia_columns(P, sh)
+    run_threads(effect_share, n, (n, T, X, delta, n_p, U_T, gamma_T, P, Mi, row, sh, out))
 '''
 
 #: the parameters of lane i and the velocity through the water (u_w, v_w) after every

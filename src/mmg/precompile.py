@@ -27,8 +27,8 @@ from mmg.params import N_THETA, efd_parameters
 ENTRIES: dict[str, str] = {
     "simulate": "simulate_thread",  # mmg.simulate_batch (its threads share)
     "moments": "moments_thread",  # mmg.integrate.segment_moments (the objective; its threads share)
-    "derivatives": "rhs_rows",  # mmg.integrate.derivatives / derivatives_rows
-    "accelerations": "effect_rows",  # mmg.integrate.effect_accelerations_rows (its last effect's)
+    "derivatives": "rhs_share",  # mmg.integrate.derivatives / derivatives_rows
+    "accelerations": "effect_share",  # mmg.integrate.effect_accelerations_rows (its last effect's)
 }
 
 

@@ -275,12 +275,12 @@ def test_the_rk4_stage_loop_compiles_to_vector_instructions(step):
 @pytest.mark.skipif(
     bool(getattr(numba.config, "DISABLE_JIT", 0)), reason="inspects the compiled code"
 )
-def test_a_sub_model_compiled_first_by_the_fused_kernel_keeps_strict_arithmetic():
-    """Numba lets a callee inherit ``fastmath`` from the function that compiles it first: a
-    sub-model first compiled inside the objective's fused kernel would keep contracted
-    multiply-adds for every later kernel of the process, and the simulator's trajectories would
-    depend on the order in which a process compiled its kernels. A sub-model states its strict
-    arithmetic itself, and the fused caller still contracts its own loop."""
+def test_a_sub_model_used_by_the_fused_kernel_is_contracted_there_and_strict_elsewhere():
+    """The objective's kernel contracts the sub-models' multiply-adds; the same sub-model called
+    from Python afterwards (or by the simulator's kernel) keeps strict arithmetic: Numba lets a
+    callee compiled on its own inherit ``fastmath`` from the function that compiles it first, so a
+    sub-model compiled once for both would make the simulator's last bits depend on which kernel
+    a process compiled first."""
     from mmg._jit import FUSED_OPTIONS, subfunction
 
     def scaled_sum(a, b, c):
@@ -291,14 +291,16 @@ def test_a_sub_model_compiled_first_by_the_fused_kernel_keeps_strict_arithmetic(
     def fused_caller(x):
         s = 0.0
         for i in range(x.shape[0]):
-            s = s * x[i] + sub(x[i], x[i], 1.0)
+            s = s + sub(x[i], x[i], 1.0)
         return s
 
     caller = numba.njit(**FUSED_OPTIONS)(fused_caller)
-    caller(np.arange(3.0))  # compiles sub for the first time, from the fused caller
+    caller(np.arange(3.0))  # compiles sub into the fused caller first
+    assert sub(2.0, 3.0, 1.0) == 7.0  # then on its own, from Python
     sub_ir = sub.inspect_llvm(sub.signatures[0])
     assert re.search(r"fmul (?:[a-z]+ )*double", sub_ir) and " contract " not in sub_ir
-    assert " contract " in caller.inspect_llvm(caller.signatures[0])
+    caller_ir = caller.inspect_llvm(caller.signatures[0])
+    assert re.search(r"fmul contract double", caller_ir), "the fused caller's sub is not contracted"
 
 
 def test_thread_shares_cover_every_chunk_once_and_an_error_reaches_the_caller():

@@ -5,9 +5,9 @@ The entry points of a generated kernel module split their work among ``n_threads
 their blocks of points; thread t takes chunks (blocks) t, t + n_threads, ... The share of one
 thread is a compiled function that releases the GIL (``nogil``), called here from a pool of
 Python threads. *Rejected*: a ``numba.prange`` loop over the threads, which made Numba type and
-lower each entry point's body a second time for its parallel region (half to four fifths of an
-entry point's compile time: the base model's ``simulate`` 19-21 s with it, 7-10 s without; the
-library's accelerations 48 s with it, 9 s without) for the same work.
+lower each entry point's body a second time for its parallel region (the base model's
+``simulate`` and ``moments`` 27-28 s with it, 16-19 s without; the library's accelerations 48 s
+with it, 22 s without) for the same work.
 """
 
 from __future__ import annotations

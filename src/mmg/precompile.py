@@ -1,6 +1,6 @@
 """Compile the kernels a long run will need ahead of time, several at once, in worker processes.
 
-Numba compiles one function at a time per process (3-10 s per kernel entry point of the base
+Numba compiles one function at a time per process (10-20 s per kernel entry point of the base
 model, more with effects). :func:`precompile` compiles the entry points missing from Numba's
 on-disk cache in ``processes`` spawned workers (Numba's thread pool does not survive a fork);
 the calling process then loads them from the cache. A warm cache costs only the check (no

@@ -40,8 +40,8 @@ def _executor(workers: int) -> ThreadPoolExecutor:
 
 def run_threads(share: Callable[..., Any], n_threads: int, args: tuple[Any, ...]) -> None:
     """Call ``share(t, *args)`` for t = 0 .. n_threads - 1 at once: t = 0 in the calling thread,
-    the others in the pool; returns when all have ended, re-raising a share's error (one of a pool
-thread's, in the order of t, before the calling thread's own)."""
+    the others in the pool; returns when all have ended, re-raising a share's error (a pool
+    thread's, in the order of t, before the calling thread's own)."""
     if n_threads <= 1:
         share(0, *args)
         return

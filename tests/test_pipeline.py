@@ -276,3 +276,43 @@ def test_a_closed_form_ahead_of_the_shape_is_chosen_as_any_candidate(tmp_path: P
     scores = [_score(FORM, -120.0, 0.5, gain=0.5), _score(SHAPE, -100.0, 0.5, gain=1.0)]
     v = decide(ctx, scores, [SHAPE, FORM], _null(-10.0), significant=True)
     assert (v.verdict, v.effect) == ("shape", FORM)
+
+
+@pytest.mark.parametrize(
+    ("term_gain", "form_gain", "chosen", "verdict"),
+    [
+        # a library term keeps more of the shape's held-out gain than its own closed form
+        (1.01, 0.95, "discovered:X_uuuau", "discovered"),
+        (0.92, 0.95, FORM, "shape"),  # the closed form keeps more: it is the name
+        (0.85, 0.80, SHAPE, "shape"),  # neither keeps 90 %: the shape itself
+    ],
+)
+def test_a_learned_shape_is_named_after_the_accepted_closed_form_that_keeps_most_of_its_gain(
+    tmp_path: Path, term_gain: float, form_gain: float, chosen: str, verdict: str
+) -> None:
+    lines: list[str] = []
+    ctx = _context(tmp_path, lines)
+    scores = [
+        _score(SHAPE, -100.0, 0.5, gain=1.0),
+        _score(FORM, -95.0, 0.45, gain=form_gain),
+        _score("discovered:X_uuuau", -98.0, 0.44, gain=term_gain),
+    ]
+    v = decide(ctx, scores, [SHAPE, FORM, "discovered:X_uuuau"], _null(-10.0), significant=True)
+    assert (v.verdict, v.effect) == (verdict, chosen)
+    if verdict == "discovered":
+        assert "the library term discovered:X_uuuau keeps 101 %" in "\n".join(lines)
+
+
+def test_a_closed_form_chosen_ahead_of_the_shape_keeps_its_place_before_a_weaker_name(
+    tmp_path: Path,
+) -> None:
+    """The chosen closed form is itself a name: a library term of less held-out gain does not
+    replace it, even when that keeps 90 % of it."""
+    ctx = _context(tmp_path, [])
+    scores = [
+        _score(FORM, -120.0, 0.5, gain=1.0),
+        _score("discovered:N_vvv", -110.0, 0.45, gain=0.95),
+        _score(SHAPE, -100.0, 0.5, gain=-0.1),
+    ]
+    v = decide(ctx, scores, [FORM, SHAPE, "discovered:N_vvv"], _null(-10.0), significant=True)
+    assert (v.verdict, v.effect) == ("shape", FORM)

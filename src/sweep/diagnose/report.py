@@ -16,13 +16,14 @@ import numpy as np
 import pandas as pd
 
 from mmg import Parameters, get_effect, simulate_batch
-from mmg.shapes import is_closed_form
+from mmg.shapes import SHAPE_PREFIX, is_closed_form
 from sweep.data.recordings import Recording
 from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
 from sweep.diagnose.run import Diagnosis, round_dir
 from sweep.diagnose.scoring import CandidateScore, shape_and_form
 from sweep.diagnose.shapes import PLACE_AND_TIME
+from sweep.diagnose.verdict import KEEP
 
 #: the regime variable in which each catalog effect acts
 EFFECT_REGIME_VARIABLE = {
@@ -256,6 +257,31 @@ def _band(d: Diagnosis, group: Any, names: list[str], z: Any) -> list[float] | N
     return [float(v) for v in float(cov["quantile"]) * np.sqrt(np.clip(var, 0.0, None))]
 
 
+def names_shape(d: Diagnosis) -> dict[str, Any] | None:
+    """The accepted learned shape that the finding, a library term or a catalog effect, names
+    (:func:`sweep.diagnose.verdict.shape_name`): {"shape", "kept"}, the share of the shape's
+    held-out gain the finding keeps; None when the finding is a shape or keeps less."""
+    spline = shape_and_form(d.candidates)[0]
+    c = d.chosen
+    if c is None or spline is None or not spline.accepted or spline.heldout_gain <= 0:
+        return None
+    kept = c.heldout_gain / spline.heldout_gain
+    if c.effect.startswith(SHAPE_PREFIX) or kept < KEEP:
+        return None
+    return {"shape": spline.effect, "kept": kept}
+
+
+def names_shape_text(d: Diagnosis) -> str:
+    """:func:`names_shape` in words ("" without)."""
+    n = names_shape(d)
+    if n is None:
+        return ""
+    return (
+        f"It names the learned shape {n['shape']} (accepted too): it keeps "
+        f"{100 * n['kept']:.0f} % of the shape's held-out gain. "
+    )
+
+
 def _kept(d: Diagnosis) -> float | None:
     """The share of the learned shape's held-out gain the closed form named after it keeps
     (None without both candidates)."""
@@ -459,8 +485,10 @@ def _found_statement(d: Diagnosis) -> str:
         if like:
             name, r = next(iter(like.items()))
             text += f"Its force pattern resembles {name} most (correlation {r:+.2f}). "
+        text += names_shape_text(d)
     else:
         text = f"Missing physics: {eff.description} (`{d.verdict}`; regime: {eff.regime}). "
+        text += names_shape_text(d)
     text += (
         f"Fitted jointly with the 57 base parameters: {values}. "
         f"Against the base model refitted by the same procedure: dBIC = {c.delta_bic:.1f} "
@@ -568,6 +596,7 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
         "statement": statement(d),
         "discovered": discovered_entry(d),
         "shape": shape_entry(d),
+        "names_shape": names_shape(d),
         "shapes": d.shape.as_dict() if d.shape is not None else None,
         "explainable": explainable(d),
         "misfit": asdict(d.misfit) if d.misfit is not None else None,

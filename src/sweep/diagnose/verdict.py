@@ -195,20 +195,57 @@ def _carry_text(c: CandidateScore) -> str:
     return ": does not carry over"
 
 
+def shape_name(
+    scores: Sequence[CandidateScore], effect: str
+) -> tuple[CandidateScore, float] | None:
+    """The name of the learned shape ``effect`` (a spline, or the closed form it was named
+    after): among the accepted closed forms, the one the shape was named after
+    (:mod:`sweep.diagnose.naming`), a library term's (``discovered:``) or a catalog effect,
+    the one of the largest held-out gain when it keeps at least :data:`KEEP` of the shape's
+    (the spline's when it is accepted, else the chosen effect's own); with that share. None
+    when none keeps enough, or when the chosen effect is already the best name."""
+    chosen = next(c for c in scores if c.effect == effect)
+    spline, form = shape_and_form(scores)
+    gain = chosen.heldout_gain
+    if spline is not None and spline.accepted:
+        gain = max(gain, spline.heldout_gain)
+    if gain <= 0.0:
+        return None
+    names = [
+        c for c in scores if c.accepted and (c is form or not c.effect.startswith(SHAPE_PREFIX))
+    ]
+    best = max(names, key=lambda c: c.heldout_gain, default=None)
+    if best is None or best.effect == effect or best.heldout_gain < KEEP * gain:
+        return None
+    return best, best.heldout_gain / gain
+
+
 def _named(ctx: Context, scores: Sequence[CandidateScore], effect: str) -> str:
-    """The chosen effect, or the closed form a chosen learned shape was named after when that
-    form is accepted and keeps :data:`KEEP` of the shape's held-out gain; logged."""
-    if not effect.startswith(SHAPE_PREFIX) or is_closed_form(effect):
+    """The chosen effect, or the name of a chosen learned shape (:func:`shape_name`): the
+    closed form it was named after, a library term or a catalog effect, accepted and keeping
+    :data:`KEEP` of the shape's held-out gain; logged."""
+    if not effect.startswith(SHAPE_PREFIX):
         return effect
     shape = next(c for c in scores if c.effect == effect)
     form = shape_and_form(scores)[1]
-    if form is None:
+    if form is not None and not is_closed_form(effect):
+        kept = form.heldout_gain / shape.heldout_gain if shape.heldout_gain > 0 else 0.0
+        ctx.log(
+            f"the closed form {form.effect} keeps {100 * kept:.0f} % of the learned shape's "
+            f"held-out gain{'' if form.accepted else ' and is not accepted'}"
+        )
+    named = shape_name(scores, effect)
+    if named is None:
+        ctx.log(f"the finding is {'the closed form' if is_closed_form(effect) else 'the shape'}")
         return effect
-    kept = form.heldout_gain / shape.heldout_gain if shape.heldout_gain > 0 else 0.0
-    use = form.accepted and kept >= KEEP
-    ctx.log(
-        f"the closed form {form.effect} keeps {100 * kept:.0f} % of the learned shape's held-out "
-        f"gain{'' if form.accepted else ' and is not accepted'}: the finding is "
-        + ("the closed form" if use else "the shape")
+    name, kept = named
+    what = (
+        "closed form"
+        if name.effect.startswith(SHAPE_PREFIX)
+        else ("library term" if name.effect.startswith(DISCOVERED_PREFIX) else "catalog effect")
     )
-    return form.effect if use else effect
+    ctx.log(
+        f"the {what} {name.effect} keeps {100 * kept:.0f} % of the learned shape's held-out "
+        f"gain, the most of the accepted closed forms: the finding is the {what}"
+    )
+    return name.effect

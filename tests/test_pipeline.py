@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any, cast
 
 import numpy as np
 import pytest
@@ -12,6 +14,7 @@ from mmg import efd_parameters, get_effect
 from sweep.diagnose.candidates import FoldFits, leading, score
 from sweep.diagnose.context import Context
 from sweep.diagnose.fit import Fit
+from sweep.diagnose.report import names_shape, names_shape_text
 from sweep.diagnose.scoring import CandidateScore, typical_change
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.store import StageStore
@@ -316,3 +319,20 @@ def test_a_closed_form_chosen_ahead_of_the_shape_keeps_its_place_before_a_weaker
     ]
     v = decide(ctx, scores, [FORM, SHAPE, "discovered:N_vvv"], _null(-10.0), significant=True)
     assert (v.verdict, v.effect) == ("shape", FORM)
+
+
+def test_the_report_says_which_learned_shape_a_library_term_names() -> None:
+    term = _score("discovered:X_uuuau", -98.0, 0.44, gain=0.95)
+    shape = _score(SHAPE, -100.0, 0.5, gain=1.0)
+    for c in (term, shape):
+        c.accepted = True
+    d = cast(Any, SimpleNamespace(candidates=[shape, term], chosen=term))
+    assert names_shape(d) == {"shape": SHAPE, "kept": pytest.approx(0.95)}
+    assert f"It names the learned shape {SHAPE} (accepted too): it keeps 95 %" in (
+        names_shape_text(d)
+    )
+    term.heldout_gain = 0.8  # keeps less than 90 %: no longer its name
+    assert names_shape(d) is None and names_shape_text(d) == ""
+    shape.accepted = False  # a shape refused on its own is not named
+    term.heldout_gain = 0.95
+    assert names_shape(d) is None

@@ -23,7 +23,7 @@ from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
 from sweep.diagnose.run import Diagnosis, round_dir
 from sweep.diagnose.scoring import CandidateScore, shape_and_form
 from sweep.diagnose.shapes import PLACE_AND_TIME
-from sweep.diagnose.verdict import KEEP
+from sweep.diagnose.verdict import shape_name
 
 #: the regime variable in which each catalog effect acts
 EFFECT_REGIME_VARIABLE = {
@@ -259,16 +259,16 @@ def _band(d: Diagnosis, group: Any, names: list[str], z: Any) -> list[float] | N
 
 def names_shape(d: Diagnosis) -> dict[str, Any] | None:
     """The accepted learned shape that the finding, a library term or a catalog effect, names
-    (:func:`sweep.diagnose.verdict.shape_name`): {"shape", "kept"}, the share of the shape's
-    held-out gain the finding keeps; None when the finding is a shape or keeps less."""
+    (the finding is the shape's name by :func:`sweep.diagnose.verdict.shape_name`): {"shape",
+    "kept"}, the share of the shape's held-out gain the finding keeps; else None."""
     spline = shape_and_form(d.candidates)[0]
     c = d.chosen
-    if c is None or spline is None or not spline.accepted or spline.heldout_gain <= 0:
+    if c is None or spline is None or not spline.accepted:
         return None
-    kept = c.heldout_gain / spline.heldout_gain
-    if c.effect.startswith(SHAPE_PREFIX) or kept < KEEP:
+    named = shape_name(d.candidates, spline.effect)
+    if named is None or named[0].effect != c.effect or c.effect.startswith(SHAPE_PREFIX):
         return None
-    return {"shape": spline.effect, "kept": kept}
+    return {"shape": spline.effect, "kept": named[1]}
 
 
 def names_shape_text(d: Diagnosis) -> str:

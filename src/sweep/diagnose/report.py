@@ -263,10 +263,10 @@ def names_shape(d: Diagnosis) -> dict[str, Any] | None:
     "kept"}, the share of the shape's held-out gain the finding keeps; else None."""
     spline = shape_and_form(d.candidates)[0]
     c = d.chosen
-    if c is None or spline is None or not spline.accepted:
-        return None
+    if c is None or c.effect.startswith(SHAPE_PREFIX) or spline is None or not spline.accepted:
+        return None  # a shape finding is stated by the shape section (its closed form's share)
     named = shape_name(d.candidates, spline.effect)
-    if named is None or named[0].effect != c.effect or c.effect.startswith(SHAPE_PREFIX):
+    if named is None or named[0].effect != c.effect:
         return None
     return {"shape": spline.effect, "kept": named[1]}
 

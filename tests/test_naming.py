@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -86,3 +88,21 @@ def test_forms_are_fitted_where_the_training_samples_lie():
     assert (on_data.family, on_data.formula) == ("hinge", "max(beta - 0.2, 0)")
     assert on_data.r2 > 0.99
     assert closest_forms(group, coef)[0].r2 < CLOSE
+
+
+def test_a_closed_sway_force_or_yaw_moment_is_completed_by_the_other():
+    """A force acting at a point of the hull drives the sway force and the yaw moment: the
+    closed form of a lone N (or Y) group gets the other component in the same form, started at
+    neutral; a surge force, or one whose other component has a group of its own, is kept."""
+    from sweep.diagnose.shaping import with_sibling
+
+    n = Group("N", "beta", -1.0, 1.4, 2, "X_P", form="sin(1)")
+    x = Group("X", "U", 0.0, 0.4, 2, form="lin")
+    groups, start = with_sibling([x, n], [0.1, 0.2, 0.3, 0.4])
+    assert [g.text for g in groups] == [x.text, "YN~beta[-1:1.4]:sin(1)*X_P"]
+    assert start == [0.1, 0.2, 0.0, 0.0, 0.3, 0.4]
+    y = replace(n, components="Y")
+    assert with_sibling([y], [0.5, 0.6])[1] == [0.5, 0.6, 0.0, 0.0]
+    # the other component already has a group in this variable, multiplier and scaling
+    other = replace(n, form="abs")
+    assert with_sibling([n, replace(other, components="Y")], [1, 2, 3, 4])[0][0] == n

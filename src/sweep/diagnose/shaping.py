@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -123,8 +123,46 @@ def named_form(
                     start += ab
     if not any(g.form for g in groups):
         return named, None, []
+    groups, start = with_sibling(groups, start)
     start = [float(np.clip(v, -DEFAULT_BOUND, DEFAULT_BOUND)) for v in start]
     return named, shape_effect(groups), start
+
+
+#: a side force and its yaw moment: a force acting at a point of the hull gives both
+SIBLING = {"Y": "N", "N": "Y"}
+
+
+def with_sibling(
+    groups: Sequence[Group], start: Sequence[float]
+) -> tuple[list[Group], list[float]]:
+    """The closed-form ``groups`` (coefficients ``start``, in order) with each single sway
+    force or yaw moment completed by the other in the same closed form, started at neutral,
+    unless a group of the other in the same variable, multiplier and scaling is among them: a
+    force that acts at a point of the hull drives both, at a lever the fit finds, and the
+    selection on the linearised columns may pass over the weaker of the two."""
+    out: list[Group] = []
+    values: list[float] = []
+    i = 0
+    for g in groups:
+        k = len(g.components) * g.n
+        c = list(start[i : i + k])
+        i += k
+        other = SIBLING.get(g.components)
+        if (
+            g.form
+            and other
+            and not any(
+                h.components == other
+                and (h.variable, h.multiplier, h.scale) == (g.variable, g.multiplier, g.scale)
+                for h in groups
+            )
+        ):
+            zero = [0.0] * g.n
+            c = c + zero if g.components == "Y" else zero + c
+            g = replace(g, components="YN")
+        out.append(g)
+        values += c
+    return out, values
 
 
 def sample_values(
@@ -212,4 +250,5 @@ __all__ = [
     "named_form",
     "propose_shape",
     "sample_values",
+    "with_sibling",
 ]

@@ -30,6 +30,7 @@ from sweep.service.tracking import (
     TrackingError,
     default_tracking_uri,
     flatten_config,
+    metric_part,
     sqlite_path,
 )
 from tests.memory_tracker import NullTracker
@@ -420,3 +421,26 @@ def test_unknown_runs_and_sweeps(logged: dict[str, Any], mlflow_uri: str) -> Non
     assert MlflowTracker(mlflow_uri, "never-made").find_sweep() is None
     with pytest.raises(ValueError, match="quotes"):
         tracker.find_finished("a'b", "h")
+
+
+def test_a_learned_shapes_name_is_a_metric_of_a_logged_diagnosis(
+    mlflow_uri: str, tmp_path: Path
+) -> None:
+    """A diagnosis logs a metric per candidate: a learned shape's name (brackets, tildes, plus
+    signs, a slash before its basis count) becomes one valid part of the metric name, and two
+    shapes stay apart; MLflow refused the raw name and the logging failed."""
+    names = [
+        "shape:D~ed[-4.25845:4.25845]/16+N~beta[-2.91794:3.02378]/8",
+        "shape:YN~beta[-2.91794:3.02378]:up(-1.73)*Y_H@U2",
+        "rudder_offset",
+    ]
+    parts = [metric_part(n) for n in names]
+    assert parts[2] == "rudder_offset"
+    assert len(set(parts)) == 3 and not any("/" in p for p in parts)
+    metrics = {f"improvement/{p}": float(i) for i, p in enumerate(parts)}
+    (tmp_path / "report.md").write_text("report")
+    tracker = MlflowTracker(mlflow_uri, fresh_experiment())
+    rid = tracker.log_diagnosis(
+        "diagnose-x", {"train": "R"}, metrics, {"verdict": "none"}, tmp_path
+    )
+    assert tracker.client.get_run(rid).data.metrics == metrics

@@ -278,23 +278,30 @@ def _track(
 ) -> None:
     """One MLflow run of the diagnosis: the first round's candidates, harm, misfit and test
     tables, and the final model's test table."""
-    from sweep.service.tracking import MlflowTracker, default_tracking_uri
+    from sweep.service.tracking import MlflowTracker, default_tracking_uri, metric_part
 
     result = rounds[0]
     uri = args.tracking_uri or default_tracking_uri()
 
-    def key(effect: str) -> str:  # a generated effect's name lists terms: not a metric name
-        return "discovered" if effect.startswith("discovered:") else effect
+    def key(effect: str) -> str:
+        """A candidate's part of a metric name: a library term's effect lists its terms
+        (``discovered``), a learned shape's spells its groups with brackets, tildes and plus
+        signs, which MLflow refuses in a metric name (each becomes ``_``)."""
+        if effect.startswith("discovered:"):
+            return "discovered"
+        return metric_part(effect)
 
-    metrics = {f"improvement/{key(c.effect)}": c.improvement for c in result.candidates}
+    metrics = {f"improvement/{key(c.effect)}"[:250]: c.improvement for c in result.candidates}
     metrics.update(
         {
-            f"delta_bic/{key(c.effect)}": c.delta_bic
+            f"delta_bic/{key(c.effect)}"[:250]: c.delta_bic
             for c in result.candidates
             if c.delta_bic == c.delta_bic and abs(c.delta_bic) < float("inf")
         }
     )
-    metrics.update({f"heldout_gain/{key(c.effect)}": c.heldout_gain for c in result.candidates})
+    metrics.update(
+        {f"heldout_gain/{key(c.effect)}"[:250]: c.heldout_gain for c in result.candidates}
+    )
     harm = report.get("harm")
     if harm:
         metrics["harm/harmful"] = float(harm["harmful"])
@@ -304,7 +311,7 @@ def _track(
     metrics["rounds"] = float(len(rounds))
     for J, row in final_round(rounds).test_after.items():  # the final model's
         for label, value in row.items():
-            metrics[f"final_test_after/{J}/{label}"[:250]] = value
+            metrics[f"final_test_after/{J}/{metric_part(label)}"[:250]] = value
     if result.misfit is not None:
         metrics["misfit/ratio_to_floor"] = result.misfit.ratio
         metrics["misfit/z"] = result.misfit.z
@@ -314,7 +321,7 @@ def _track(
     for when, table in (("before", result.test_before), ("after", result.test_after)):
         for J, row in table.items():
             for label, value in row.items():
-                metrics[f"test_{when}/{J}/{label}"[:250]] = value
+                metrics[f"test_{when}/{J}/{metric_part(label)}"[:250]] = value
     params = {k: v for k, v in vars(args).items() if k not in ("train", "test")}
     params["train"] = " ".join(args.train)
     params["test"] = " ".join(args.test)

@@ -38,6 +38,7 @@ import contextlib
 import csv
 import json
 import os
+import re
 import sys
 import tempfile
 import time
@@ -70,6 +71,17 @@ from sweep.service.tables import job_note, sweep_note
 MAX_ERROR_TAG = 5000
 #: longest parameter value MLflow accepts
 MAX_PARAM_VALUE = 6000
+#: characters MLflow refuses in one part of a metric name (it takes letters, digits, ``_``,
+#: ``.``, ``-`` and spaces; ``:`` and ``/`` too, but ``/`` separates the parts)
+_METRIC_REFUSED = re.compile(r"[^\w.\- ]")
+
+
+def metric_part(part: str) -> str:
+    """``part`` as one part of an MLflow metric name: every character MLflow refuses, and
+    ``/``, becomes ``_`` (a learned shape's name, ``shape:N~beta[-0.6:0.6]/8``, or a file name)."""
+    return _METRIC_REFUSED.sub("_", part)
+
+
 PARENT_TAG = "mlflow.parentRunId"
 #: per-generation history columns logged as stepped metrics ``history/{column}``
 HISTORY_METRICS = ("best_so_far", "best_f", "median_f", "popsize", "sigma", "evaluations")

@@ -71,20 +71,19 @@ from sweep.service.tables import job_note, sweep_note
 MAX_ERROR_TAG = 5000
 #: longest parameter value MLflow accepts
 MAX_PARAM_VALUE = 6000
-#: characters MLflow refuses in one part of a metric name (it takes letters, digits, ``_``,
-#: ``.``, ``-`` and spaces; ``:`` and ``/`` too, but ``/`` separates the parts)
+PARENT_TAG = "mlflow.parentRunId"
+#: per-generation history columns logged as stepped metrics ``history/{column}``
+HISTORY_METRICS = ("best_so_far", "best_f", "median_f", "popsize", "sigma", "evaluations")
+#: characters not kept in one part of a metric name: MLflow takes letters, digits, ``_``, ``.``,
+#: ``-`` and spaces (``:`` too, but not on Windows; ``/`` separates the parts)
 _METRIC_REFUSED = re.compile(r"[^\w.\- ]")
 
 
 def metric_part(part: str) -> str:
-    """``part`` as one part of an MLflow metric name: every character MLflow refuses, and
-    ``/``, becomes ``_`` (a learned shape's name, ``shape:N~beta[-0.6:0.6]/8``, or a file name)."""
+    """``part`` as one part of an MLflow metric name, each character outside
+    :data:`_METRIC_REFUSED`'s set made ``_`` (a learned shape's name,
+    ``shape:N~beta[-0.6:0.6]/8``, or a file name)."""
     return _METRIC_REFUSED.sub("_", part)
-
-
-PARENT_TAG = "mlflow.parentRunId"
-#: per-generation history columns logged as stepped metrics ``history/{column}``
-HISTORY_METRICS = ("best_so_far", "best_f", "median_f", "popsize", "sigma", "evaluations")
 
 
 class ConfigChangedError(RuntimeError, UserError):

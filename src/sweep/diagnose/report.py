@@ -21,7 +21,7 @@ from sweep.data.recordings import Recording
 from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
 from sweep.diagnose.run import Diagnosis, round_dir
-from sweep.diagnose.scoring import CandidateScore, shape_and_form
+from sweep.diagnose.scoring import CandidateScore, form_share, shape_and_form
 from sweep.diagnose.shapes import PLACE_AND_TIME
 from sweep.diagnose.verdict import shape_name
 
@@ -212,7 +212,7 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
     return {
         "effect": d.verdict_effect,
         "closed_form": is_closed_form(d.verdict_effect),
-        "kept": _kept(d),
+        "kept": form_share(d.candidates),
         "groups": groups,
     }
 
@@ -280,15 +280,6 @@ def names_shape_text(d: Diagnosis) -> str:
         f"It names the learned shape {n['shape']} (accepted too): it keeps "
         f"{100 * n['kept']:.0f} % of the shape's held-out gain. "
     )
-
-
-def _kept(d: Diagnosis) -> float | None:
-    """The share of the learned shape's held-out gain the closed form named after it keeps
-    (None without both candidates)."""
-    shape, form = shape_and_form(d.candidates)
-    if shape is None or form is None or shape.heldout_gain <= 0:
-        return None
-    return form.heldout_gain / shape.heldout_gain
 
 
 def _shape_text(d: Diagnosis) -> str:

@@ -117,6 +117,15 @@ def shape_and_form(
     return shape, form
 
 
+def form_share(scores: Sequence[CandidateScore]) -> float | None:
+    """The share of the learned spline shape's held-out gain that the closed form named after it
+    keeps (None without both candidates, or when the shape gains nothing)."""
+    shape, form = shape_and_form(scores)
+    if shape is None or form is None or shape.heldout_gain <= 0:
+        return None
+    return form.heldout_gain / shape.heldout_gain
+
+
 def rank(scores: Sequence[CandidateScore], tie_margin: float = TIE_MARGIN) -> list[CandidateScore]:
     """Candidates by dBIC, except that those tied with the best (dBIC within
     ``max(TIE_ABSOLUTE, tie_margin x |best|)``) come first: accepted ones before the others, a

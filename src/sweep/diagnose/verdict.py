@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from mmg.effect import DISCOVERED_PREFIX
 from mmg.shapes import SHAPE_PREFIX, is_closed_form
 from sweep.diagnose.context import Context
-from sweep.diagnose.scoring import CandidateScore, generated, rank, shape_and_form
+from sweep.diagnose.scoring import CandidateScore, form_share, generated, rank, shape_and_form
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.threshold import CEILING, AcceptanceNull, more_better
 
@@ -226,10 +226,9 @@ def _named(ctx: Context, scores: Sequence[CandidateScore], effect: str) -> str:
     :data:`KEEP` of the shape's held-out gain; logged."""
     if not effect.startswith(SHAPE_PREFIX):
         return effect
-    shape = next(c for c in scores if c.effect == effect)
     form = shape_and_form(scores)[1]
     if form is not None and not is_closed_form(effect):
-        kept = form.heldout_gain / shape.heldout_gain if shape.heldout_gain > 0 else 0.0
+        kept = form_share(scores) or 0.0
         ctx.log(
             f"the closed form {form.effect} keeps {100 * kept:.0f} % of the learned shape's "
             f"held-out gain{'' if form.accepted else ' and is not accepted'}"

@@ -106,3 +106,38 @@ def test_a_closed_sway_force_or_yaw_moment_is_completed_by_the_other():
     # the other component already has a group in this variable, multiplier and scaling
     other = replace(n, form="abs")
     assert with_sibling([n, replace(other, components="Y")], [1, 2, 3, 4])[0][0] == n
+
+
+def test_corners_lie_at_the_samples_quantiles_too():
+    """With the training samples given, hinges and steps are tried at their quantiles as well
+    as at shares of the range; symmetric forms at the quantiles of the samples' sizes."""
+    samples = np.random.default_rng(4).normal(0.0, 0.1, 5000)
+    plain = {f.text for f in families(-3.0, 3.0, angle=True)}
+    given = {f.text for f in families(-3.0, 3.0, angle=True, at=samples)}
+    assert plain < given
+    q95 = float(f"{np.quantile(samples, 0.95):.3g}")
+    assert f"up({q95:g})" in given and f"up({q95:g})" not in plain
+    s50 = float(f"{np.quantile(np.abs(samples), 0.5):.3g}")
+    assert {f"absup({s50:g})", f"oddup({s50:g})", f"absstep({s50:g},0.06)"} <= given
+    # the ends of the range are no corners
+    assert not [f for f in families(-1.0, 1.0, angle=False, at=[-1.0, 1.0]) if "(-1)" in f.text]
+
+
+@pytest.mark.parametrize("form", ["lin", "sq", "up(0.3)", "absstep(0.5,0.05)", "sin(2)"])
+def test_a_form_in_a_fine_basis_is_the_form(form):
+    """form_transform: the constant is all ones; a form projected on 40 basis functions draws
+    the form (within what 40 cubic pieces over the range can draw of a kink or a steep step)."""
+    from mmg.shapes import parse_form
+    from sweep.diagnose.naming import form_transform
+
+    group = Group("N", "beta", -1.0, 1.4, 40)
+    g = parse_form(form)
+    W = form_transform(group, g)
+    assert W is not None and W.shape == (40, 2)
+    np.testing.assert_array_equal(W[:, 0], 1.0)
+    z = np.linspace(-1.0, 1.4, 500)
+    want = g(z) / np.max(np.abs(g(np.linspace(-1.0, 1.4, 201))))
+    drawn = basis(group, z) @ W[:, 1]
+    tol = 0.1 if form.startswith("absstep") else 0.01 if form.startswith("up") else 1e-4
+    assert np.max(np.abs(drawn - want)) < tol
+    assert form_transform(group, parse_form("up(2)")) is None  # 0 over the range

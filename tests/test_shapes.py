@@ -395,6 +395,49 @@ def test_the_selection_finds_a_planted_shape_and_nothing_in_noise(small_case) ->
     assert quiet.groups == [] and quiet.dbic == 0.0
 
 
+#: a yaw moment beyond a drift angle: a kink between the knots of SELECT_SPEC's spline
+HINGE_SPEC = "shape:N~beta[-2.4:0.35]:up(0.12)"
+
+
+@pytest.mark.integration  # compiles the kernel of a shape effect
+@pytest.mark.kernels(
+    *kernels((), "simulate", "moments"),
+    *kernels((HINGE_SPEC,), "simulate"),
+    *probe_kernels(library=False),
+)
+def test_a_kink_between_knots_is_named_by_its_hinge_on_the_trajectories(small_case) -> None:
+    """A yaw moment that sets in at beta = 0.12 rad, within the last knot interval of the
+    selection's spline (0.92 rad wide): the spline rounds the kink off, the closed forms are
+    compared on the trajectory columns of 40 basis functions, and the hinge at a corner near
+    0.12 keeps (nearly) all of the spline's held-out gain."""
+    from sweep.diagnose.floor import simulate_windows
+    from sweep.diagnose.linearised import Linearised
+    from sweep.diagnose.scoring import n_effective
+    from sweep.diagnose.shapes import ShapeColumns
+    from sweep.diagnose.shaping import named_form, sample_values
+    from sweep.identification.vector import with_effects
+
+    ship, windows, noise = small_case
+    truth = with_effects(ship, (get_effect(HINGE_SPEC),), [0.0, 0.01])
+    rng = np.random.default_rng(8)
+    data = [
+        Recording(w.name, None, w.t, x + noise.draw(rng, x.shape[0]), w.u, w.w)
+        for w, x in zip(windows, simulate_windows(truth, windows), strict=True)
+    ]
+    lin = Linearised(ship, data, ([0, 2], [1, 3]), ())
+    cols = ShapeColumns(lin, parse(SELECT_SPEC))
+    r = lin.residuals(data)
+    sel = cols.select(r, n_effective(data, "J2"))
+    assert sel.groups[0].text == "N~beta[-2.4:0.35]/6"
+    named, form, start = named_form(cols, sel, r, sample_values(data, ship, sel.groups))
+    hinge = named[0]
+    assert hinge is not None and hinge.family == "hinge" and hinge.form.startswith("up(")
+    assert abs(float(hinge.form[3:-1]) - 0.12) < 0.05
+    assert hinge.share is not None and hinge.share > 0.9
+    assert form is not None and form.name.startswith("shape:YN~beta[-2.4:0.35]:up(")  # with Y
+    assert len(start) == len(form.params)
+
+
 FORM_SPEC = "shape:N~beta[-0.5:0.5]:up(0.1)*Y_H+Y~delta[-0.6:0.6]:step(0.1,0.05)+X~u[-0.2:1]:odd"
 
 

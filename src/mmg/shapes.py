@@ -294,9 +294,9 @@ class Form:
             raise ValueError(f"closed form {self.key!r} takes {want} number(s), got {self.args}")
         if not all(math.isfinite(a) for a in self.args):
             raise ValueError(f"closed form {self.key!r}: its numbers must be finite")
-        if self.key == "step" and self.args[1] <= 0.0:
-            raise ValueError("closed form 'step': its width must be positive")
-        if self.key in SYMMETRIC and self.args[0] < 0.0:
+        if self.key in STEPS and self.args[1] <= 0.0:
+            raise ValueError(f"closed form {self.key!r}: its width must be positive")
+        if self.key in (*SYMMETRIC, "absstep") and self.args[0] < 0.0:
             raise ValueError(f"closed form {self.key!r}: its corner |z| must not be negative")
 
     @property
@@ -327,6 +327,7 @@ class Form:
             "absup": lambda: np.maximum(np.abs(x) - a[0], 0.0),
             "oddup": lambda: np.copysign(np.maximum(np.abs(x) - a[0], 0.0), x),
             "step": lambda: np.tanh((x - a[0]) / a[1]),
+            "absstep": lambda: np.tanh((np.abs(x) - a[0]) / a[1]),
             "sin": lambda: np.sin(a[0] * x),
             "cos": lambda: np.cos(a[0] * x),
         }
@@ -338,7 +339,8 @@ class Form:
 #: a smooth step (a saturation), harmonics (of an angle). A threshold in a variable that changes
 #: sign with the side of the ship (drift angle, sway, yaw rate, rudder angle) is reached on
 #: both sides at once: the symmetric hinges ``absup`` (even, e.g. a share of a force beyond
-#: |beta| = c) and ``oddup`` (odd, e.g. a side force beyond it, on the side it comes from).
+#: |beta| = c) and ``oddup`` (odd, e.g. a side force beyond it, on the side it comes from), and
+#: the symmetric step ``absstep`` (even, e.g. a share of a force lost beyond |alpha_R| = c).
 FORMS: dict[str, tuple[int, str, str]] = {
     "lin": (0, "{z}", "{z}"),
     "sq": (0, "{z}^2", "{z} * {z}"),
@@ -354,11 +356,18 @@ FORMS: dict[str, tuple[int, str, str]] = {
         "math.copysign(max(abs({z}) - {a[0]}, 0.0), {z})",
     ),
     "step": (2, "tanh(({z} - {a[0]}) / {a[1]})", "math.tanh(({z} - {a[0]}) / {a[1]})"),
+    "absstep": (
+        2,
+        "tanh((|{z}| - {a[0]}) / {a[1]})",
+        "math.tanh((abs({z}) - {a[0]}) / {a[1]})",
+    ),
     "sin": (1, "sin({a[0]} {z})", "math.sin({a[0]} * {z})"),
     "cos": (1, "cos({a[0]} {z})", "math.cos({a[0]} * {z})"),
 }
 #: the symmetric hinges: their corner is a size |z| (not negative)
 SYMMETRIC = ("absup", "oddup")
+#: the steps: (corner, width), the width positive
+STEPS = ("step", "absstep")
 #: points over [lo, hi] on which a closed form's largest |g| is taken
 FORM_GRID = 201
 

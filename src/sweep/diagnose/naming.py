@@ -1,15 +1,20 @@
 """Name a learned shape afterwards: the simple closed forms closest to it.
 
 A learned shape f(z) (:mod:`mmg.shapes`) is compared, over the range it was learnt on, with
-families a naval architect writes forces in: a constant, powers z, z^2, z^3 and their abs forms
-z|z|, |z|; hinges max(z - c, 0) and max(c - z, 0) and steps tanh((z - c) / w) at interior
-points c; for a variable that takes both signs, the symmetric hinges max(|z| - c, 0) and
-sign(z) max(|z| - c, 0) (a threshold reached on both sides of the ship at once); and, for an
-angle, sin(k z) and cos(k z), k = 1, 2, 3. Each family is fitted as
-a + b g(z) by least squares at the values z took on the training samples (where the shape acts
-on the data; an even grid of z over the range when none are given); the share of the shape's
-variance there that it keeps (R^2) ranks them. Over an even grid, the range's ends, which few
-samples reach and where the spline is least determined, weigh as much as its middle.
+families a naval architect writes forces in (:func:`families`): a constant, powers z, z^2,
+z^3 and their abs forms z|z|, |z|; hinges max(z - c, 0) and max(c - z, 0) and steps
+tanh((z - c) / w) at interior corners c (shares of the range and quantiles of the training
+samples); for a variable that takes both signs, the symmetric hinges max(|z| - c, 0) and
+sign(z) max(|z| - c, 0) and the symmetric step tanh((|z| - c) / w) (a threshold reached on
+both sides of the ship at once); and, for an angle, sin(k z) and cos(k z), k = 1, 2, 3.
+
+Two comparisons use them. :func:`closest_forms` fits each family as a + b g(z) by least
+squares to the shape at the values z took on the training samples (an even grid of z over the
+range when none are given) and ranks them by the share of the shape's variance there that they
+keep (R^2): the report's "closest forms". The diagnosis names a shape on the trajectories
+instead (:func:`sweep.diagnose.shaping.named_form`): :func:`form_transform` draws each form on
+a fine spline basis, so that its trajectory columns are those of the basis functions combined,
+and the forms are ranked by their held-out gain.
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from mmg.shapes import SYMMETRIC, VARIABLES, Form, Group, curve, form_scale
+from mmg.shapes import FORM_GRID, SYMMETRIC, VARIABLES, Form, Group, basis, curve, form_scale
 
 FloatArray = NDArray[np.float64]
 
@@ -34,7 +39,9 @@ GRID = 201
 class ClosedForm:
     """A closed form fitted to a shape: f(z) ~ a + b g(z), the share of the shape's variance it
     keeps (``r2``), its formula in the variable's symbol and g as a spec writes it (``form``,
-    :func:`mmg.shapes.parse_form`)."""
+    :func:`mmg.shapes.parse_form`); ``share``: where it was compared on the trajectories
+    (:func:`sweep.diagnose.shaping.named_form`), the share of the shape's linearised held-out
+    gain it keeps in the shape's place (None where not)."""
 
     family: str
     formula: str
@@ -42,6 +49,7 @@ class ClosedForm:
     b: float
     r2: float
     form: str = ""
+    share: float | None = None
 
 
 #: the family of each closed form (:data:`mmg.shapes.FORMS`)
@@ -56,6 +64,7 @@ FAMILY = {
     "absup": "symmetric hinge",
     "oddup": "symmetric hinge",
     "step": "step",
+    "absstep": "symmetric step",
     "sin": "harmonic",
     "cos": "harmonic",
 }
@@ -66,23 +75,91 @@ def _round(x: float) -> float:
     return float(f"{x:.3g}")
 
 
-def families(lo: float, hi: float, angle: bool) -> list[Form]:
-    """Every closed form tried over [lo, hi]: powers and abs forms; hinges and steps at 20, 35,
-    50, 65 and 80 % of the range (a step 10 % of the range wide); where the range takes both
-    signs, the symmetric hinges at 20, 35, 50, 65 and 80 % of the smaller side's size
-    min(-lo, hi) (beyond it a hinge acts on one side only: an ordinary hinge); for an angle,
-    harmonics."""
+#: interior corners of hinges and steps, as shares of the range (of the smaller side's size for
+#: the symmetric forms)
+RANGE_CORNERS = (0.2, 0.35, 0.5, 0.65, 0.8)
+#: ... and as quantiles of the training samples (of their sizes |z| for the symmetric forms):
+#: where the data are dense, a corner between two range shares is found too
+SAMPLE_CORNERS = tuple(q / 20 for q in range(1, 20))
+#: widths of a step, as shares of the range (of the smaller side's size for a symmetric step)
+STEP_WIDTHS = (0.1, 0.02)
+
+
+def _corners(
+    shares: Sequence[float],
+    size: float,
+    start: float,
+    within: tuple[float, float],
+    samples: FloatArray | None,
+) -> list[float]:
+    """Corners start + share x size, and the samples' :data:`SAMPLE_CORNERS` quantiles, rounded
+    (:func:`_round`), strictly inside ``within``, without repeats, in ascending order."""
+    cs = [start + q * size for q in shares]
+    if samples is not None and samples.size:
+        cs += [float(v) for v in np.quantile(samples, SAMPLE_CORNERS)]
+    lo, hi = within
+    return sorted({_round(c) for c in cs if lo < _round(c) < hi})
+
+
+def families(
+    lo: float, hi: float, angle: bool, at: Sequence[float] | FloatArray | None = None
+) -> list[Form]:
+    """Every closed form tried over [lo, hi]: powers and abs forms; hinges and steps (of
+    :data:`STEP_WIDTHS`) at :data:`RANGE_CORNERS` of the range and, given the training samples'
+    values ``at``, at their :data:`SAMPLE_CORNERS` quantiles; where the range takes both signs,
+    the symmetric hinges and steps at the same shares of the smaller side's size min(-lo, hi)
+    and quantiles of the samples' sizes |z| below it (beyond it a threshold acts on one side
+    only: an ordinary hinge); for an angle, harmonics. Simpler families first."""
     out = [Form(k) for k in ("lin", "sq", "odd", "cube", "abs")]
     width = hi - lo
     side = min(-lo, hi)
-    for q in (0.2, 0.35, 0.5, 0.65, 0.8):
-        c = _round(lo + q * width)
-        out += [Form("up", (c,)), Form("down", (c,)), Form("step", (c, _round(0.1 * width)))]
-        if side > 0.0:
-            out += [Form(k, (_round(q * side),)) for k in SYMMETRIC]
+    z = None
+    if at is not None:
+        given = np.asarray(at, dtype=np.float64)
+        z = np.clip(given[np.isfinite(given)], lo, hi)
+    for c in _corners(RANGE_CORNERS, width, lo, (lo, hi), z):
+        out += [Form("up", (c,)), Form("down", (c,))]
+        out += [Form("step", (c, _round(w * width))) for w in STEP_WIDTHS]
+    if side > 0.0:
+        sizes = None if z is None else np.abs(z)
+        for c in _corners(RANGE_CORNERS, side, 0.0, (0.0, side), sizes):
+            out += [Form(k, (c,)) for k in SYMMETRIC]
+            out += [Form("absstep", (c, _round(w * side))) for w in STEP_WIDTHS]
     if angle:
         out += [Form(k, (float(m),)) for m in (1, 2, 3) for k in ("sin", "cos")]
     return out
+
+
+def fit_points(group: Group, at: Sequence[float] | FloatArray | None) -> FloatArray:
+    """Where forms are fitted: ``at`` held within the range (its finite values), else an even
+    grid of :data:`GRID` points over the range."""
+    z = np.linspace(group.lo, group.hi, GRID)
+    if at is not None:
+        given = np.asarray(at, dtype=np.float64)
+        given = given[np.isfinite(given)]
+        if given.size:
+            z = np.clip(given, group.lo, group.hi)
+    return z
+
+
+def fitted_form(
+    group: Group, coefficients: Sequence[float], form: Form, z: FloatArray
+) -> ClosedForm | None:
+    """``form`` fitted as a + b g(z) by least squares to one component's shape of ``group``
+    at the points z, with the share of the shape's variance there that it keeps (None where
+    the shape or the form is flat)."""
+    f = curve(group, coefficients, z)
+    total = float(((f - f.mean()) ** 2).sum())
+    g = form(z)
+    if total <= 0.0 or float(np.ptp(g)) <= 0.0:
+        return None
+    G = np.column_stack([np.ones_like(z), g])
+    coef, *_ = np.linalg.lstsq(G, f, rcond=None)
+    r2 = 1.0 - float(((f - G @ coef) ** 2).sum()) / total
+    symbol = VARIABLES[group.variable].symbol
+    return ClosedForm(
+        FAMILY[form.key], form.formula(symbol), float(coef[0]), float(coef[1]), r2, form.text
+    )
 
 
 def closest_forms(
@@ -99,37 +176,33 @@ def closest_forms(
     value: an even grid of :data:`GRID` points over the range."""
     if group.variable == "1" or group.control:
         return []
-    var = VARIABLES[group.variable]
-    z = np.linspace(group.lo, group.hi, GRID)
-    if at is not None:
-        given = np.asarray(at, dtype=np.float64)
-        given = given[np.isfinite(given)]
-        if given.size:
-            z = np.clip(given, group.lo, group.hi)
-    f = curve(group, coefficients, z)
-    total = float(((f - f.mean()) ** 2).sum())
-    if total <= 0.0:
-        return []
-    out = []
-    for form in families(group.lo, group.hi, var.unit == "rad"):
-        g = form(z)
-        if float(np.ptp(g)) <= 0.0:
-            continue
-        G = np.column_stack([np.ones_like(z), g])
-        coef, *_ = np.linalg.lstsq(G, f, rcond=None)
-        r2 = 1.0 - float(((f - G @ coef) ** 2).sum()) / total
-        out.append(
-            ClosedForm(
-                FAMILY[form.key],
-                form.formula(var.symbol),
-                float(coef[0]),
-                float(coef[1]),
-                r2,
-                form.text,
-            )
-        )
+    z = fit_points(group, at)
+    angle = VARIABLES[group.variable].unit == "rad"
+    out = [
+        c
+        for form in families(group.lo, group.hi, angle, at)
+        if (c := fitted_form(group, coefficients, form, z)) is not None
+    ]
     out.sort(key=lambda c: -c.r2)
     return out[:top]
+
+
+def form_transform(
+    group: Group, form: Form, at: Sequence[float] | FloatArray | None = None
+) -> FloatArray | None:
+    """(n, 2) the constant and g(z) / g_max of ``form`` in the spline basis of ``group`` (its
+    n coefficients each): the constant is all ones (the basis sums to 1 over the range); g is
+    projected by least squares at ``at`` (the training samples' quantiles) and at an even grid
+    of the range, so that every basis function is held. A closed form's trajectory columns are
+    then the group's columns times these (:meth:`sweep.diagnose.shapes.ShapeColumns._fit`).
+    None where the form is flat over the range."""
+    z = np.concatenate([np.linspace(group.lo, group.hi, GRID), fit_points(group, at)])
+    g = form(z)
+    g_max = float(np.max(np.abs(form(np.linspace(group.lo, group.hi, FORM_GRID)))))
+    if g_max <= 0.0 or float(np.ptp(g)) <= 0.0:
+        return None
+    d, *_ = np.linalg.lstsq(basis(group, z), g / g_max, rcond=None)
+    return np.column_stack([np.ones(group.n), d])
 
 
 def form_group(group: Group, component: str, closed: ClosedForm) -> tuple[Group, list[float]]:
@@ -148,4 +221,13 @@ def form_group(group: Group, component: str, closed: ClosedForm) -> tuple[Group,
     return named, [closed.a, closed.b * form_scale(named)]
 
 
-__all__ = ["CLOSE", "FAMILY", "ClosedForm", "closest_forms", "families", "form_group"]
+__all__ = [
+    "CLOSE",
+    "FAMILY",
+    "ClosedForm",
+    "closest_forms",
+    "families",
+    "fitted_form",
+    "form_group",
+    "form_transform",
+]

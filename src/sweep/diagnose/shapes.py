@@ -437,7 +437,12 @@ class ShapeColumns:
     # -- the fits -----------------------------------------------------------------------------
 
     def _fit(
-        self, part: _Part, c: FloatArray, chosen: Sequence[tuple[int, float]], edf: bool = False
+        self,
+        part: _Part,
+        c: FloatArray,
+        chosen: Sequence[tuple[int, float]],
+        edf: bool = False,
+        forms: Mapping[int, FloatArray] | None = None,
     ) -> tuple[FloatArray, FloatArray, list[FloatArray], list[float]]:
         """Penalised least squares of the units ``chosen`` ((unit, kappa) pairs, in the order
         chosen) on one fold: (coefficients a, the columns' indices, each unit's penalty matrix
@@ -446,7 +451,10 @@ class ShapeColumns:
         matrix. A unit whose level another chosen unit of its kind already carries (same
         component, scaling and multiplier: the constant is in every spline's span) is fitted
         centred (its coefficients sum to 0), and its penalty holds it there
-        (:data:`CENTRE_WEIGHT`)."""
+        (:data:`CENTRE_WEIGHT`). ``forms``: {unit: W (n, 2)} units fitted as a closed form,
+        their coefficients a = W (a0, b), unpenalised: W's columns are the constant and the
+        form in the unit's basis (:func:`sweep.diagnose.naming.form_transform`); without the
+        constant where another unit of its kind carries the level."""
         idx = np.concatenate([self.units[u].columns for u, _ in chosen]).astype(int)
         Zs, pens, reduced = [], [], []
         seen: set[tuple[str, str, str]] = set()
@@ -454,6 +462,13 @@ class ShapeColumns:
         for u, kappa in chosen:
             unit = self.units[u]
             n = len(unit.columns)
+            if forms is not None and u in forms:
+                Z = forms[u][:, 1:] if unit.kind in seen else forms[u]
+                seen.add(unit.kind)
+                Zs.append(Z)
+                pens.append(np.zeros((n, n)))
+                reduced.append(np.zeros((Z.shape[1], Z.shape[1])))
+                continue
             scale = max(float(np.mean(diag[list(unit.columns)])), 0.0)
             P = kappa * scale * difference_penalty(n)
             Z = _centred(n) if unit.kind in seen else np.eye(n)
@@ -519,11 +534,7 @@ class ShapeColumns:
         J0 = float(sides.J0[d])
 
         def heldout(chosen: list[tuple[int, float]]) -> float:
-            total = 0.0
-            for j, eh, EE in zip((0, 1), ehs, EEs, strict=True):
-                a, idx, _, _ = self._fit(self.parts[j], cs[j], chosen)
-                total -= float(2.0 * (a @ eh[idx]) + a @ EE[np.ix_(idx, idx)] @ a)
-            return total
+            return self._heldout(cs, ehs, EEs, chosen)
 
         chosen: list[tuple[int, float]] = []
         path: list[float] = []
@@ -553,6 +564,64 @@ class ShapeColumns:
             path.append(g / max(float(sides.Jho[d]), 1e-300))
             best, dbic, edf = g, new, dof
         return chosen, path, edf, dbic
+
+    def _heldout(
+        self,
+        cs: Sequence[FloatArray],
+        ehs: Sequence[FloatArray],
+        EEs: Sequence[FloatArray],
+        chosen: Sequence[tuple[int, float]],
+        forms: Mapping[int, FloatArray] | None = None,
+    ) -> float:
+        """The held-out gain of the units ``chosen``: fitted on one fold, the fall of J on the
+        other, summed over both pairs (the residual's sides ``cs``, ``ehs`` of one vector)."""
+        total = 0.0
+        for j, eh, EE in zip((0, 1), ehs, EEs, strict=True):
+            a, idx, _, _ = self._fit(self.parts[j], cs[j], chosen, forms=forms)
+            total -= float(2.0 * (a @ eh[idx]) + a @ EE[np.ix_(idx, idx)] @ a)
+        return total
+
+    def form_gains(
+        self,
+        r: FloatArray,
+        chosen: Sequence[tuple[int, float]],
+        forms: Sequence[Mapping[int, FloatArray]],
+    ) -> FloatArray:
+        """(len(forms),) the held-out gain of the units ``chosen`` for the base's residual
+        vector ``r`` (S, M), with the units of each entry of ``forms`` fitted as those closed
+        forms (:meth:`_fit`); the same sums as the selection's."""
+        sides = self._sides(r[..., None])
+        cs = [c[:, 0] for c in sides.c]
+        ehs = [e[:, 0] for e in sides.eh]
+        EEs = [self._held(0, 1), self._held(1, 0)]
+        return np.array([self._heldout(cs, ehs, EEs, chosen, f) for f in forms])
+
+    def form_fit(
+        self,
+        r: FloatArray,
+        chosen: Sequence[tuple[int, float]],
+        forms: Mapping[int, FloatArray],
+    ) -> list[list[float]]:
+        """Per chosen unit its coefficients fitted on all windows for the residual vector ``r``
+        (S, M): a spline's n, a closed form's (a0, b) (a0 = 0 where another unit of its kind
+        carries the level)."""
+        f = self.lin.all
+        Rf = f.resid(f.stack(r[..., None]))
+        c = _tmul(self.lib, f.ix, Rf[: len(f.ix) * r.shape[1]])[:, 0]
+        a, _, _, _ = self._fit(self.all, c, chosen, forms=forms)
+        out: list[list[float]] = []
+        i = 0
+        for u, _ in chosen:
+            n = len(self.units[u].columns)
+            part = a[i : i + n]
+            i += n
+            if u in forms:
+                W = forms[u]
+                ab, *_ = np.linalg.lstsq(W, part, rcond=None)
+                out.append([float(v) for v in ab])
+            else:
+                out.append([float(v) for v in part])
+        return out
 
     def _insample(
         self, cs: Sequence[FloatArray], chosen: list[tuple[int, float]]

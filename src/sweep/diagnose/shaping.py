@@ -16,14 +16,24 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from mmg import Effect, Parameters
-from mmg.shapes import DEFAULT_BOUND, Group, shape_effect
+from mmg.shapes import DEFAULT_BOUND, MAX_BASIS, Form, Group, form_scale, shape_effect
+from mmg.shapes import VARIABLES as SHAPE_VARIABLES
 from sweep.data.recordings import Recording
 from sweep.diagnose.calibration import Calibration
 from sweep.diagnose.context import Context
 from sweep.diagnose.discover import null_sets
-from sweep.diagnose.naming import GRID, ClosedForm, closest_forms, form_group
+from sweep.diagnose.naming import (
+    FAMILY,
+    GRID,
+    ClosedForm,
+    families,
+    fit_points,
+    fitted_form,
+    form_transform,
+)
 from sweep.diagnose.shapes import (
     SHIP_VARIABLES,
     VARIABLES,
@@ -33,6 +43,13 @@ from sweep.diagnose.shapes import (
     sampled,
 )
 from sweep.diagnose.threshold import CEILING
+
+FloatArray = NDArray[np.float64]
+
+#: basis functions over a chosen group's range on which its closed forms are compared
+FINE_BASIS = MAX_BASIS
+#: a simpler closed form within this share of the spline's held-out gain of the best is chosen
+FORM_TIE = 0.01
 
 
 @dataclass(frozen=True)
@@ -94,38 +111,111 @@ class ShapeProposal:
 
 
 def named_form(
-    selection: ShapeSelection, samples: Mapping[str, Sequence[float]] | None = None
+    columns: ShapeColumns,
+    selection: ShapeSelection,
+    r: FloatArray,
+    samples: Mapping[str, Sequence[float]] | None = None,
 ) -> tuple[list[ClosedForm | None], Effect | None, list[float]]:
-    """Each chosen group's closest closed form, and the effect of those forms (constant groups
-    kept as they are) with its coefficients fitted to the shapes (None if nothing is left).
-    ``samples``: {variable: its values at evenly spaced quantiles of the training samples}
-    (:func:`sample_values`), where the forms are fitted
-    (:func:`sweep.diagnose.naming.closest_forms`)."""
-    named: list[ClosedForm | None] = []
-    groups: list[Group] = []
-    start: list[float] = []
-    for group, coef in zip(selection.groups, selection.coefficients, strict=True):
-        n = group.n
-        for i, comp in enumerate(group.components):
-            c = coef[i * n : (i + 1) * n]
-            if group.variable == "1":
-                named.append(None)
-                groups.append(Group(comp, "1", multiplier=group.multiplier, scale=group.scale))
-                start += c
+    """Each chosen group's closed form, compared on the trajectories, and the effect of those
+    forms (constant groups kept as they are) with its coefficients fitted on them (None if
+    nothing is left).
+
+    For each chosen group in turn, every closed form of
+    :func:`~sweep.diagnose.naming.families` (corners at the training samples' quantiles
+    ``samples`` too, :func:`sample_values`) takes the group's place beside the other chosen
+    groups, and its held-out gain on the base's residual vector ``r`` (S, M) is measured the
+    way the selection measured the spline's, on the trajectory columns of
+    :data:`FINE_BASIS` basis functions over the group's range (``columns``: the
+    :class:`~sweep.diagnose.shapes.ShapeColumns` the selection was made on, for its base):
+    a kink or a step the selection's spline rounds off is compared as it is. The forms are
+    tried in the group's own structure and in the other candidate structures of its variable
+    (the plain shape with the variable's scaling, its products: a share of the hull's sway
+    force in beta competes with a force in beta times U^2). The form of the largest gain is
+    the group's name; a simpler family within :data:`FORM_TIE` of the spline's gain of it
+    wins. A group no form gains on is left out. The coefficients: all named forms fitted
+    together on all windows (linearised)."""
+    groups = selection.groups
+    # per chosen group: the fine groups of its variable, in its own structure and in every
+    # other candidate's of that variable (the plain shape, its products)
+    fine: dict[int, list[Group]] = {}
+    for i, g in enumerate(groups):
+        if g.variable == "1" or g.control:
+            continue
+        own = replace(g, n=FINE_BASIS)
+        others = [
+            Group(g.components, h.variable, g.lo, g.hi, FINE_BASIS, h.multiplier, h.scale)
+            for h in columns.groups
+            if h.variable == g.variable and (h.multiplier, h.scale) != (g.multiplier, g.scale)
+        ]
+        fine[i] = [own, *others]
+    if not fine:
+        return [None] * len(groups), None, []
+    extra = [f for fs in fine.values() for f in fs]
+    cols = ShapeColumns(columns.lin, [*groups, *extra])
+    chosen = list(enumerate(selection.kappas))
+    spline = float(cols.form_gains(r, chosen, [{}])[0])
+    picks: dict[int, tuple[Group, Form, int, FloatArray, float]] = {}
+    k0 = len(groups)
+    for i, fs in fine.items():
+        g = groups[i]
+        at = None if samples is None else samples.get(g.variable)
+        angle = SHAPE_VARIABLES[g.variable].unit == "rad"
+        forms = families(g.lo, g.hi, angle, at)
+        best: tuple[Group, Form, int, FloatArray, float] | None = None
+        for j, fg in enumerate(fs):
+            fu = k0 + j
+            tried = [(form, W) for form in forms if (W := form_transform(fg, form, at)) is not None]
+            trial = [(fu, 0.0) if k == i else (u, kap) for k, (u, kap) in enumerate(chosen)]
+            gains = cols.form_gains(r, trial, [{fu: W} for _, W in tried])
+            if not gains.size:
                 continue
-            at = None if samples is None else samples.get(group.variable)
-            best = closest_forms(group, c, top=1, at=at)
-            named.append(best[0] if best else None)
-            if best:
-                g, ab = form_group(group, comp, best[0])
-                if g.text not in {h.text for h in groups}:
-                    groups.append(g)
-                    start += ab
-    if not any(g.form for g in groups):
+            top = float(np.max(gains))
+            k = next(m for m, v in enumerate(gains) if v >= top - FORM_TIE * abs(spline))
+            if top > 0.0 and (best is None or float(gains[k]) > best[4]):
+                best = (fg, tried[k][0], fu, tried[k][1], float(gains[k]))
+        k0 += len(fs)
+        if best is not None:
+            picks[i] = best
+    if not picks:
+        return [None] * len(groups), None, []
+    together = [(picks[k][2], 0.0) if k in picks else (u, kap) for k, (u, kap) in enumerate(chosen)]
+    transforms = {fu: W for _, _, fu, W, _ in picks.values()}
+    coefficients = cols.form_fit(r, together, transforms)
+    named: list[ClosedForm | None] = []
+    out: list[Group] = []
+    start: list[float] = []
+    for i, g in enumerate(groups):
+        if g.variable == "1":
+            named.append(None)
+            out.append(g)
+            start += coefficients[i]
+            continue
+        if i not in picks:
+            named.append(None)
+            continue
+        fg, form, _, _, gain = picks[i]
+        at = None if samples is None else samples.get(g.variable)
+        close = fitted_form(g, selection.coefficients[i], form, fit_points(g, at))
+        a, b = coefficients[i]
+        named_group = replace(fg, n=2, form=form.text)
+        closed = ClosedForm(
+            FAMILY[form.key],
+            form.formula(SHAPE_VARIABLES[g.variable].symbol),
+            a,
+            b / form_scale(named_group),
+            close.r2 if close is not None and fg.structure == g.structure else 0.0,
+            form.text,
+            gain / spline if spline > 0.0 else None,
+        )
+        named.append(closed)
+        if named_group.text not in {h.text for h in out}:
+            out.append(named_group)
+            start += [a, b]
+    if not any(g.form for g in out):
         return named, None, []
-    groups, start = with_sibling(groups, start)
+    out, start = with_sibling(out, start)
     start = [float(np.clip(v, -DEFAULT_BOUND, DEFAULT_BOUND)) for v in start]
-    return named, shape_effect(groups), start
+    return named, shape_effect(out), start
 
 
 #: a side force and its yaw moment: a force acting at a point of the hull gives both
@@ -200,7 +290,8 @@ def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapePr
     t0 = time.perf_counter()
     variables = default_variables(ctx)
     columns = ShapeColumns(cal.lin, candidate_groups(ctx.windows, params, variables=variables))
-    selection = columns.select(cal.lin.residuals(ctx.windows), ctx.n_eff)
+    r = cal.lin.residuals(ctx.windows)
+    selection = columns.select(r, ctx.n_eff)
     null: list[float] = []
     threshold = CEILING
     if selection.groups:
@@ -223,11 +314,16 @@ def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapePr
     start: list[float] = []
     if proposed:
         samples = sample_values(ctx.windows, params, selection.groups)
-        named, form, start = named_form(selection, samples)
+        named, form, start = named_form(columns, selection, r, samples)
     if form is not None:
         ctx.log(
-            "shapes named: "
-            + "; ".join(f"{c.formula} (R^2 {c.r2:.2f})" for c in named if c is not None)
+            "shapes named on the trajectories: "
+            + "; ".join(
+                f"{c.formula} ({100 * (c.share or 0.0):.0f} % of the spline's held-out gain, "
+                f"R^2 {c.r2:.2f})"
+                for c in named
+                if c is not None
+            )
             + f" -> candidate {form.name}"
         )
     seconds = time.perf_counter() - t0

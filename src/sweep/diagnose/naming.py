@@ -102,29 +102,42 @@ def _corners(
 
 
 def families(
-    lo: float, hi: float, angle: bool, at: Sequence[float] | FloatArray | None = None
+    lo: float,
+    hi: float,
+    angle: bool,
+    at: Sequence[float] | FloatArray | None = None,
+    fine: bool = True,
 ) -> list[Form]:
-    """Every closed form tried over [lo, hi]: powers and abs forms; hinges and steps (of
-    :data:`STEP_WIDTHS`) at :data:`RANGE_CORNERS` of the range and, given the training samples'
-    values ``at``, at their :data:`SAMPLE_CORNERS` quantiles; where the range takes both signs,
-    the symmetric hinges and steps at the same shares of the smaller side's size min(-lo, hi)
-    and quantiles of the samples' sizes |z| below it (beyond it a threshold acts on one side
-    only: an ordinary hinge); for an angle, harmonics. Simpler families first."""
+    """Every closed form tried over [lo, hi], simpler families first: powers and abs forms;
+    hinges and steps at :data:`RANGE_CORNERS` of the range; where the range takes both signs,
+    the symmetric hinges at the same shares of the smaller side's size min(-lo, hi) (beyond it
+    a threshold acts on one side only: an ordinary hinge); for an angle, harmonics. ``fine``
+    adds corners at the training samples' :data:`SAMPLE_CORNERS` quantiles (given their values
+    ``at``; of their sizes |z| for the symmetric forms), the narrower steps of
+    :data:`STEP_WIDTHS` and the symmetric steps; without it, steps are 10 % of the range wide
+    (the forms fitted to a spline, :func:`sweep.diagnose.shaping.closest_form`)."""
     out = [Form(k) for k in ("lin", "sq", "odd", "cube", "abs")]
     width = hi - lo
     side = min(-lo, hi)
-    z = None
-    if at is not None:
-        given = np.asarray(at, dtype=np.float64)
-        z = np.clip(given[np.isfinite(given)], lo, hi)
-    for c in _corners(RANGE_CORNERS, width, lo, (lo, hi), z):
-        out += [Form("up", (c,)), Form("down", (c,))]
-        out += [Form("step", (c, _round(w * width))) for w in STEP_WIDTHS]
-    if side > 0.0:
-        sizes = None if z is None else np.abs(z)
-        for c in _corners(RANGE_CORNERS, side, 0.0, (0.0, side), sizes):
-            out += [Form(k, (c,)) for k in SYMMETRIC]
-            out += [Form("absstep", (c, _round(w * side))) for w in STEP_WIDTHS]
+    if not fine:
+        for q in RANGE_CORNERS:
+            c = _round(lo + q * width)
+            out += [Form("up", (c,)), Form("down", (c,)), Form("step", (c, _round(0.1 * width)))]
+            if side > 0.0:
+                out += [Form(k, (_round(q * side),)) for k in SYMMETRIC]
+    else:
+        z = None
+        if at is not None:
+            given = np.asarray(at, dtype=np.float64)
+            z = np.clip(given[np.isfinite(given)], lo, hi)
+        for c in _corners(RANGE_CORNERS, width, lo, (lo, hi), z):
+            out += [Form("up", (c,)), Form("down", (c,))]
+            out += [Form("step", (c, _round(w * width))) for w in STEP_WIDTHS]
+        if side > 0.0:
+            sizes = None if z is None else np.abs(z)
+            for c in _corners(RANGE_CORNERS, side, 0.0, (0.0, side), sizes):
+                out += [Form(k, (c,)) for k in SYMMETRIC]
+                out += [Form("absstep", (c, _round(w * side))) for w in STEP_WIDTHS]
     if angle:
         out += [Form(k, (float(m),)) for m in (1, 2, 3) for k in ("sin", "cos")]
     return out
@@ -167,20 +180,22 @@ def closest_forms(
     coefficients: list[float],
     top: int = 3,
     at: Sequence[float] | FloatArray | None = None,
+    fine: bool = True,
 ) -> list[ClosedForm]:
     """The ``top`` closed forms closest to one component's shape of ``group`` (its n
     coefficients), best first (none for a constant group or a memory: a share of a gap on an
     asinh scale is stated as the steps it lets the control take, not as a form in z). ``at``:
     values of the group's variable where the forms are fitted, e.g. at quantiles of the
     training samples (held within the range, as the shape holds them); None or no finite
-    value: an even grid of :data:`GRID` points over the range."""
+    value: an even grid of :data:`GRID` points over the range. ``fine``: the families of
+    :func:`families`."""
     if group.variable == "1" or group.control:
         return []
     z = fit_points(group, at)
     angle = VARIABLES[group.variable].unit == "rad"
     out = [
         c
-        for form in families(group.lo, group.hi, angle, at)
+        for form in families(group.lo, group.hi, angle, at, fine)
         if (c := fitted_form(group, coefficients, form, z)) is not None
     ]
     out.sort(key=lambda c: -c.r2)

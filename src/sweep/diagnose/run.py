@@ -269,7 +269,7 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
     extra = proposals.effects
     if shape is not None and shape.proposed:
         extra = (*extra, shape.effect)
-        named = () if shape.form is None else (shape.form,)
+        named = tuple(e for e in (shape.form, shape.closest) if e is not None)
         extra = (*extra, *named)
         sets = [ctx.with_base((shape.effect,)), *(ctx.with_base((e,)) for e in named)]
         precompile(tasks(sets), log=ctx.log)

@@ -141,3 +141,23 @@ def test_a_form_in_a_fine_basis_is_the_form(form):
     tol = 0.1 if form.startswith("absstep") else 0.01 if form.startswith("up") else 1e-4
     assert np.max(np.abs(drawn - want)) < tol
     assert form_transform(group, parse_form("up(2)")) is None  # 0 over the range
+
+
+def test_the_spline_s_closest_form_is_a_candidate_of_the_coarse_families():
+    """closest_form: each chosen group's form closest to its spline among the coarse families
+    (corners at shares of the range, one step width, no symmetric step), as an effect with its
+    coefficients, the lone yaw moment completed by its sway force."""
+    from sweep.diagnose.shapes import ShapeSelection
+    from sweep.diagnose.shaping import closest_form
+
+    coarse = families(-1.0, 1.4, angle=False, fine=False)
+    assert not [f for f in coarse if f.key == "absstep"]
+    assert [f.text for f in coarse if f.key == "up"] == [
+        f"up({c})" for c in ("-0.52", "-0.16", "0.2", "0.56", "0.92")
+    ]
+    group = Group("N", "beta", -1.0, 1.4, 12)
+    coef = _coefficients(group, lambda z: 0.01 + 0.02 * np.maximum(z - 0.2, 0.0))
+    selection = ShapeSelection([group], [coef], [np.zeros((12, 12))], [0.5], [3.0], -50.0)
+    effect, start = closest_form(selection)
+    assert effect is not None and effect.name == "shape:YN~beta[-1:1.4]:up(0.2)"
+    np.testing.assert_allclose(start, [0.0, 0.0, 0.01, 0.02 * 1.2], atol=1e-4)

@@ -428,15 +428,25 @@ def test_a_learned_shapes_name_is_a_metric_of_a_logged_diagnosis(
 ) -> None:
     """A diagnosis logs a metric per candidate: a learned shape's name (brackets, tildes, plus
     signs, a slash before its basis count) becomes one valid part of the metric name, and two
-    shapes stay apart; MLflow refused the raw name and the logging failed."""
+    shapes stay apart (MLflow refused the raw name and the logging failed), as do two library
+    findings (all were logged as ``discovered`` and the last one won), also when their names
+    are cut to the length of a metric's part."""
+    many = "+".join(f"N_t{i}" for i in range(60))  # a library finding of many terms
     names = [
         "shape:D~ed[-4.25845:4.25845]/16+N~beta[-2.91794:3.02378]/8",
         "shape:YN~beta[-2.91794:3.02378]:up(-1.73)*Y_H@U2",
         "rudder_offset",
+        "discovered:N_vvv+N_dddu+Y_nv",
+        "discovered:N_s3b",
+        f"discovered:{many}+Y_a",
+        f"discovered:{many}+Y_b",
     ]
-    parts = [metric_part(n) for n in names]
-    assert parts[2] == "rudder_offset"
-    assert len(set(parts)) == 3 and not any("/" in p for p in parts)
+    parts = [metric_part(n, limit=200) for n in names]
+    assert parts[2] == "rudder_offset" and parts[4] == "discovered_N_s3b"
+    assert metric_part(names[0], limit=200) == metric_part(names[0])  # short: as it is
+    # every candidate its own metric, the long ones cut to 200 characters and kept apart
+    assert len(set(parts)) == len(names) and not any("/" in p for p in parts)
+    assert len(parts[5]) == len(parts[6]) == 200
     metrics = {f"improvement/{p}": float(i) for i, p in enumerate(parts)}
     (tmp_path / "report.md").write_text("report")
     tracker = MlflowTracker(mlflow_uri, fresh_experiment())

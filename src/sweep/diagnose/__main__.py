@@ -284,24 +284,21 @@ def _track(
     uri = args.tracking_uri or default_tracking_uri()
 
     def key(effect: str) -> str:
-        """A candidate's part of a metric name: a library term's effect lists its terms
-        (``discovered``), a learned shape's spells its groups with brackets, tildes and plus
-        signs, which MLflow refuses in a metric name (each becomes ``_``)."""
-        if effect.startswith("discovered:"):
-            return "discovered"
-        return metric_part(effect)
+        """A candidate's part of a metric name: its name (a library finding's lists its terms,
+        a learned shape's spells its groups with brackets, tildes and plus signs, which MLflow
+        refuses in a metric name: each becomes ``_``), at most 200 characters; each candidate
+        its own metric."""
+        return metric_part(effect, limit=200)
 
-    metrics = {f"improvement/{key(c.effect)}"[:250]: c.improvement for c in result.candidates}
+    metrics = {f"improvement/{key(c.effect)}": c.improvement for c in result.candidates}
     metrics.update(
         {
-            f"delta_bic/{key(c.effect)}"[:250]: c.delta_bic
+            f"delta_bic/{key(c.effect)}": c.delta_bic
             for c in result.candidates
             if c.delta_bic == c.delta_bic and abs(c.delta_bic) < float("inf")
         }
     )
-    metrics.update(
-        {f"heldout_gain/{key(c.effect)}"[:250]: c.heldout_gain for c in result.candidates}
-    )
+    metrics.update({f"heldout_gain/{key(c.effect)}": c.heldout_gain for c in result.candidates})
     harm = report.get("harm")
     if harm:
         metrics["harm/harmful"] = float(harm["harmful"])

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import hashlib
 import json
 import os
 import re
@@ -79,11 +80,17 @@ HISTORY_METRICS = ("best_so_far", "best_f", "median_f", "popsize", "sigma", "eva
 _METRIC_REFUSED = re.compile(r"[^\w.\- ]")
 
 
-def metric_part(part: str) -> str:
+def metric_part(part: str, limit: int = 0) -> str:
     """``part`` as one part of an MLflow metric name, each character outside
     :data:`_METRIC_REFUSED`'s set made ``_`` (a learned shape's name,
-    ``shape:N~beta[-0.6:0.6]/8``, or a file name)."""
-    return _METRIC_REFUSED.sub("_", part)
+    ``shape:N~beta[-0.6:0.6]/8``, or a file name). ``limit`` > 0: a longer part is cut to
+    ``limit`` characters, its last 11 a hash of the whole ``part``, so that two long names
+    (a library finding of many terms) stay two metrics."""
+    out = _METRIC_REFUSED.sub("_", part)
+    if 0 < limit < len(out):
+        digest = hashlib.sha1(part.encode()).hexdigest()[:10]
+        out = f"{out[: max(limit - 11, 0)]}_{digest}"
+    return out
 
 
 class ConfigChangedError(RuntimeError, UserError):

@@ -201,7 +201,11 @@ class Uncertainty:
         root = V * np.sqrt(np.clip(w, 0.0, None))
         scale = np.sqrt(self.dof / rng.chisquare(self.dof, n))
         z = z0[None, :] + scale[:, None] * (rng.standard_normal((n, z0.size)) @ root.T)
-        return np.asarray(self.box_lower + np.clip(z, 0.0, 1.0) * width)
+        out = np.asarray(self.box_lower + np.clip(z, 0.0, 1.0) * width)
+        # a held parameter is its estimate itself: the round trip through the normalised box
+        # ((x - lower) / width * width + lower) can differ from it in the last digit
+        out[:, held] = self.estimate[held]
+        return out
 
     def sample_parameters(
         self, n: int, rng: np.random.Generator, template: Parameters, effects: Sequence[Effect]

@@ -584,17 +584,16 @@ class ShapeColumns:
     def form_gains(
         self,
         r: FloatArray,
-        chosen: Sequence[tuple[int, float]],
-        forms: Sequence[Mapping[int, FloatArray]],
+        trials: Sequence[tuple[Sequence[tuple[int, float]], Mapping[int, FloatArray]]],
     ) -> FloatArray:
-        """(len(forms),) the held-out gain of the units ``chosen`` for the base's residual
-        vector ``r`` (S, M), with the units of each entry of ``forms`` fitted as those closed
-        forms (:meth:`_fit`); the same sums as the selection's."""
+        """(len(trials),) the held-out gain for the base's residual vector ``r`` (S, M) of each
+        trial (units chosen, {unit: W} of those fitted as closed forms, :meth:`_fit`); the
+        same sums as the selection's."""
         sides = self._sides(r[..., None])
         cs = [c[:, 0] for c in sides.c]
         ehs = [e[:, 0] for e in sides.eh]
         EEs = [self._held(0, 1), self._held(1, 0)]
-        return np.array([self._heldout(cs, ehs, EEs, chosen, f) for f in forms])
+        return np.array([self._heldout(cs, ehs, EEs, chosen, f) for chosen, f in trials])
 
     def form_fit(
         self,

@@ -160,29 +160,39 @@ def named_form(
     extra = [f for fs in fine.values() for f in fs]
     cols = ShapeColumns(columns.lin, [*groups, *extra])
     chosen = list(enumerate(selection.kappas))
-    spline = float(cols.form_gains(r, chosen, [{}])[0])
-    picks: dict[int, tuple[Group, Form, int, FloatArray, float]] = {}
-    k0 = len(groups)
+    # every trial at once (one pass over the columns for r): the splines as chosen, then per
+    # chosen group and fine structure each form in the group's place
+    trials: list[tuple[list[tuple[int, float]], dict[int, FloatArray]]] = [(chosen, {})]
+    tried: list[tuple[int, Group, int, Form, FloatArray]] = []  # (group, fine, unit, form, W)
+    fu = len(groups)
     for i, fs in fine.items():
         g = groups[i]
         at = None if samples is None else samples.get(g.variable)
-        angle = SHAPE_VARIABLES[g.variable].unit == "rad"
-        forms = families(g.lo, g.hi, angle, at)
-        best: tuple[Group, Form, int, FloatArray, float] | None = None
-        for j, fg in enumerate(fs):
-            fu = k0 + j
-            tried = [(form, W) for form in forms if (W := form_transform(fg, form, at)) is not None]
+        forms = families(g.lo, g.hi, SHAPE_VARIABLES[g.variable].unit == "rad", at)
+        for fg in fs:
             trial = [(fu, 0.0) if k == i else (u, kap) for k, (u, kap) in enumerate(chosen)]
-            gains = cols.form_gains(r, trial, [{fu: W} for _, W in tried])
-            if not gains.size:
+            for form in forms:
+                W = form_transform(fg, form, at)
+                if W is not None:
+                    tried.append((i, fg, fu, form, W))
+                    trials.append((trial, {fu: W}))
+            fu += 1
+    gains = cols.form_gains(r, trials)
+    spline = float(gains[0])
+    picks: dict[int, tuple[Group, Form, int, FloatArray, float]] = {}
+    for i in fine:
+        # per fine structure the form of the largest gain (a simpler one within FORM_TIE of the
+        # spline's gain of it), then the structure whose form gains most
+        for fg in fine[i]:
+            mine = [
+                (t, float(gains[1 + m])) for m, t in enumerate(tried) if t[0] == i and t[1] is fg
+            ]
+            if not mine:
                 continue
-            top = float(np.max(gains))
-            k = next(m for m, v in enumerate(gains) if v >= top - FORM_TIE * abs(spline))
-            if top > 0.0 and (best is None or float(gains[k]) > best[4]):
-                best = (fg, tried[k][0], fu, tried[k][1], float(gains[k]))
-        k0 += len(fs)
-        if best is not None:
-            picks[i] = best
+            top = max(v for _, v in mine)
+            (_, _, u, form, W), v = next(p for p in mine if p[1] >= top - FORM_TIE * abs(spline))
+            if top > 0.0 and (i not in picks or v > picks[i][4]):
+                picks[i] = (fg, form, u, W, v)
     if not picks:
         return [None] * len(groups), None, []
     together = [(picks[k][2], 0.0) if k in picks else (u, kap) for k, (u, kap) in enumerate(chosen)]

@@ -280,7 +280,8 @@ def test_command_prints_the_manoeuvres_of_efd(data_dir, tmp_path, monkeypatch, c
     assert "over 3 parameter samples" in capsys.readouterr().out and fig.stat().st_size > 0
 
 
-def test_command_user_errors(tmp_path, capsys):
+def test_command_user_errors(data_dir, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("MMG_DATA_DIR", str(data_dir))  # the recorded runs load before the samples
     bad = tmp_path / "bad.npy"
     np.save(bad, np.zeros((2, 5)))
     assert main(["--params", "efd", "--manoeuvres", "--samples", str(bad)]) == 2

@@ -284,10 +284,8 @@ def _track(
     uri = args.tracking_uri or default_tracking_uri()
 
     def key(effect: str) -> str:
-        """A candidate's part of a metric name: its name (a library finding's lists its terms,
-        a learned shape's spells its groups with brackets, tildes and plus signs, which MLflow
-        refuses in a metric name: each becomes ``_``), at most 200 characters; each candidate
-        its own metric."""
+        """A candidate's part of a metric name: its name as MLflow takes it (each candidate its
+        own metric, :func:`~sweep.service.tracking.metric_part`)."""
         return metric_part(effect, limit=200)
 
     metrics = {f"improvement/{key(c.effect)}": c.improvement for c in result.candidates}

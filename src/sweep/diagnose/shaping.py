@@ -228,11 +228,7 @@ def named_form(
         if named_group.text not in {h.text for h in out}:
             out.append(named_group)
             start += [a, b]
-    if not any(g.form for g in out):
-        return named, None, []
-    out, start = with_sibling(out, start)
-    start = [float(np.clip(v, -DEFAULT_BOUND, DEFAULT_BOUND)) for v in start]
-    return named, shape_effect(out), start
+    return (named, *form_effect(out, start))
 
 
 def closest_form(
@@ -260,11 +256,19 @@ def closest_form(
             if g.text not in {h.text for h in groups}:
                 groups.append(g)
                 start += ab
+    return form_effect(groups, start)
+
+
+def form_effect(
+    groups: Sequence[Group], start: Sequence[float]
+) -> tuple[Effect | None, list[float]]:
+    """The effect of the closed-form ``groups`` (constant groups beside them) with each lone
+    sway force or yaw moment completed (:func:`with_sibling`), and its starting coefficients
+    ``start`` held within the search interval; (None, []) when no group has a closed form."""
     if not any(g.form for g in groups):
         return None, []
-    groups, start = with_sibling(groups, start)
-    start = [float(np.clip(v, -DEFAULT_BOUND, DEFAULT_BOUND)) for v in start]
-    return shape_effect(groups), start
+    out, values = with_sibling(groups, start)
+    return shape_effect(out), [float(np.clip(v, -DEFAULT_BOUND, DEFAULT_BOUND)) for v in values]
 
 
 #: a side force and its yaw moment: a force acting at a point of the hull gives both
@@ -413,6 +417,7 @@ __all__ = [
     "ShapeProposal",
     "closest_form",
     "default_variables",
+    "form_effect",
     "named_form",
     "propose_shape",
     "sample_values",

@@ -504,6 +504,29 @@ def test_rank_breaks_near_ties_of_dbic_by_held_out_improvement():
     assert [x.effect for x in rank([disc, walk, lag])] == ["walk", "discovered:N_nn+Y_nn", "lag"]
 
 
+def test_rank_puts_the_most_specific_name_first_among_tied_generated_candidates():
+    """A planted wave resistance (u^4 ahead): the learned shape of U, its closed form (a line
+    in U) and the library's u^4 term all accepted, dBIC -541, -563 and -573, held-out typical
+    windows +86.9 %, +87.5 % and +86.3 %. Ranked by the held-out windows, the closed form won;
+    the library term states the same finding in the paper's notation with one coefficient.
+    Outside the tie margin dBIC still decides."""
+    from sweep.diagnose.scoring import CandidateScore, name_kind, rank
+
+    def c(name: str, bic: float, imp: float) -> CandidateScore:
+        return CandidateScore(name, "", "", {}, 1.0, 1.0, imp, bic, accepted=True)
+
+    spline = c("shape:X~U[0.0084:0.36]/8", -541.4, 0.869)
+    form = c("shape:X~U[0.0084:0.36]:lin", -562.5, 0.875)
+    term = c("discovered:X_uuuau", -572.6, 0.863)
+    walk = c("propeller_walk", -545.0, 0.80)
+    assert [name_kind(x.effect) for x in (walk, term, form, spline)] == [0, 1, 2, 3]
+    got = [x.effect for x in rank([spline, form, term, walk])]
+    assert got == [walk.effect, term.effect, form.effect, spline.effect]
+    # a closed form clearly ahead by dBIC stays first
+    ahead = c("shape:X~U[0.0084:0.36]:lin", -700.0, 0.875)
+    assert [x.effect for x in rank([term, ahead])] == [ahead.effect, term.effect]
+
+
 def test_rank_keeps_the_dbic_winner_among_accepted_candidates_whatever_the_held_out_order():
     """The real Train-R recordings: N_s3b (dBIC -68.1, typical held-out window +0.4 %) against
     position terms N_x + N_var + Y_dnn (dBIC -56.7, +12.9 %), both accepted. Ranked by the

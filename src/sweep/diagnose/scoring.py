@@ -104,6 +104,16 @@ def generated(effect: str) -> bool:
     return effect.startswith((DISCOVERED_PREFIX, SHAPE_PREFIX))
 
 
+def name_kind(effect: str) -> int:
+    """How specific a candidate's name is, most specific first: 0 a catalog effect, 1 library
+    terms (``discovered:``), 2 a learned shape's closed form, 3 a learned spline shape."""
+    if effect.startswith(DISCOVERED_PREFIX):
+        return 1
+    if effect.startswith(SHAPE_PREFIX):
+        return 2 if is_closed_form(effect) else 3
+    return 0
+
+
 def shape_and_form(
     scores: Sequence[CandidateScore],
 ) -> tuple[CandidateScore | None, CandidateScore | None]:
@@ -128,16 +138,18 @@ def form_share(scores: Sequence[CandidateScore]) -> float | None:
 
 def rank(scores: Sequence[CandidateScore], tie_margin: float = TIE_MARGIN) -> list[CandidateScore]:
     """Candidates by dBIC, except that those tied with the best (dBIC within
-    ``max(TIE_ABSOLUTE, tie_margin x |best|)``) come first: accepted ones before the others, a
-    catalog effect before generated (discovered) terms that fit as well (named physics over a
-    generic form: n_p|n_p| terms imitate a propeller walk), then by held-out improvement."""
+    ``max(TIE_ABSOLUTE, tie_margin x |best|)``) come first: accepted ones before the others,
+    then the most specific name first (:func:`name_kind`: a catalog effect, a library term, a
+    learned shape's closed form, the shape itself; named physics over a generic form that fits
+    as well: n_p|n_p| terms imitate a propeller walk, a line in U imitates the library's
+    u^4 term), then by held-out improvement."""
     by_bic = sorted(scores, key=lambda c: c.delta_bic)
     if not by_bic:
         return []
     best = by_bic[0].delta_bic
     margin = max(TIE_ABSOLUTE, tie_margin * abs(best)) if math.isfinite(best) else 0.0
     tied = [c for c in by_bic if c.delta_bic - best <= margin]
-    tied.sort(key=lambda c: (not c.accepted, generated(c.effect), -c.improvement))
+    tied.sort(key=lambda c: (not c.accepted, name_kind(c.effect), -c.improvement))
     return tied + [c for c in by_bic if c not in tied]
 
 

@@ -77,9 +77,24 @@ PLACE_AND_TIME = tuple(v for vs in PLACE_AND_TIME_KINDS.values() for v in vs)
 #: Train-R (one day) a yaw moment in x0 passed every check on the held-out training runs and
 #: raised the test recordings' J2 by 29 %
 SHIP_VARIABLES = tuple(v for v in VARIABLES if v not in PLACE_AND_TIME)
-#: varying-coefficient candidates: (shape variable, multiplier): Y_v(U) v_m U, Y_r(U) r' U^2,
-#: a share of the hull's sway force and of the rudder's normal force
-PRODUCTS = (("U", "v"), ("U", "rp"), ("beta", "Y_H"), ("delta", "F_N"))
+#: varying-coefficient candidates: (shape variable, multiplier). The hull's derivatives
+#: varying with speed, Y_v(U) v_m U and Y_r(U) r' U^2, and with the propeller's loading,
+#: Y_v(n_p) (n_p D_p)^2 v_m / U_e and Y_r(n_p) (n_p D_p)^2 r' (a propeller in oblique inflow or
+#: yawing); a share of each sub-model's force varying with the drift angle (the oblique inflow
+#: every sub-model sees) and with the sub-model's own variable: the hull's sway force in beta,
+#: the propeller's thrust in beta and in the advance ratio J_P, the rudder's normal force in the
+#: rudder angle and in its effective inflow angle alpha_R
+PRODUCTS = (
+    ("U", "v"),
+    ("U", "rp"),
+    ("n", "v"),
+    ("n", "rp"),
+    ("beta", "Y_H"),
+    ("beta", "X_P"),
+    ("JP", "X_P"),
+    ("delta", "F_N"),
+    ("alphaR", "F_N"),
+)
 #: constant groups times a quadrant indicator: astern, propeller reversed
 QUADRANTS = ("ast", "rev")
 #: basis functions per shape

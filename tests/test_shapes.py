@@ -174,6 +174,38 @@ def test_the_hook_adds_the_scaled_shapes() -> None:
     assert force(prod, u, v_m, r)[0] == pytest.approx(q * U2 * v_m / Ue, rel=1e-12)
 
 
+def test_the_hook_multiplies_the_thrust_the_normal_force_and_the_propeller_loading() -> None:
+    """The products of the default candidates beyond the hull's: a share of the thrust X_P in
+    beta, of the rudder's normal force F_N in alpha_R, and a shape in n_p times v_m / U_e with
+    the propeller's scaling (n_p D_p)^2 (all coefficients of a group equal to c: c times it)."""
+    from mmg.model import hydrodynamic_forces
+
+    p = efd_parameters()
+    th, sh = p.theta, p.ship
+    eff = get_effect("shape:X~beta[-0.5:0.5]/4*X_P+Y~alphaR[-0.8:0.8]/4*F_N+N~n[-12:12]/4*v")
+    assert eff.force_at is not None
+    force_at = eff.force_at
+    u, v_m, r, delta, n_p = 0.4, -0.06, 0.01, 0.1, 10.0
+
+    def force(values: dict[str, float]) -> np.ndarray:
+        e = eff.param_type(**{n: values.get(n, 0.0) for n in eff.param_names})
+        args = (12.0, 1.0, 2.0, u, v_m, r, 0.3, delta, n_p, 1.0, 0.5)
+        return np.array(force_at(*args, e, th, sh))
+
+    forces = hydrodynamic_forces(u, v_m, r, math.sin(delta), math.cos(delta), n_p, th, sh)
+    X_P, X_R = forces[3], forces[6]
+    F_N = -X_R / ((1.0 - th.t_R) * math.sin(delta))  # Eq. (14)
+    got = force({f"s0_X{j}": 0.3 for j in range(4)})
+    np.testing.assert_allclose(got, [0.3 * X_P, 0.0, 0.0], rtol=1e-12, atol=1e-9)
+    got = force({f"s1_Y{j}": 0.2 for j in range(4)})
+    np.testing.assert_allclose(got, [0.0, 0.2 * F_N, 0.0], rtol=1e-12, atol=1e-9)
+    q = 0.5 * sh.rho * sh.L_pp * sh.d
+    Ue = math.sqrt(u * u + v_m * v_m + 0.05**2)
+    got = force({f"s2_N{j}": 1.0 for j in range(4)})
+    want = q * sh.L_pp * (n_p * sh.D_p) ** 2 * v_m / Ue
+    np.testing.assert_allclose(got, [0.0, 0.0, want], rtol=1e-12, atol=1e-9)
+
+
 def test_the_probe_gives_the_force_of_each_coefficient() -> None:
     """The probe (parameters G, C, J, A and the knot range L, U) gives exactly the force of the
     shape effect with its coefficient (G, C, J) at A and every other at 0, ahead and astern;

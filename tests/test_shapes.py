@@ -445,7 +445,7 @@ def test_a_kink_between_knots_is_named_by_its_hinge_on_the_trajectories(small_ca
     from sweep.diagnose.floor import simulate_windows
     from sweep.diagnose.linearised import Linearised
     from sweep.diagnose.scoring import n_effective
-    from sweep.diagnose.shapes import ShapeColumns
+    from sweep.diagnose.shapes import ShapeColumns, ShapeSelection
     from sweep.diagnose.shaping import named_form, sample_values
     from sweep.identification.vector import with_effects
 
@@ -468,6 +468,24 @@ def test_a_kink_between_knots_is_named_by_its_hinge_on_the_trajectories(small_ca
     assert hinge.share is not None and hinge.share > 0.9
     assert form is not None and form.name.startswith("shape:YN~beta[-2.4:0.35]:up(")  # with Y
     assert len(start) == len(form.params)
+    # two chosen groups of one variable in one component, a shape and a share of Y_H: their
+    # fine structures are the same groups, simulated once, and each form takes one group's place
+    g = sel.groups[0]
+    both = [g, replace(g, multiplier="Y_H")]
+    sel2 = ShapeSelection(
+        both,
+        [sel.coefficients[0], [0.0] * g.n],
+        [sel.penalties[0]] * 2,
+        [sel.heldout_gain[0]] * 2,
+        [sel.edf[0]] * 2,
+        sel.dbic,
+        kappas=[sel.kappas[0]] * 2,
+    )
+    named2, form2, start2 = named_form(
+        ShapeColumns(lin, both), sel2, r, sample_values(data, ship, both)
+    )
+    assert named2[0] is not None and named2[0].form.startswith("up(")
+    assert form2 is not None and len(start2) == len(form2.params)
 
 
 FORM_SPEC = "shape:N~beta[-0.5:0.5]:up(0.1)*Y_H+Y~delta[-0.6:0.6]:step(0.1,0.05)+X~u[-0.2:1]:odd"

@@ -157,42 +157,53 @@ def named_form(
         fine[i] = [own, *others]
     if not fine:
         return [None] * len(groups), None, []
-    extra = [f for fs in fine.values() for f in fs]
+    # one unit per fine group: two chosen groups of one variable in the same components (a
+    # shape and a product of it) share their fine structures
+    units: dict[str, int] = {}
+    extra: list[Group] = []
+    fine_units: dict[int, list[tuple[Group, int]]] = {}
+    for i, fs in fine.items():
+        for f in fs:
+            if f.text not in units:
+                units[f.text] = len(groups) + len(extra)
+                extra.append(f)
+        fine_units[i] = [(f, units[f.text]) for f in fs]
     cols = ShapeColumns(columns.lin, [*groups, *extra])
     chosen = list(enumerate(selection.kappas))
     # every trial at once (one pass over the columns for r): the splines as chosen, then per
     # chosen group and fine structure each form in the group's place
     trials: list[tuple[list[tuple[int, float]], dict[int, FloatArray]]] = [(chosen, {})]
-    tried: list[tuple[int, Group, int, Form, FloatArray]] = []  # (group, fine, unit, form, W)
-    fu = len(groups)
-    for i, fs in fine.items():
+    tried: list[tuple[int, int, Form, FloatArray]] = []  # (group, unit, form, W)
+    for i, fus in fine_units.items():
         g = groups[i]
         at = None if samples is None else samples.get(g.variable)
         forms = families(g.lo, g.hi, SHAPE_VARIABLES[g.variable].unit == "rad", at)
-        for fg in fs:
+        for fg, fu in fus:
             trial = [(fu, 0.0) if k == i else (u, kap) for k, (u, kap) in enumerate(chosen)]
             for form in forms:
                 W = form_transform(fg, form, at)
                 if W is not None:
-                    tried.append((i, fg, fu, form, W))
+                    tried.append((i, fu, form, W))
                     trials.append((trial, {fu: W}))
-            fu += 1
     gains = cols.form_gains(r, trials)
     spline = float(gains[0])
-    picks: dict[int, tuple[Group, Form, int, FloatArray, float]] = {}
-    for i in fine:
-        # per fine structure the form of the largest gain (a simpler one within FORM_TIE of the
-        # spline's gain of it), then the structure whose form gains most
-        for fg in fine[i]:
-            mine = [
-                (t, float(gains[1 + m])) for m, t in enumerate(tried) if t[0] == i and t[1] is fg
-            ]
+    # per chosen group and fine structure the form of the largest gain (a simpler one within
+    # FORM_TIE of the spline's gain of it); then, largest gain first, each group takes its
+    # structure whose form gains most among the units no other group has taken
+    options: list[tuple[float, int, Group, Form, int, FloatArray]] = []
+    for i, fus in fine_units.items():
+        for fg, fu in fus:
+            mine = [(t, float(gains[1 + m])) for m, t in enumerate(tried) if t[:2] == (i, fu)]
             if not mine:
                 continue
             top = max(v for _, v in mine)
-            (_, _, u, form, W), v = next(p for p in mine if p[1] >= top - FORM_TIE * abs(spline))
-            if top > 0.0 and (i not in picks or v > picks[i][4]):
-                picks[i] = (fg, form, u, W, v)
+            (_, _, form, W), v = next(p for p in mine if p[1] >= top - FORM_TIE * abs(spline))
+            if top > 0.0:
+                options.append((v, i, fg, form, fu, W))
+    picks: dict[int, tuple[Group, Form, int, FloatArray, float]] = {}
+    for v, i, fg, form, fu, W in sorted(options, key=lambda o: -o[0]):
+        if i not in picks and fu not in {p[2] for p in picks.values()}:
+            picks[i] = (fg, form, fu, W, v)
     if not picks:
         return [None] * len(groups), None, []
     together = [(picks[k][2], 0.0) if k in picks else (u, kap) for k, (u, kap) in enumerate(chosen)]

@@ -507,23 +507,30 @@ def test_rank_breaks_near_ties_of_dbic_by_held_out_improvement():
 def test_rank_puts_the_most_specific_name_first_among_tied_generated_candidates():
     """A planted wave resistance (u^4 ahead): the learned shape of U, its closed form (a line
     in U) and the library's u^4 term all accepted, dBIC -541, -563 and -573, held-out typical
-    windows +86.9 %, +87.5 % and +86.3 %. Ranked by the held-out windows, the closed form won;
-    the library term states the same finding in the paper's notation with one coefficient.
-    Outside the tie margin dBIC still decides."""
+    windows +86.9 %, +87.5 % and +86.3 %, held-out gains 11.31, 11.43 and 11.33. Ranked by the
+    held-out windows, the closed form won; the library term states the same finding in the
+    paper's notation with one coefficient. Outside the tie margin dBIC still decides."""
     from sweep.diagnose.scoring import CandidateScore, name_kind, rank
 
-    def c(name: str, bic: float, imp: float) -> CandidateScore:
-        return CandidateScore(name, "", "", {}, 1.0, 1.0, imp, bic, accepted=True)
+    def c(name: str, bic: float, imp: float, gain: float) -> CandidateScore:
+        return CandidateScore(
+            name, "", "", {}, 1.0, 1.0, imp, bic, accepted=True, heldout_gain=gain
+        )
 
-    spline = c("shape:X~U[0.0084:0.36]/8", -541.4, 0.869)
-    form = c("shape:X~U[0.0084:0.36]:lin", -562.5, 0.875)
-    term = c("discovered:X_uuuau", -572.6, 0.863)
-    walk = c("propeller_walk", -545.0, 0.80)
+    spline = c("shape:X~U[0.0084:0.36]/8", -541.4, 0.869, 11.31)
+    form = c("shape:X~U[0.0084:0.36]:lin", -562.5, 0.875, 11.43)
+    term = c("discovered:X_uuuau", -572.6, 0.863, 11.33)
+    walk = c("propeller_walk", -545.0, 0.80, 10.5)
     assert [name_kind(x.effect) for x in (walk, term, form, spline)] == [0, 1, 2, 3]
     got = [x.effect for x in rank([spline, form, term, walk])]
     assert got == [walk.effect, term.effect, form.effect, spline.effect]
+    # (the spline, 31 dBIC behind, is outside the margin). A name keeping less than 90 % of
+    # the largest held-out gain of the tied goes after those that keep it, whatever its kind
+    weak = c("propeller_walk", -545.0, 0.80, 9.0)
+    got = [x.effect for x in rank([spline, form, term, weak])]
+    assert got == [term.effect, form.effect, weak.effect, spline.effect]
     # a closed form clearly ahead by dBIC stays first
-    ahead = c("shape:X~U[0.0084:0.36]:lin", -700.0, 0.875)
+    ahead = c("shape:X~U[0.0084:0.36]:lin", -700.0, 0.875, 11.43)
     assert [x.effect for x in rank([term, ahead])] == [ahead.effect, term.effect]
 
 

@@ -30,6 +30,11 @@ TAU = 10.0
 #: both act as a yaw moment growing with n_p^2 and reach nearly the same fit)
 TIE_MARGIN = 0.05
 TIE_ABSOLUTE = 10.0
+#: a learned shape is stated by the closed form it was named after (or a library term, a
+#: catalog effect) when that form is accepted too and keeps at least this share of the shape's
+#: held-out gain; among tied candidates, a more specific name goes first when it keeps this
+#: share of the largest held-out gain among them
+KEEP = 0.9
 
 
 @dataclass
@@ -139,17 +144,26 @@ def form_share(scores: Sequence[CandidateScore]) -> float | None:
 def rank(scores: Sequence[CandidateScore], tie_margin: float = TIE_MARGIN) -> list[CandidateScore]:
     """Candidates by dBIC, except that those tied with the best (dBIC within
     ``max(TIE_ABSOLUTE, tie_margin x |best|)``) come first: accepted ones before the others,
-    then the most specific name first (:func:`name_kind`: a catalog effect, a library term, a
-    learned shape's closed form, the shape itself; named physics over a generic form that fits
-    as well: n_p|n_p| terms imitate a propeller walk, a line in U imitates the library's
-    u^4 term), then by held-out improvement."""
+    then those that keep :data:`KEEP` of the largest held-out gain among the tied accepted ones,
+    then the most specific name (:func:`name_kind`: a catalog effect, library terms, a learned
+    shape's closed form, the shape itself; named physics over a generic form that fits as well:
+    n_p|n_p| terms imitate a propeller walk, a line in U imitates the library's u^4 term), then
+    by held-out improvement."""
     by_bic = sorted(scores, key=lambda c: c.delta_bic)
     if not by_bic:
         return []
     best = by_bic[0].delta_bic
     margin = max(TIE_ABSOLUTE, tie_margin * abs(best)) if math.isfinite(best) else 0.0
     tied = [c for c in by_bic if c.delta_bic - best <= margin]
-    tied.sort(key=lambda c: (not c.accepted, name_kind(c.effect), -c.improvement))
+    top = max((c.heldout_gain for c in tied if c.accepted), default=0.0)
+    tied.sort(
+        key=lambda c: (
+            not c.accepted,
+            top > 0.0 and c.heldout_gain < KEEP * top,
+            name_kind(c.effect),
+            -c.improvement,
+        )
+    )
     return tied + [c for c in by_bic if c not in tied]
 
 

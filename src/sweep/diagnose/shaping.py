@@ -117,6 +117,34 @@ class ShapeProposal:
         }
 
 
+def _fine_structures(
+    groups: Sequence[Group], candidates: Sequence[Group]
+) -> tuple[list[Group], dict[int, list[tuple[Group, int]]]]:
+    """Per chosen group (not a constant or a memory) the fine groups (:data:`FINE_BASIS`) of its
+    variable, in its own structure and in every other structure of that variable among the
+    ``candidates`` (the plain shape, its products), each with its unit: units after the chosen
+    groups', one per fine group, so that two chosen groups of one variable in the same
+    components (a shape and a product of it) share them. Returns (the fine groups in unit
+    order, {chosen group: [(fine group, unit)]})."""
+    units: dict[str, int] = {}
+    extra: list[Group] = []
+    fine: dict[int, list[tuple[Group, int]]] = {}
+    for i, g in enumerate(groups):
+        if g.variable == "1" or g.control:
+            continue
+        fs = [replace(g, n=FINE_BASIS)] + [
+            Group(g.components, h.variable, g.lo, g.hi, FINE_BASIS, h.multiplier, h.scale)
+            for h in candidates
+            if h.variable == g.variable and (h.multiplier, h.scale) != (g.multiplier, g.scale)
+        ]
+        for f in fs:
+            if f.text not in units:
+                units[f.text] = len(groups) + len(extra)
+                extra.append(f)
+        fine[i] = [(f, units[f.text]) for f in fs]
+    return extra, fine
+
+
 def named_form(
     columns: ShapeColumns,
     selection: ShapeSelection,
@@ -142,32 +170,9 @@ def named_form(
     wins. A group no form gains on is left out. The coefficients: all named forms fitted
     together on all windows (linearised)."""
     groups = selection.groups
-    # per chosen group: the fine groups of its variable, in its own structure and in every
-    # other candidate's of that variable (the plain shape, its products)
-    fine: dict[int, list[Group]] = {}
-    for i, g in enumerate(groups):
-        if g.variable == "1" or g.control:
-            continue
-        own = replace(g, n=FINE_BASIS)
-        others = [
-            Group(g.components, h.variable, g.lo, g.hi, FINE_BASIS, h.multiplier, h.scale)
-            for h in columns.groups
-            if h.variable == g.variable and (h.multiplier, h.scale) != (g.multiplier, g.scale)
-        ]
-        fine[i] = [own, *others]
-    if not fine:
+    extra, fine_units = _fine_structures(groups, columns.groups)
+    if not fine_units:
         return [None] * len(groups), None, []
-    # one unit per fine group: two chosen groups of one variable in the same components (a
-    # shape and a product of it) share their fine structures
-    units: dict[str, int] = {}
-    extra: list[Group] = []
-    fine_units: dict[int, list[tuple[Group, int]]] = {}
-    for i, fs in fine.items():
-        for f in fs:
-            if f.text not in units:
-                units[f.text] = len(groups) + len(extra)
-                extra.append(f)
-        fine_units[i] = [(f, units[f.text]) for f in fs]
     cols = ShapeColumns(columns.lin, [*groups, *extra])
     chosen = list(enumerate(selection.kappas))
     # every trial at once (one pass over the columns for r): the splines as chosen, then per

@@ -12,13 +12,16 @@ from dataclasses import dataclass
 from mmg.effect import DISCOVERED_PREFIX
 from mmg.shapes import SHAPE_PREFIX, is_closed_form
 from sweep.diagnose.context import Context
-from sweep.diagnose.scoring import CandidateScore, form_share, generated, rank, shape_and_form
+from sweep.diagnose.scoring import (
+    KEEP,
+    CandidateScore,
+    form_share,
+    generated,
+    rank,
+    shape_and_form,
+)
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.threshold import CEILING, AcceptanceNull, more_better
-
-#: a learned shape is stated by the closed form it was named after when that form is accepted
-#: too and keeps at least this share of the shape's held-out gain
-KEEP = 0.9
 
 
 @dataclass(frozen=True)

@@ -178,37 +178,37 @@ def named_form(
     # every trial at once (one pass over the columns for r): the splines as chosen, then per
     # chosen group and fine structure each form in the group's place
     trials: list[tuple[list[tuple[int, float]], dict[int, FloatArray]]] = [(chosen, {})]
-    tried: list[tuple[int, int, Form, FloatArray]] = []  # (group, unit, form, W)
+    # per (chosen group, fine unit): its forms, their transforms and their trials' places
+    tried: dict[tuple[int, int], list[tuple[Form, FloatArray, int]]] = {}
     for i, fus in fine_units.items():
         g = groups[i]
         at = None if samples is None else samples.get(g.variable)
         forms = families(g.lo, g.hi, SHAPE_VARIABLES[g.variable].unit == "rad", at)
-        for fg, fu in fus:
+        for _, fu in fus:
             trial = [(fu, 0.0) if k == i else (u, kap) for k, (u, kap) in enumerate(chosen)]
             for form in forms:
-                W = form_transform(fg, form, at)
+                W = form_transform(extra[fu - len(groups)], form, at)
                 if W is not None:
-                    tried.append((i, fu, form, W))
+                    tried.setdefault((i, fu), []).append((form, W, len(trials)))
                     trials.append((trial, {fu: W}))
     gains = cols.form_gains(r, trials)
     spline = float(gains[0])
     # per chosen group and fine structure the form of the largest gain (a simpler one within
     # FORM_TIE of the spline's gain of it); then, largest gain first, each group takes its
     # structure whose form gains most among the units no other group has taken
-    options: list[tuple[float, int, Group, Form, int, FloatArray]] = []
-    for i, fus in fine_units.items():
-        for fg, fu in fus:
-            mine = [(t, float(gains[1 + m])) for m, t in enumerate(tried) if t[:2] == (i, fu)]
-            if not mine:
-                continue
-            top = max(v for _, v in mine)
-            (_, _, form, W), v = next(p for p in mine if p[1] >= top - FORM_TIE * abs(spline))
-            if top > 0.0:
-                options.append((v, i, fg, form, fu, W))
+    options: list[tuple[float, int, Form, int, FloatArray]] = []
+    for (i, fu), mine in tried.items():
+        values = [float(gains[k]) for _, _, k in mine]
+        top = max(values)
+        m = next(m for m, v in enumerate(values) if v >= top - FORM_TIE * abs(spline))
+        if top > 0.0:
+            options.append((values[m], i, mine[m][0], fu, mine[m][1]))
     picks: dict[int, tuple[Group, Form, int, FloatArray, float]] = {}
-    for v, i, fg, form, fu, W in sorted(options, key=lambda o: -o[0]):
-        if i not in picks and fu not in {p[2] for p in picks.values()}:
-            picks[i] = (fg, form, fu, W, v)
+    taken: set[int] = set()
+    for v, i, form, fu, W in sorted(options, key=lambda o: -o[0]):
+        if i not in picks and fu not in taken:
+            picks[i] = (extra[fu - len(groups)], form, fu, W, v)
+            taken.add(fu)
     if not picks:
         return [None] * len(groups), None, []
     together = [(picks[k][2], 0.0) if k in picks else (u, kap) for k, (u, kap) in enumerate(chosen)]

@@ -102,3 +102,23 @@ def test_a_transfer_must_also_hold_across_sessions_when_checked_there():
     c.session_transfer_run_changes = {"a": -0.3, "b": -0.1, "c": 0.2}
     c.session_transfer_gain = -0.1  # the other days' runs worse in sum
     assert not transferred(null, c)
+
+
+def test_a_run_worse_by_a_negligible_share_of_its_j_does_not_refuse_a_finding():
+    """A quiet run's noise J can be a small share of its J where the control misses the effect:
+    a loss of 2 % of that J is many times its noise J. A run worse by at most NEGLIGIBLE of its
+    J is not held against a generated candidate; a larger share still is."""
+    from sweep.diagnose.threshold import NEGLIGIBLE
+
+    null = _null(limit=1.0, heldout=0.0)  # noise J 0.1 on each run
+    losses = {"a": -3.0, "b": -2.0, "c": 0.2}  # run c: 2 x its noise J
+    changes = {"a": -0.5, "b": -0.4, "c": 0.02}  # ... and 2 % of its J (10)
+    assert null.run_excess(losses) == 2.0
+    assert null.run_excess(losses, changes) == 0.0
+    assert null.carries_over(1.0, losses, changes, generated=True)
+    changes["c"] = 2 * NEGLIGIBLE  # the same loss, 10 % of a J of 2
+    assert not null.carries_over(1.0, losses, changes, generated=True)
+    # a catalog effect is judged relative to the run's J, never stricter than NEGLIGIBLE
+    tight = _null(limit=0.01, heldout=0.0)
+    assert tight.carries_over(1.0, losses, {"a": -0.5, "b": -0.4, "c": 0.03}, generated=False)
+    assert not tight.carries_over(1.0, losses, {"a": -0.5, "b": -0.4, "c": 0.06}, generated=False)

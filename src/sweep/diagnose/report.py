@@ -23,6 +23,7 @@ from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
 from sweep.diagnose.run import Diagnosis, round_dir
 from sweep.diagnose.scoring import CandidateScore, form_share, shape_and_form
 from sweep.diagnose.shapes import PLACE_AND_TIME
+from sweep.diagnose.threshold import NEGLIGIBLE
 from sweep.diagnose.verdict import shape_name
 
 #: the regime variable in which each catalog effect acts
@@ -1177,7 +1178,8 @@ def _candidates_md(d: Diagnosis) -> list[str]:
             f"{100 * held.get('worst_run_limit', 0.0):.0f} % (the same quantile of the best "
             "catalog candidate's worst held-out run) of the control's J of that run for a catalog "
             "effect, of that run's noise J for library terms and learned shapes (chosen on all "
-            "training windows, so their held-out gains are biased in their favour). A library "
+            "training windows, so their held-out gains are biased in their favour); a run "
+            f"worse by at most {100 * NEGLIGIBLE:.0f} % of its J is not counted. A library "
             "term or shape of the heading, the position or the time must carry over alike to "
             "another session's runs (fitted on some days' runs, judged on the others'): "
             '"no (one session)" when all training runs are of one day, "no (other '

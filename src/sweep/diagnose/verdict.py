@@ -21,7 +21,7 @@ from sweep.diagnose.scoring import (
     shape_and_form,
 )
 from sweep.diagnose.settings import DiagnoseSettings
-from sweep.diagnose.threshold import CEILING, AcceptanceNull, more_better
+from sweep.diagnose.threshold import CEILING, NEGLIGIBLE, AcceptanceNull, more_better
 
 
 @dataclass(frozen=True)
@@ -71,7 +71,8 @@ def _log_threshold(ctx: Context, null: AcceptanceNull, threshold: float) -> None
         f"{null.noise_J:.3g}, at least 0), more held-out runs better than worse, and no held-out "
         f"run worse by more than {100 * null.worst_run_limit:.0f} % (the same quantile of the best "
         "catalog candidate's worst held-out run) of the control's J of that run for a catalog "
-        "effect, of its noise J for library terms and learned shapes"
+        "effect, of its noise J for library terms and learned shapes (a run worse by at most "
+        f"{100 * NEGLIGIBLE:.0f} % of its J is not counted)"
     )
 
 
@@ -91,7 +92,7 @@ def decide(
     _log_threshold(ctx, null, threshold)
     refined = s.refines
     for c in scores:
-        c.worst_run_excess = null.run_excess(c.run_losses)
+        c.worst_run_excess = null.run_excess(c.run_losses, c.run_changes)
         c.sessions_carry = carries_to_other_sessions(null, c)
         c.carries_over = (
             null.carries_over(c.heldout_gain, c.run_losses, c.run_changes, generated(c.effect))
@@ -168,7 +169,7 @@ def transferred(null: AcceptanceNull, c: CandidateScore) -> bool:
     return (
         c.session_transfer_gain > 0.0
         and more_better(changes)
-        and max(changes.values(), default=0.0) <= null.worst_run_limit
+        and max(changes.values(), default=0.0) <= null.run_change_limit
     )
 
 

@@ -123,6 +123,21 @@ def test_corners_lie_at_the_samples_quantiles_too():
     assert not [f for f in families(-1.0, 1.0, angle=False, at=[-1.0, 1.0]) if "(-1)" in f.text]
 
 
+def test_forms_with_fewer_constants_chosen_from_the_data_come_first():
+    """Within the naming's tie the first form in the families' order wins: powers, then (for
+    an angle) harmonics, then hinges (a corner), then steps (a corner and a width), whatever
+    the corner, in both the fine and the coarse families."""
+    samples = np.random.default_rng(5).normal(0.0, 0.3, 2000)
+    rank = {"lin": 0, "sq": 0, "odd": 0, "cube": 0, "abs": 0, "sin": 1, "cos": 1}
+    rank |= {"up": 2, "down": 2, "absup": 2, "oddup": 2, "step": 3, "absstep": 3}
+    for fine in (True, False):
+        forms = families(-3.0, 3.0, angle=True, at=samples, fine=fine)
+        order = [rank[f.key] for f in forms]
+        assert order == sorted(order)
+        assert set(order) == {0, 1, 2, 3}
+    assert 1 not in {rank[f.key] for f in families(-3.0, 3.0, angle=False)}
+
+
 @pytest.mark.parametrize("form", ["lin", "sq", "up(0.3)", "absstep(0.5,0.05)", "sin(2)"])
 def test_a_form_in_a_fine_basis_is_the_form(form):
     """form_transform: the constant is all ones; a form projected on 40 basis functions draws

@@ -108,39 +108,44 @@ def families(
     at: Sequence[float] | FloatArray | None = None,
     fine: bool = True,
 ) -> list[Form]:
-    """Every closed form tried over [lo, hi], simpler families first: powers and abs forms;
-    hinges and steps at :data:`RANGE_CORNERS` of the range; where the range takes both signs,
-    the symmetric hinges at the same shares of the smaller side's size min(-lo, hi) (beyond it
-    a threshold acts on one side only: an ordinary hinge); for an angle, harmonics. ``fine``
-    adds corners at the training samples' :data:`SAMPLE_CORNERS` quantiles (given their values
-    ``at``; of their sizes |z| for the symmetric forms), the narrower steps of
-    :data:`STEP_WIDTHS` and the symmetric steps; without it, steps are 10 % of the range wide
-    (the forms fitted to a spline, :func:`sweep.diagnose.shaping.closest_form`)."""
+    """Every closed form tried over [lo, hi], simpler families first (a form whose constants
+    are fixed before a corner or a width is chosen from the data comes before one that has
+    them): powers and abs forms; for an angle, harmonics; hinges at :data:`RANGE_CORNERS` of the
+    range and, where the range takes both signs, the symmetric hinges at the same shares of the
+    smaller side's size min(-lo, hi) (beyond it a threshold acts on one side only: an ordinary
+    hinge); then steps, a corner and a width. ``fine`` adds corners at the training samples'
+    :data:`SAMPLE_CORNERS` quantiles (given their values ``at``; of their sizes |z| for the
+    symmetric forms), the narrower steps of :data:`STEP_WIDTHS` and the symmetric steps;
+    without it, steps are 10 % of the range wide (the forms fitted to a spline,
+    :func:`sweep.diagnose.shaping.closest_form`)."""
     out = [Form(k) for k in ("lin", "sq", "odd", "cube", "abs")]
+    if angle:
+        out += [Form(k, (float(m),)) for m in (1, 2, 3) for k in ("sin", "cos")]
     width = hi - lo
     side = min(-lo, hi)
+    hinges: list[Form] = []
+    steps: list[Form] = []
     if not fine:
         for q in RANGE_CORNERS:
             c = _round(lo + q * width)
-            out += [Form("up", (c,)), Form("down", (c,)), Form("step", (c, _round(0.1 * width)))]
+            hinges += [Form("up", (c,)), Form("down", (c,))]
+            steps.append(Form("step", (c, _round(0.1 * width))))
             if side > 0.0:
-                out += [Form(k, (_round(q * side),)) for k in SYMMETRIC]
+                hinges += [Form(k, (_round(q * side),)) for k in SYMMETRIC]
     else:
         z = None
         if at is not None:
             given = np.asarray(at, dtype=np.float64)
             z = np.clip(given[np.isfinite(given)], lo, hi)
         for c in _corners(RANGE_CORNERS, width, lo, (lo, hi), z):
-            out += [Form("up", (c,)), Form("down", (c,))]
-            out += [Form("step", (c, _round(w * width))) for w in STEP_WIDTHS]
+            hinges += [Form("up", (c,)), Form("down", (c,))]
+            steps += [Form("step", (c, _round(w * width))) for w in STEP_WIDTHS]
         if side > 0.0:
             sizes = None if z is None else np.abs(z)
             for c in _corners(RANGE_CORNERS, side, 0.0, (0.0, side), sizes):
-                out += [Form(k, (c,)) for k in SYMMETRIC]
-                out += [Form("absstep", (c, _round(w * side))) for w in STEP_WIDTHS]
-    if angle:
-        out += [Form(k, (float(m),)) for m in (1, 2, 3) for k in ("sin", "cos")]
-    return out
+                hinges += [Form(k, (c,)) for k in SYMMETRIC]
+                steps += [Form("absstep", (c, _round(w * side))) for w in STEP_WIDTHS]
+    return out + hinges + steps
 
 
 def fit_points(group: Group, at: Sequence[float] | FloatArray | None) -> FloatArray:

@@ -23,13 +23,14 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from dataclasses import replace
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from benchmarks.planted import PlantedSpec, true_model
 from mmg import Effect, Parameters, efd_parameters, get_effect
 from sweep.data.objective import Objective
-from sweep.data.recordings import read_recordings
+from sweep.data.recordings import Recording, read_recordings
 from sweep.diagnose.context import Context, stderr_log
 from sweep.diagnose.final import final_prefix, finding_settings
 from sweep.diagnose.settings import DiagnoseSettings
@@ -52,30 +53,52 @@ def truth_form(spec: PlantedSpec, effects: tuple[Effect, ...]) -> tuple[Effect, 
     return tuple(out)
 
 
+@dataclass(frozen=True)
+class Case:
+    """A diagnosed planted case opened for refits: the diagnosis' context on its stages, the
+    planted form, the true model and its test J2."""
+
+    ctx: Context
+    spec: PlantedSpec
+    test: list[Recording]
+    true_params: Parameters
+    true_effects: tuple[Effect, ...]
+    J_true: float
+
+
+def open_case(case: Path, log: Callable[[str], None]) -> Case | None:
+    """The case directory ``case`` of ``benchmarks/diagnose_planted.py --out DIR`` opened with
+    the diagnosis' default settings (``log``: its log); None, saying why on stderr, when a part
+    is missing."""
+    for part in ("train", "test", "truth.json", "diagnosis/stages"):
+        if not (case / part).exists():
+            print(f"error: {case / part} is missing: not a diagnosed planted case", file=sys.stderr)
+            return None
+    truth = json.loads((case / "truth.json").read_text())
+    spec = PlantedSpec(**truth["spec"])
+    train, test = read_recordings(case / "train"), read_recordings(case / "test")
+    settings = DiagnoseSettings()
+    ctx = Context.open(efd_parameters(), train, test, case / "diagnosis", settings, None, log)
+    true_params, true_effects = true_model(Parameters.from_dict(truth["ship"]), spec)
+    J_true = float(Objective(test, "J2", effects=true_effects).evaluate(true_params)[0])
+    return Case(ctx, spec, test, true_params, true_effects, J_true)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("case", type=Path, help="a case directory of benchmarks/diagnose_planted.py")
     ap.add_argument("forms", nargs="+", help=f"effect names, or {TRUTH!r}")
     args = ap.parse_args(argv)
     case: Path = args.case
-    for part in ("train", "test", "truth.json", "diagnosis/stages"):
-        if not (case / part).exists():
-            print(f"error: {case / part} is missing: not a diagnosed planted case", file=sys.stderr)
-            return 2
-    truth = json.loads((case / "truth.json").read_text())
-    spec = PlantedSpec(**truth["spec"])
-    ship = Parameters.from_dict(truth["ship"])
-    train, test = read_recordings(case / "train"), read_recordings(case / "test")
-    settings = DiagnoseSettings()
-    ctx = Context.open(
-        efd_parameters(), train, test, case / "diagnosis", settings, None, stderr_log
-    )
+    opened = open_case(case, stderr_log)
+    if opened is None:
+        return 2
+    ctx, spec, test = opened.ctx, opened.spec, opened.test
+    true_params, true_effects, J_true = opened.true_params, opened.true_effects, opened.J_true
     before = ctx.store.load(f"{final_prefix(ctx)}-base", ())
     if before is None:
         print(f"error: {case} has no stage {final_prefix(ctx)}-base", file=sys.stderr)
         return 2
-    true_params, true_effects = true_model(ship, spec)
-    J_true = float(Objective(test, "J2", effects=true_effects).evaluate(true_params)[0])
     J_before = float(Objective(test, "J2").evaluate(before.params)[0])
     print(f"{case.name} ({spec.form}): true model's test J2 {J_true:.4g}")
     print(

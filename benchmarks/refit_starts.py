@@ -24,13 +24,10 @@ import re
 import sys
 from pathlib import Path
 
-from benchmarks.planted import PlantedSpec, true_model
-from mmg import Parameters, efd_parameters, get_effect
+from benchmarks.refit_forms import open_case
+from mmg import get_effect
 from sweep.data.objective import Objective
-from sweep.data.recordings import read_recordings
-from sweep.diagnose.context import Context
 from sweep.diagnose.final import final_prefix, finding_settings
-from sweep.diagnose.settings import DiagnoseSettings
 from sweep.identification.vector import effect_values, with_effects
 
 
@@ -44,29 +41,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("effect", help="the finding's effect name, e.g. discovered:N_bt+Y_bt")
     args = ap.parse_args(argv)
     case: Path = args.case
-    for part in ("train", "test", "truth.json", "diagnosis/stages"):
-        if not (case / part).exists():
-            print(f"error: {case / part} is missing: not a diagnosed planted case", file=sys.stderr)
-            return 2
     try:
         eff = (get_effect(args.effect),)
     except (KeyError, ValueError) as err:
         print(f"error: {args.effect}: {err}", file=sys.stderr)
         return 2
-    truth = json.loads((case / "truth.json").read_text())
-    spec = PlantedSpec(**truth["spec"])
-    train, test = read_recordings(case / "train"), read_recordings(case / "test")
-    ctx = Context.open(
-        efd_parameters(), train, test, case / "diagnosis", DiagnoseSettings(), None, _quiet
-    )
+    opened = open_case(case, _quiet)
+    if opened is None:
+        return 2
+    ctx, test, J_true = opened.ctx, opened.test, opened.J_true
     base = ctx.store.load("base", ())
     before = ctx.store.load(f"{final_prefix(ctx)}-base", ())
     if base is None or before is None:
         print(f"error: {case} has no stage base or {final_prefix(ctx)}-base", file=sys.stderr)
         return 2
-    true_params, true_effects = true_model(Parameters.from_dict(truth["ship"]), spec)
-    J_true = float(Objective(test, "J2", effects=true_effects).evaluate(true_params)[0])
-    print(f"{case.name} ({spec.form}): true model's test J2 {J_true:.4g}; {args.effect}")
+    print(f"{case.name} ({opened.spec.form}): true model's test J2 {J_true:.4g}; {args.effect}")
     fold_stage = re.compile(r"^candidate-.*fold\d+$")
     stages = sorted(
         p.stem

@@ -184,10 +184,10 @@ def named_form(
         g = groups[i]
         at = None if samples is None else samples.get(g.variable)
         forms = families(g.lo, g.hi, SHAPE_VARIABLES[g.variable].unit == "rad", at)
-        for _, fu in fus:
+        for fg, fu in fus:
             trial = [(fu, 0.0) if k == i else (u, kap) for k, (u, kap) in enumerate(chosen)]
             for form in forms:
-                W = form_transform(extra[fu - len(groups)], form, at)
+                W = form_transform(fg, form, at)
                 if W is not None:
                     tried.setdefault((i, fu), []).append((form, W, len(trials)))
                     trials.append((trial, {fu: W}))

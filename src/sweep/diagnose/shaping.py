@@ -203,11 +203,12 @@ def named_form(
         m = next(m for m, v in enumerate(values) if v >= top - FORM_TIE * abs(spline))
         if top > 0.0:
             options.append((values[m], i, mine[m][0], fu, mine[m][1]))
+    fine = {fu: fg for fus in fine_units.values() for fg, fu in fus}  # unit -> its fine group
     picks: dict[int, tuple[Group, Form, int, FloatArray, float]] = {}
     taken: set[int] = set()
     for v, i, form, fu, W in sorted(options, key=lambda o: -o[0]):
         if i not in picks and fu not in taken:
-            picks[i] = (extra[fu - len(groups)], form, fu, W, v)
+            picks[i] = (fine[fu], form, fu, W, v)
             taken.add(fu)
     if not picks:
         return [None] * len(groups), None, []

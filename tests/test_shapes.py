@@ -281,6 +281,10 @@ def test_variables_from_recorded_samples() -> None:
     assert values("JP")[0] > 0 > values("JP")[1]
     assert abs(values("alphaR")[0] - 0.2) < 0.2
     assert values("t").tolist() == [5.0, 6.0]
+    assert values("vp") == pytest.approx([-0.05 / np.hypot(0.5, 0.05), 0.01 / np.hypot(0.2, 0.01)])
+    rest = x.copy()
+    rest[:, [1, 3]] = 0.0
+    assert variable_values("vp", t, rest, c, w, p.theta, p.ship).tolist() == [0.0, 0.0]
     with pytest.raises(ValueError, match="unknown shape variable"):
         values("warp")
 
@@ -310,6 +314,23 @@ def test_candidate_groups_span_the_recorded_ranges() -> None:
     assert by["U", "v"].n == 6 and by["1", "ast"].components == "XYN"
     assert all(g.components == "XYN" for g in groups if g.variable != "ed")
     assert by["ed", ""].components == "D" and by["ed", ""].lo == -by["ed", ""].hi
+
+
+def test_a_force_in_the_non_dimensional_sway_velocity_is_the_papers_v_prime() -> None:
+    """``vp`` is the paper's v'_m = v_m / U (not v_m / U_e): a side force linear in it, times
+    U^2, is 0.5 rho L d U v_m at any speed, however slow, and nothing at rest."""
+    p = efd_parameters()
+    eff = get_effect("shape:Y~vp[-1:1]:lin")
+    assert eff.force_at is not None
+    values = {q.name: 0.0 for q in eff.params} | {"s0_Y1": 1.0}
+    e = eff.param_type(*(values[q.name] for q in eff.params))
+    sh = p.ship
+    rest = (0.3, 0.1, 10.0, 0.0, 0.0, e, p.theta, sh)  # psi, delta, n_p, wind, parameters
+    for u, v_m in ((0.5, -0.08), (0.02, 0.03), (-0.01, 0.004)):
+        surge, sway, yaw = eff.force_at(12.0, 1.0, 2.0, u, v_m, 0.0, *rest)
+        assert sway == pytest.approx(0.5 * sh.rho * sh.L_pp * sh.d * np.hypot(u, v_m) * v_m)
+        assert surge == 0.0 and yaw == 0.0
+    assert eff.force_at(12.0, 1.0, 2.0, 0.0, 0.0, 0.0, *rest) == (0.0, 0.0, 0.0)
 
 
 #: the candidates of the selection test: shapes in beta, r' and t, six basis functions each

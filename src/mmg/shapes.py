@@ -109,6 +109,15 @@ VARIABLES: dict[str, Variable] = {
     "U": Variable("U", "m/s", "speed through the water", "U", "U / Ue", "U2", "U / U_e"),
     "u": Variable("u", "m/s", "surge velocity", "u", "u / Ue", "U2", "u / U_e"),
     "v": Variable("v_m", "m/s", "sway velocity at midship", "v_m", "v_m / Ue", "U2", "v_m / U_e"),
+    "vp": Variable(
+        "v'_m",
+        "-",
+        "non-dimensional sway velocity v_m / U (the paper's v'_m = -sin beta; 0 at rest)",
+        "v_m / max(U, 1e-9)",
+        "v_m / Ue",
+        "U2",
+        "v_m / U_e",
+    ),
     "delta": Variable("delta", "rad", "rudder angle", "delta", "delta", "UR2"),
     "alphaR": Variable(
         "alpha_R",
@@ -691,6 +700,7 @@ def variable_values(
         "U": lambda: np.sqrt(U2),
         "u": lambda: u,
         "v": lambda: v_m,
+        "vp": lambda: v_m / np.maximum(np.sqrt(U2), 1e-9),
         "delta": lambda: c[:, 0],
         "n": lambda: c[:, 1],
         "gammaA": lambda: np.arctan2(vA, uA),

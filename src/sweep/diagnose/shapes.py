@@ -55,6 +55,7 @@ VARIABLES = (
     "U",
     "u",
     "v",
+    "vp",
     "delta",
     "alphaR",
     "JP",

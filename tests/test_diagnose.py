@@ -368,7 +368,7 @@ def test_a_form_no_library_term_expresses_is_learned_as_a_shape_end_to_end(runs,
     assert not {"psi", "x0", "y0", "t"} & set(report["shapes"]["variables"])
     assert report["verdict"] == "shape", report["statement"]
     groups = report["shape"]["groups"]
-    assert {g["variable"] for g in groups} & {"beta", "v", "rp"}
+    assert {g["variable"] for g in groups} & {"beta", "v", "vp", "rp"}
     # named afterwards: the closest closed forms were fitted as a candidate of their own; the
     # finding is the formula or the shape, with its confidence band and its closest forms
     form = report["shapes"]["form"]

@@ -114,9 +114,8 @@ VARIABLES: dict[str, Variable] = {
         "-",
         "non-dimensional sway velocity v_m / U (the paper's v'_m = -sin beta; 0 at rest)",
         "v_m / max(U, 1e-9)",
-        "v_m / Ue",
+        "",  # as a multiplier it would be v_m / U_e: the multiplier ``v``
         "U2",
-        "v_m / U_e",
     ),
     "delta": Variable("delta", "rad", "rudder angle", "delta", "delta", "UR2"),
     "alphaR": Variable(

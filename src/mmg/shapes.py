@@ -102,6 +102,10 @@ class Variable:
     control: str = ""
 
 
+#: the speed below which v'_m = v_m / U is taken at this U [m/s] (v_m is as small: v'_m -> 0
+#: at rest), as written in the hook and as :func:`variable_values` takes it
+V_PRIME_FLOOR = "1e-9"
+
 #: the variables of shapes, by their name in a spec. u, v_m are velocities through the water.
 VARIABLES: dict[str, Variable] = {
     "beta": Variable("beta", "rad", "drift angle atan2(-v_m, u)", "beta", "beta", "U2"),
@@ -112,8 +116,8 @@ VARIABLES: dict[str, Variable] = {
     "vp": Variable(
         "v'_m",
         "-",
-        "non-dimensional sway velocity v_m / U (the paper's v'_m = -sin beta; 0 at rest)",
-        "v_m / max(U, 1e-9)",
+        "non-dimensional sway velocity v_m / U (the paper's v'_m of Eq. (6); -sin beta; 0 at rest)",
+        f"v_m / max(U, {V_PRIME_FLOOR})",
         "",  # as a multiplier it would be v_m / U_e: the multiplier ``v``
         "U2",
     ),
@@ -699,7 +703,7 @@ def variable_values(
         "U": lambda: np.sqrt(U2),
         "u": lambda: u,
         "v": lambda: v_m,
-        "vp": lambda: v_m / np.maximum(np.sqrt(U2), 1e-9),
+        "vp": lambda: v_m / np.maximum(np.sqrt(U2), float(V_PRIME_FLOOR)),
         "delta": lambda: c[:, 0],
         "n": lambda: c[:, 1],
         "gammaA": lambda: np.arctan2(vA, uA),

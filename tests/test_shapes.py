@@ -206,6 +206,46 @@ def test_the_hook_multiplies_the_thrust_the_normal_force_and_the_propeller_loadi
     np.testing.assert_allclose(got, [0.0, 0.0, want], rtol=1e-12, atol=1e-9)
 
 
+def test_a_share_scales_a_sub_models_three_components_alike() -> None:
+    """A share group (component S) adds f_S(z) (X_R, Y_R, N_R): all coefficients equal to c give
+    c times the rudder's surge force, sway force and yaw moment (Eqs. (14)-(16)); its probe
+    gives each coefficient's force as the effect does; a share of anything but a sub-model's
+    force, or a sub-model's force in X, Y or N, is a clear error."""
+    from mmg.model import hydrodynamic_forces
+
+    p = efd_parameters()
+    th, sh = p.theta, p.ship
+    spec = "shape:S~alphaR[-0.8:0.8]/5*F_R+S~beta[-0.5:0.5]/4*F_H"
+    eff = get_effect(spec)
+    assert eff.param_names[:2] == ("s0_S0", "s0_S1") and len(eff.params) == 9
+    assert "(X_R, Y_R, N_R)" in eff.params[0].description
+    probe = probe_effect(spec)
+    assert eff.force_at is not None and probe.force_at is not None
+    u, v_m, r, delta, n_p = 0.4, -0.06, 0.01, 0.1, 10.0
+    args = (12.0, 1.0, 2.0, u, v_m, r, 0.3, delta, n_p, 1.0, 0.5)
+    forces = hydrodynamic_forces(u, v_m, r, math.sin(delta), math.cos(delta), n_p, th, sh)
+    hull, rudder = np.array(forces[:3]), np.array(forces[6:9])
+    values = np.zeros(9)
+    values[:5] = 0.3
+    got = eff.force_at(*args, eff.param_type(*values), th, sh)
+    np.testing.assert_allclose(got, 0.3 * rudder, rtol=1e-12)
+    values[:5], values[5:] = 0.0, -0.2
+    got = eff.force_at(*args, eff.param_type(*values), th, sh)
+    np.testing.assert_allclose(got, -0.2 * hull, rtol=1e-12)
+    rows = probe_rows(eff, 0.7)
+    assert rows.shape == (9, 7) and set(rows[:, 1]) == {5.0}
+    for i, row in enumerate(rows):
+        values = np.zeros(9)
+        values[i] = 0.7
+        want = eff.force_at(*args, eff.param_type(*values), th, sh)
+        assert probe.force_at(*args, probe.param_type(*row), th, sh) == pytest.approx(
+            want, rel=1e-12, abs=1e-300
+        ), i
+    for bad in ("shape:S~alphaR[0:1]/5*F_N", "shape:Y~alphaR[0:1]/5*F_R", "shape:S~alphaR[0:1]/5"):
+        with pytest.raises(KeyError, match="a share group is"):
+            get_effect(bad)
+
+
 def test_the_probe_gives_the_force_of_each_coefficient() -> None:
     """The probe (parameters G, C, J, A and the knot range L, U) gives exactly the force of the
     shape effect with its coefficient (G, C, J) at A and every other at 0, ahead and astern;
@@ -304,7 +344,9 @@ def test_candidate_groups_span_the_recorded_ranges() -> None:
     w = np.zeros((401, 2))
     t = np.asarray(0.1 * k, dtype=np.float64)
     wins = [Recording(f"w{i}", None, 100.0 * i + t, x, c, w) for i in range(2)]
-    groups = candidate_groups(wins, p, products=(("U", "v"),), quadrants=("ast",), n=6)
+    groups = candidate_groups(
+        wins, p, products=(("U", "v"),), shares=(("delta", "F_R"),), quadrants=("ast",), n=6
+    )
     by = {(g.variable, g.multiplier): g for g in groups}
     assert ("n", "") not in by and ("beta", "") in by and ("t", "") in by
     beta = np.arctan2(-x[:, 3], x[:, 1])
@@ -312,8 +354,21 @@ def test_candidate_groups_span_the_recorded_ranges() -> None:
         tuple(np.quantile(beta, [0.005, 0.995])), rel=1e-5
     )
     assert by["U", "v"].n == 6 and by["1", "ast"].components == "XYN"
-    assert all(g.components == "XYN" for g in groups if g.variable != "ed")
+    assert by["delta", "F_R"].components == "S"
+    forces = [g for g in groups if g.variable != "ed" and g.multiplier != "F_R"]
+    assert all(g.components == "XYN" for g in forces)
     assert by["ed", ""].components == "D" and by["ed", ""].lo == -by["ed", ""].hi
+
+
+def test_an_angle_recorded_over_most_of_a_turn_gets_knots_a_quarter_radian_apart() -> None:
+    """Eight basis functions at least; an angle's knots at most 0.25 rad apart up to 24 basis
+    functions (alpha_R ahead and astern); other variables keep the eight."""
+    from sweep.diagnose.shapes import basis_count
+
+    assert basis_count("delta", -0.6, 0.6) == 8
+    assert basis_count("beta", -1.0, 1.0) == 11
+    assert basis_count("alphaR", -3.3, 2.6) == 24
+    assert basis_count("U", 0.0, 10.0) == 8 and basis_count("t", 0.0, 600.0, 6) == 6
 
 
 def test_a_force_in_the_non_dimensional_sway_velocity_is_the_papers_v_prime() -> None:

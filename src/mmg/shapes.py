@@ -21,6 +21,11 @@ A group may instead multiply an *existing force* of the model (the hull's sway f
 rudder's normal force F_N, ...: :data:`FORCES`): then C += f_C(z) F (times L_pp, or divided by
 it, between a force and a moment), and f is a dimensionless share of that force.
 
+A *share* group (``S~alphaR[lo:hi]/n*F_R``: :data:`SHARES`) changes a sub-model's whole force
+by one shape: (X, Y, N) += f_S(z) (X_R, Y_R, N_R), the rudder's three components scaled alike
+(a change of that force component of the model: a rudder whose normal force loses a share at
+large angles of attack, a hull whose forces change with the drift angle).
+
 The effect's name is its spec (:func:`parse`, :func:`shape_name`), e.g.
 ``shape:YN~beta[-0.6:0.6]/8+N~beta[-0.6:0.6]/6*Y_H+X~1*ast``:
 
@@ -29,7 +34,8 @@ The effect's name is its spec (:func:`parse`, :func:`shape_name`), e.g.
             | comps "~" var "[" lo ":" hi "]:" form ["*" mult] ["@" scale]
             | comps "~1" ["*" mult] ["@" scale]
     comps  := X, Y, N or several in this order (one shape per component); D with the
-              rudder's gap ed, P with the propeller's gap en (a memory, below)
+              rudder's gap ed, P with the propeller's gap en (a memory, below); S with a
+              sub-model's force as the multiplier (a share of it, above)
     form   := a closed form g of :data:`FORMS`, e.g. ``up(0.3)``, ``odd``, ``sin(2)``
 
 A group with a closed form (``N~beta[-0.6:0.6]:up(0.3)``) is f_C(z) = a_C + b_C g(z) / g_max:
@@ -182,8 +188,8 @@ class Control:
 
 
 #: the components of groups in a probe's order: forces X, Y, N, memories of D (rudder angle)
-#: and P (propeller speed)
-COMPONENTS = "XYNDP"
+#: and P (propeller speed), S a share of a sub-model's force (all three of its components)
+COMPONENTS = "XYNDPS"
 
 #: the controls of memory shapes. A group ``D~ed[lo:hi]/n`` makes the acting rudder angle
 #: delta = delta_log - e_delta f_D(z_delta): f is the share of the gap e_delta that the rudder
@@ -218,6 +224,14 @@ FORCES: dict[str, tuple[str, bool]] = {
     "X_A": ("wind surge force", False),
     "Y_A": ("wind sway force", False),
     "N_A": ("wind yaw moment", True),
+}
+#: sub-models' forces a share group (component S) scales as a whole: name -> (meaning, its
+#: surge force, sway force, yaw moment among :data:`FORCES`)
+SHARES: dict[str, tuple[str, str, str, str]] = {
+    "F_H": ("hull forces", "X_H", "Y_H", "N_H"),
+    "F_P": ("propeller forces", "X_P", "Y_P", "N_P"),
+    "F_R": ("rudder forces", "X_R", "Y_R", "N_R"),
+    "F_A": ("wind forces", "X_A", "Y_A", "N_A"),
 }
 #: scalings S [m^2/s^2]: name -> (formula in X, in Y and N, code in X, in Y and N)
 SCALES: dict[str, tuple[str, str, str, str]] = {
@@ -438,10 +452,18 @@ class Group:
                 raise ValueError(
                     f"{self.variable}: a memory shape takes no multiplier, scale or closed form"
                 )
+        elif c == "S" or self.multiplier in SHARES:
+            if c != "S" or self.multiplier not in SHARES:
+                raise ValueError(
+                    f"components {c!r} times {self.multiplier or 'nothing'}: a share group is "
+                    f"S times a sub-model's force, one of {', '.join(SHARES)}"
+                )
+            if self.scale:
+                raise ValueError(f"a share of {self.multiplier} takes no scale")
         elif not c or any(x not in "XYN" for x in c) or "".join(sorted(c, key="XYN".index)) != c:
             raise ValueError(
                 f"components {c!r}: one or more of X, Y, N, in this order (or D, P with the "
-                "gap of the rudder, ed, and of the propeller, en)"
+                "gap of the rudder, ed, and of the propeller, en; S with a sub-model's force)"
             )
         if len(set(c)) != len(c):
             raise ValueError(f"components {c!r}: repeated")
@@ -471,7 +493,7 @@ class Group:
             elif not MIN_BASIS <= self.n <= MAX_BASIS:
                 raise ValueError(f"{self.variable}: {self.n} basis functions, need 4 to 40")
         m = self.multiplier
-        known = [k for k, v in VARIABLES.items() if v.factor] + [*INDICATORS, *FORCES]
+        known = [k for k, v in VARIABLES.items() if v.factor] + [*INDICATORS, *FORCES, *SHARES]
         if m and m not in known:
             raise ValueError(f"unknown multiplier {m!r}; known: {', '.join(known)}")
         if self.scale and self.scale not in SCALES:
@@ -512,7 +534,7 @@ class Group:
     def scale_name(self) -> str:
         """The scaling used: "" (times a force, or a memory), the given one, or the variable's
         default."""
-        if self.multiplier in FORCES or self.control:
+        if self.multiplier in FORCES or self.multiplier in SHARES or self.control:
             return ""
         if self.scale:
             return self.scale
@@ -532,6 +554,9 @@ class Group:
             return f"{k.symbol} = {k.log} - {e} {f}  [{k.unit}]"
         unit = "N m" if component == "N" else "N"
         m = self.multiplier
+        if m in SHARES:
+            xyn = ", ".join(SHARES[m][1:])
+            return f"(X, Y, N) += {f} ({xyn})  [N, N, N m]"
         if m in FORCES:
             lever = ""
             if component == "N" and not FORCES[m][1]:
@@ -563,7 +588,7 @@ class Group:
 
 
 _GROUP = re.compile(
-    r"^(?P<c>[XYNDP]+)~(?:(?P<one>1)|(?P<v>\w+)\[(?P<lo>[^:\]]+):(?P<hi>[^\]]+)\]"
+    r"^(?P<c>[XYNDPS]+)~(?:(?P<one>1)|(?P<v>\w+)\[(?P<lo>[^:\]]+):(?P<hi>[^\]]+)\]"
     r"(?:/(?P<n>\d+)|:(?P<f>[a-z]+(?:\([^)]*\))?)))"
     r"(?:\*(?P<m>\w+))?(?:@(?P<s>\w+))?$"
 )
@@ -799,6 +824,8 @@ def _factors(group: Group) -> tuple[list[str], dict[str, str]]:
     """(lines that set ``mult``, the factor of each component's shape): the scaling (with q and
     L_pp) times the multiplier, or the multiplying force (and the lever L_pp)."""
     m = group.multiplier
+    if m in SHARES:
+        return [], {"S": m}
     if m in FORCES:
         if FORCES[m][1]:
             return [], {"X": f"{m} / Lp", "Y": f"{m} / Lp", "N": m}
@@ -828,7 +855,12 @@ def _group_lines(g: int, group: Group) -> list[str]:
     lines += setup
     for c in group.components:
         terms = " + ".join(f"e.s{g}_{c}{j} * {bj}" for j, bj in enumerate(b))
-        lines.append(f"    {c} += ({factor[c]}) * ({terms})")
+        if c == "S":  # one share of the sub-model's three components
+            lines.append(f"    f = {terms}")
+            forces = zip("XYN", SHARES[factor[c]][1:], strict=True)
+            lines += [f"    {x} += f * {name}" for x, name in forces]
+        else:
+            lines.append(f"    {c} += ({factor[c]}) * ({terms})")
     return lines
 
 
@@ -877,7 +909,8 @@ def _probe_memory_lines(groups: Sequence[Group]) -> list[str]:
 def _probe_lines(groups: Sequence[Group]) -> list[str]:
     """The probe's code: every group's clamped variable and factors weighted by [G == g], then
     one basis function (J) of one component (C) at amplitude A; no branch."""
-    lines = ["    z = 0.0", "    spline = 0.0", "    fX = 0.0", "    fY = 0.0", "    fN = 0.0"]
+    lines = ["    z = 0.0", "    spline = 0.0"]
+    lines += [f"    f{c} = 0.0" for c in ("X", "Y", "N", "SX", "SY", "SN")]
     for g, group in enumerate(groups):
         if group.control:
             continue
@@ -886,12 +919,19 @@ def _probe_lines(groups: Sequence[Group]) -> list[str]:
             lines += [f"    z += w * ({_lane_clamped(group)})", "    spline += w"]
         setup, factor = _factors(group)
         lines += setup
-        lines += [f"    f{c} += w * ({factor[c]})" for c in group.components]
+        for c in group.components:
+            if c == "S":
+                forces = zip("XYN", SHARES[factor[c]][1:], strict=True)
+                lines += [f"    fS{x} += w * {name}" for x, name in forces]
+            else:
+                lines.append(f"    f{c} += w * ({factor[c]})")
+    s = float(COMPONENTS.index("S"))
     lines += [
         "    b = e.A * (spline * _b3(z - (e.J - 1.0)) + (1.0 - spline))",
-        "    X = (1.0 if e.C == 0.0 else 0.0) * fX * b",
-        "    Y = (1.0 if e.C == 1.0 else 0.0) * fY * b",
-        "    N = (1.0 if e.C == 2.0 else 0.0) * fN * b",
+        f"    share = 1.0 if e.C == {s!r} else 0.0",
+        "    X = ((1.0 if e.C == 0.0 else 0.0) * fX + share * fSX) * b",
+        "    Y = ((1.0 if e.C == 1.0 else 0.0) * fY + share * fSY) * b",
+        "    N = ((1.0 if e.C == 2.0 else 0.0) * fN + share * fSN) * b",
     ]
     return lines
 
@@ -919,7 +959,7 @@ def _source(name: str, groups: Sequence[Group], key: str, probe: bool = False) -
         memory = _probe_memory_lines(groups)
         fields = [
             "    G: float  # the group (0, 1, ...)",
-            "    C: float  # the component (0: X, 1: Y, 2: N, 3: D, 4: P)",
+            "    C: float  # the component (0: X, 1: Y, 2: N, 3: D, 4: P, 5: S)",
             "    J: float  # the basis function (0 .. n - 1)",
             "    A: float  # its coefficient (0: no force)",
             "    L: float  # the group's knot range [L, U] in the variable's unit",
@@ -1051,7 +1091,7 @@ def shape_effect(groups: Sequence[Group] | str, bound: float = DEFAULT_BOUND) ->
 
 def probe_effect(groups: Sequence[Group] | str) -> Effect:
     """The probe of ``groups``: the force of one coefficient of their shape effect at a time,
-    chosen by its parameters (G: group, C: component 0/1/2 for X/Y/N, J: basis function,
+    chosen by its parameters (G: group, C: component 0/1/2/5 for X/Y/N/S, J: basis function,
     A: the coefficient's value, A = 0 is neutral; L, U: the group's knot range, H: its knots
     per unit of the variable). Each lane of a batch sets its own, so one simulation batch gives
     the trajectory column of every coefficient at the cost of a single basis function per lane;
@@ -1069,7 +1109,7 @@ def probe_effect(groups: Sequence[Group] | str) -> Effect:
         module, key = _module(name, gs, probe=True)
         table = (
             ("G", 0.0, 0.0, len(gs) - 1, "group"),
-            ("C", 0.0, 0.0, 4.0, "component (0: X, 1: Y, 2: N, 3: D, 4: P)"),
+            ("C", 0.0, 0.0, 5.0, "component (0: X, 1: Y, 2: N, 3: D, 4: P, 5: S)"),
             ("J", 0.0, 0.0, MAX_BASIS - 1, "basis function"),
             ("A", 0.0, 0.0, 1.0, "coefficient"),
             ("L", 0.0, -PROBE_RANGE, PROBE_RANGE, "lower end of the group's knot range"),
@@ -1184,6 +1224,7 @@ __all__ = [
     "PROBE_SUFFIX",
     "SCALES",
     "SHAPE_PREFIX",
+    "SHARES",
     "VARIABLES",
     "Control",
     "Form",

@@ -96,10 +96,27 @@ PRODUCTS = (
     ("delta", "F_N"),
     ("alphaR", "F_N"),
 )
+#: share candidates (component S): one shape scaling a sub-model's whole force (its surge force,
+#: sway force and yaw moment alike), a change of that force component of the model: the hull's
+#: forces in the drift angle, the rudder's in the rudder angle and in its effective inflow angle
+SHARE_PRODUCTS = (
+    ("beta", "F_H"),
+    ("delta", "F_R"),
+    ("alphaR", "F_R"),
+)
 #: constant groups times a quadrant indicator: astern, propeller reversed
 QUADRANTS = ("ast", "rev")
-#: basis functions per shape
+#: basis functions per shape (at least)
 N_BASIS = 8
+#: an angle's knots are at most this far apart [rad] (up to :data:`MAX_ANGLE_BASIS` basis
+#: functions): a flow angle recorded going ahead and astern spans most of a turn (alpha_R over
+#: [-3.3, 2.6] rad, beta over [-3.0, 2.8]), where eight basis functions put a knot every 0.8-1.2
+#: rad and round off whatever sets in within a few degrees (a stall, a separation); more knots
+#: and the penalty (chosen per group on held-out runs) leave the smoothness to the data, as
+#: P-splines do
+ANGLE_KNOT_SPACING = 0.25
+#: basis functions of an angle's shape at most
+MAX_ANGLE_BASIS = 24
 #: basis functions per memory shape (the share of a control's gap left open, over the gap's
 #: asinh scale: a knot every ~0.6, from a degree's play to a reversal)
 N_MEMORY_BASIS = 16
@@ -169,21 +186,25 @@ def candidate_groups(
     *,
     variables: Sequence[str] = VARIABLES,
     products: Sequence[tuple[str, str]] = PRODUCTS,
+    shares: Sequence[tuple[str, str]] = SHARE_PRODUCTS,
     quadrants: Sequence[str] = QUADRANTS,
     n: int = N_BASIS,
 ) -> list[Group]:
     """The candidate groups, all three components each (one basis per variable in the hook):
     a shape of each variable that varies over ``windows``, the varying-coefficient
-    ``products`` and a constant times each quadrant indicator; a control's gap gives the
-    memory of that control (one component, :data:`N_MEMORY_BASIS` functions)."""
-    ranges = variable_ranges(windows, params, sorted({*variables, *(v for v, _ in products)}))
-    return _groups(ranges, variables, products, quadrants, n)
+    ``products``, the ``shares`` of sub-models' forces (one component, S) and a constant times
+    each quadrant indicator; a control's gap gives the memory of that control (one component,
+    :data:`N_MEMORY_BASIS` functions)."""
+    used = {*variables, *(v for v, _ in products), *(v for v, _ in shares)}
+    ranges = variable_ranges(windows, params, sorted(used))
+    return _groups(ranges, variables, products, shares, quadrants, n)
 
 
 def _groups(
     ranges: Mapping[str, tuple[float, float]],
     variables: Sequence[str],
     products: Sequence[tuple[str, str]],
+    shares: Sequence[tuple[str, str]],
     quadrants: Sequence[str],
     n: int,
 ) -> list[Group]:
@@ -191,13 +212,32 @@ def _groups(
     groups = [
         Group(c, v, *ranges[v], N_MEMORY_BASIS)
         if (c := SHAPE_VARIABLES[v].control)
-        else Group("XYN", v, *ranges[v], n)
+        else Group("XYN", v, *ranges[v], basis_count(v, *ranges[v], n))
         for v in variables
         if v in ranges
     ]
-    groups += [Group("XYN", v, *ranges[v], n, m) for v, m in products if v in ranges]
+    groups += [
+        Group("XYN", v, *ranges[v], basis_count(v, *ranges[v], n), m)
+        for v, m in products
+        if v in ranges
+    ]
+    groups += [
+        Group("S", v, *ranges[v], basis_count(v, *ranges[v], n), m)
+        for v, m in shares
+        if v in ranges
+    ]
     groups += [Group("XYN", "1", multiplier=q) for q in quadrants]
     return groups
+
+
+def basis_count(variable: str, lo: float, hi: float, n: int = N_BASIS) -> int:
+    """The basis functions of a shape of ``variable`` over [lo, hi]: ``n``, or for an angle
+    as many as put its knots at most :data:`ANGLE_KNOT_SPACING` apart (up to
+    :data:`MAX_ANGLE_BASIS`); knots are n - 3 intervals apart."""
+    if SHAPE_VARIABLES[variable].unit != "rad":
+        return n
+    need = int(np.ceil((hi - lo) / ANGLE_KNOT_SPACING - 1e-9)) + 3
+    return int(min(max(n, need), max(n, MAX_ANGLE_BASIS)))
 
 
 def probe_groups(groups: Sequence[Group]) -> list[Group]:
@@ -205,8 +245,8 @@ def probe_groups(groups: Sequence[Group]) -> list[Group]:
     (their structure; knot ranges and spacings come with the probe's lanes,
     :func:`mmg.shapes.probe_rows`), then those of ``groups`` of another structure. Diagnoses of
     other data, with other variables, then share one probe kernel, compiled once."""
-    unit = {v: (0.0, 1.0) for v in {*VARIABLES, *(v for v, _ in PRODUCTS)}}
-    out = _groups(unit, VARIABLES, PRODUCTS, QUADRANTS, N_BASIS)
+    unit = {v: (0.0, 1.0) for v in {*VARIABLES, *(v for v, _ in (*PRODUCTS, *SHARE_PRODUCTS))}}
+    out = _groups(unit, VARIABLES, PRODUCTS, SHARE_PRODUCTS, QUADRANTS, N_BASIS)
     seen = {g.structure for g in out}
     for g in groups:
         if g.structure not in seen:
@@ -410,7 +450,8 @@ class ShapeColumns:
         r0 = residual_vectors(obj, th[None])[0][0]  # (S, M)
         S, M = r0.shape
         units = probe_rows(self.effect, step, within)  # (T, 7)
-        units[units[:, 1] >= COMPONENTS.index("D"), 3] = MEMORY_STEP
+        memory = np.isin(units[:, 1], [COMPONENTS.index(c) for c in "DP"])
+        units[memory, 3] = MEMORY_STEP
         T = units.shape[0]
         lib = np.empty((S, M, T), dtype=dtype)
         per = max(1, BATCH_BYTES // (8 * S * M))

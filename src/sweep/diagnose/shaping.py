@@ -135,7 +135,9 @@ def _fine_structures(
         fs = [replace(g, n=FINE_BASIS)] + [
             Group(g.components, h.variable, g.lo, g.hi, FINE_BASIS, h.multiplier, h.scale)
             for h in candidates
-            if h.variable == g.variable and (h.multiplier, h.scale) != (g.multiplier, g.scale)
+            if h.variable == g.variable
+            and (h.multiplier, h.scale) != (g.multiplier, g.scale)
+            and (h.components == "S") == (g.components == "S")  # a share is of a force
         ]
         for f in fs:
             if f.text not in units:

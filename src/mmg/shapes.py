@@ -426,7 +426,8 @@ class Group:
 
     ``variable`` is a key of :data:`VARIABLES` or ``"1"`` (a constant, ``n`` = 1);
     ``lo``, ``hi`` the knot range in the variable's unit, ``n`` the number of basis functions;
-    ``multiplier`` "" or a key of :data:`VARIABLES`, :data:`INDICATORS` or :data:`FORCES`;
+    ``multiplier`` "" or a key of :data:`VARIABLES`, :data:`INDICATORS` or :data:`FORCES`
+    (a key of :data:`SHARES` with the component S alone);
     ``scale`` "" (the variable's default) or a key of :data:`SCALES`; ``form`` "" (a spline)
     or a closed form (:func:`parse_form`, ``n`` = 2: a + b g / g_max)."""
 

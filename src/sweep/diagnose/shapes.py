@@ -209,23 +209,19 @@ def _groups(
     n: int,
 ) -> list[Group]:
     """The candidate groups of the variables that have a knot range in ``ranges``."""
+
+    def spline(components: str, v: str, multiplier: str = "") -> Group:
+        return Group(components, v, *ranges[v], basis_count(v, *ranges[v], n), multiplier)
+
     groups = [
         Group(c, v, *ranges[v], N_MEMORY_BASIS)
         if (c := SHAPE_VARIABLES[v].control)
-        else Group("XYN", v, *ranges[v], basis_count(v, *ranges[v], n))
+        else spline("XYN", v)
         for v in variables
         if v in ranges
     ]
-    groups += [
-        Group("XYN", v, *ranges[v], basis_count(v, *ranges[v], n), m)
-        for v, m in products
-        if v in ranges
-    ]
-    groups += [
-        Group("S", v, *ranges[v], basis_count(v, *ranges[v], n), m)
-        for v, m in shares
-        if v in ranges
-    ]
+    groups += [spline("XYN", v, m) for v, m in products if v in ranges]
+    groups += [spline("S", v, m) for v, m in shares if v in ranges]
     groups += [Group("XYN", "1", multiplier=q) for q in quadrants]
     return groups
 

@@ -477,9 +477,16 @@ def test_the_selection_finds_a_planted_shape_and_nothing_in_noise(small_case) ->
     lin = Linearised(ship, data, folds, ())
     cols = ShapeColumns(lin, groups)
     assert cols.lib.shape == (4, 7007, 54) and cols.lib.dtype == np.float32
-    sel = cols.select(lin.residuals(data), n_eff)
+    r = lin.residuals(data)
+    sel = cols.select(r, n_eff)
     assert sel.groups[0].text == "N~beta[-2.4:0.35]/6"
     assert sel.heldout_gain[0] > 0.2
+    # the choice restricted to its own groups (the backward check's refit) is the same fit
+    again = cols.restricted(r, n_eff, list(zip(sel.groups, sel.kappas, strict=True)))
+    assert again.spec == sel.spec and again.kappas == sel.kappas
+    np.testing.assert_allclose(again.values(), sel.values(), rtol=1e-9)
+    assert again.heldout_gain == pytest.approx(sel.heldout_gain)
+    assert again.dbic == pytest.approx(sel.dbic) and again.edf == pytest.approx(sel.edf)
     assert 1.0 < sel.edf[0] < 6.0
     assert sel.spec.startswith("shape:N~beta[-2.4:0.35]/6")
     k = 6 * len(sel.groups)
@@ -644,3 +651,18 @@ def test_symmetric_hinges_act_on_both_sides_alike_in_numpy_and_in_the_hook() -> 
         u_R, v_R = rudder_inflow_at(u, v_m, r, 10.0, th, sh)
         UR2 = u_R * u_R + v_R * v_R
         assert pytest.approx(q * sh.L_pp * UR2 * (-0.003 + 0.01 * g_N), rel=1e-12) == N
+
+
+def test_the_backward_check_drops_a_group_that_adds_less_than_its_share() -> None:
+    """A group stays when the shape with it takes at least MIN_GAIN more off the held-out runs'
+    J than the best shape without it; else the group whose absence costs least goes."""
+    from sweep.diagnose.pruning import group_to_drop
+    from sweep.diagnose.shapes import MIN_GAIN
+
+    assert group_to_drop(10.0, [2.0, 5.0]) is None  # each group adds far more than 15 %
+    assert group_to_drop(10.0, [9.0, 3.0]) == 0  # the second group carries the gain alone
+    assert group_to_drop(10.0, [3.0, 10.0 / (1.0 + MIN_GAIN) + 1e-9]) == 1
+    assert group_to_drop(10.0, [3.0, 10.0 / (1.0 + MIN_GAIN) - 1e-6]) is None
+    assert group_to_drop(4.0, [5.0, 1.0]) == 0  # a group that makes the held-out runs worse
+    assert group_to_drop(-1.0, [-3.0, -2.0]) is None  # nothing gains: left to the verdict
+    assert group_to_drop(5.0, []) is None

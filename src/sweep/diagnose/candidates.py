@@ -233,6 +233,25 @@ def run_losses(
     return out
 
 
+def candidate_folds(
+    ctx: Context, base: Fit, control: FoldFits, eff: Effect, settings: FitSettings
+) -> FoldFits:
+    """The fold fits of one candidate (stages ``candidate-c-NAME-foldJ`` and
+    ``candidate-NAME-foldJ``): two starts in each fold, the control's fit of that fold (the
+    base parameters it reached there; the two fits then differ by the effect, not by where the
+    base wandered) and the base, the effect at neutral or, for a learned shape, at its
+    linearised coefficients; :func:`better_ends` keeps one."""
+    values = ctx.starts.get(eff.name)
+    on_control = [
+        replace(c, params=with_effects(c.params, (eff,), values), effects=(eff,))
+        for c in control.fits
+    ]
+    start = replace(base, params=with_effects(base.params, (eff,), values), effects=(eff,))
+    continued = fold_fits(ctx, base, f"{CANDIDATE}{eff.name}", (eff,), settings, on_control)
+    fresh = fold_fits(ctx, base, f"{FROM_BASE}{eff.name}", (eff,), settings, [start, start])
+    return better_ends(continued, fresh, ctx.settings.base_retry_agreement)
+
+
 def fit_candidates(ctx: Context, base: Fit, extra: Sequence[Effect]) -> Candidates:
     """The control and every candidate (the catalog's, then ``extra``) fitted and scored."""
     settings = candidate_settings(ctx)
@@ -242,20 +261,7 @@ def fit_candidates(ctx: Context, base: Fit, extra: Sequence[Effect]) -> Candidat
     for i, eff in enumerate(effects, 1):
         ctx.log(f"candidate {i}/{len(effects)}: {eff.name}")
         t_c = time.perf_counter()
-        # two starts in each fold: the control's fit of that fold (the base parameters it
-        # reached there; the two fits then differ by the effect, not by where the base
-        # wandered), and the base; the effect at neutral or, for a learned shape, at its
-        # linearised coefficients (:func:`better_ends` keeps one)
-        values = ctx.starts.get(eff.name)
-        on_control = [
-            replace(c, params=with_effects(c.params, (eff,), values), effects=(eff,))
-            for c in control.fits
-        ]
-        start = replace(base, params=with_effects(base.params, (eff,), values), effects=(eff,))
-        continued = fold_fits(ctx, base, f"{CANDIDATE}{eff.name}", (eff,), settings, on_control)
-        fresh = fold_fits(ctx, base, f"{FROM_BASE}{eff.name}", (eff,), settings, [start, start])
-        share = ctx.settings.base_retry_agreement
-        out.folds[eff.name] = better_ends(continued, fresh, share)
+        out.folds[eff.name] = candidate_folds(ctx, base, control, eff, settings)
         k = ctx.parameter_count(eff)
         c, out.best_fold[eff.name] = score(eff, out.folds[eff.name], control, ctx.n_eff, k)
         out.origin[eff.name] = origin_of(out.folds[eff.name], out.best_fold[eff.name])

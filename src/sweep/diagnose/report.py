@@ -22,7 +22,7 @@ from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
 from sweep.diagnose.run import Diagnosis, round_dir
 from sweep.diagnose.scoring import CandidateScore, form_share, shape_and_form
-from sweep.diagnose.shapes import PLACE_AND_TIME
+from sweep.diagnose.shapes import MIN_GAIN, PLACE_AND_TIME
 from sweep.diagnose.threshold import NEGLIGIBLE
 from sweep.diagnose.verdict import shape_name
 
@@ -330,7 +330,7 @@ def explainable(d: Diagnosis) -> dict[str, Any] | None:
     None without the shape selection."""
     if d.shape is None:
         return None
-    sel = d.shape.selection
+    sel = d.shape.flexible
     flexible = sel.heldout_gain[-1] if sel.heldout_gain else 0.0
     tr = d.extra.get("trajectory_discovery") or {}
     named = float(tr.get("heldout_share") or 0.0)
@@ -359,7 +359,16 @@ def explainable_text(d: Diagnosis) -> str:
         f"{100 * e['flexible_heldout_gain']:.0f} % off the held-out runs' J when linearised"
         f"{kept}."
     )
-    fitted = next((c for c in d.candidates if c.effect == e["shape"]), None)
+    dropped = d.shape.dropped if d.shape is not None else []
+    if dropped:
+        text += (
+            " The backward check by output error left out "
+            + ", ".join(f"{x.group}" for x in dropped)
+            + f" (each took less than {MIN_GAIN:.0%} more off the held-out runs' J than the "
+            f"rest): {d.shape.selection.spec if d.shape is not None else ''}."
+        )
+    final = d.shape.selection.spec if d.shape is not None else e["shape"]
+    fitted = next((c for c in d.candidates if c.effect == final), None)
     if fitted is not None:
         text += (
             f" Fitted by output error with the 57 parameters it changed the held-out runs' "

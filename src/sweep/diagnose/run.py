@@ -265,7 +265,7 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
     clock.lap("location")
     proposals = propose(ctx, base.params, cal)
     clock.lap("proposals")
-    shape = propose_shape(ctx, base.params, cal)
+    shape = propose_shape(ctx, base, cal)
     extra = proposals.effects
     if shape is not None and shape.proposed:
         extra = (*extra, shape.effect)

@@ -106,6 +106,9 @@ SHARE_PRODUCTS = (
 )
 #: constant groups times a quadrant indicator: astern, propeller reversed
 QUADRANTS = ("ast", "rev")
+#: a further group must raise the held-out gain by this share of what the groups before it
+#: reached (:meth:`ShapeColumns.select`; by output error, :mod:`sweep.diagnose.pruning`)
+MIN_GAIN = 0.15
 #: basis functions per shape (at least)
 N_BASIS = 8
 #: an angle's knots are at most this far apart [rad] (up to :data:`MAX_ANGLE_BASIS` basis
@@ -701,13 +704,49 @@ class ShapeColumns:
         n_eff: float,
         *,
         max_groups: int = 5,
-        min_gain: float = 0.15,
+        min_gain: float = MIN_GAIN,
         kappas: Sequence[float] = KAPPAS,
     ) -> ShapeSelection:
         """The groups chosen for the base's residual vector ``r`` (S, M) (see the module
         docstring), with their coefficients fitted (linearised, penalised) on all windows."""
         opts = _Options(max_groups, min_gain, tuple(kappas))
         chosen, path, edf, dbic = self._statistic(r[..., None], n_eff, opts)[0]
+        return self._selection(r, chosen, path, edf, dbic)
+
+    def restricted(
+        self, r: FloatArray, n_eff: float, groups: Sequence[tuple[Group, float]]
+    ) -> ShapeSelection:
+        """The selection of the given (group, kappa) pairs (groups of :meth:`select`'s, in its
+        order) for the base's residual vector ``r`` (S, M), fitted (linearised, penalised) as
+        :meth:`select` fits its choice: the held-out gain of each prefix, the in-sample dBIC
+        and effective degrees of freedom. A choice with one of its groups left out."""
+        unit = {self.units[u].group.text: u for u in range(len(self.units))}
+        chosen = [(unit[g.text], float(kappa)) for g, kappa in groups]
+        sides = self._sides(r[..., None])
+        cs = [c[:, 0] for c in sides.c]
+        ehs = [e[:, 0] for e in sides.eh]
+        EEs = [self._held(0, 1), self._held(1, 0)]
+        Jho = max(float(sides.Jho[0]), 1e-300)
+        path = [self._heldout(cs, ehs, EEs, chosen[: i + 1]) / Jho for i in range(len(chosen))]
+        edf: list[float] = []
+        dbic = 0.0
+        if chosen:
+            J0 = float(sides.J0[0])
+            gain, edf = self._insample(cs, chosen)
+            ratio = max((J0 - gain) / J0, 1e-12) if J0 > 0 else 1.0
+            dbic = float(n_eff * np.log(ratio) + sum(edf) * np.log(n_eff))
+        return self._selection(r, chosen, path, edf, dbic)
+
+    def _selection(
+        self,
+        r: FloatArray,
+        chosen: Sequence[tuple[int, float]],
+        path: list[float],
+        edf: list[float],
+        dbic: float,
+    ) -> ShapeSelection:
+        """The :class:`ShapeSelection` of the units ``chosen``, their coefficients fitted on all
+        windows for the residual vector ``r`` (S, M)."""
         coefficients: list[list[float]] = []
         penalties: list[FloatArray] = []
         if chosen:
@@ -737,7 +776,7 @@ class ShapeColumns:
         n_eff: float,
         *,
         max_groups: int = 5,
-        min_gain: float = 0.15,
+        min_gain: float = MIN_GAIN,
         kappas: Sequence[float] = KAPPAS,
     ) -> FloatArray:
         """(D,) the statistic of :meth:`select` (dBIC, 0 when nothing is chosen) for residual

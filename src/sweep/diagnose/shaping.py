@@ -25,6 +25,7 @@ from sweep.data.recordings import Recording
 from sweep.diagnose.calibration import Calibration
 from sweep.diagnose.context import Context
 from sweep.diagnose.discover import null_sets
+from sweep.diagnose.fit import Fit
 from sweep.diagnose.naming import (
     FAMILY,
     GRID,
@@ -36,6 +37,7 @@ from sweep.diagnose.naming import (
     form_group,
     form_transform,
 )
+from sweep.diagnose.pruning import Dropped, prune, register
 from sweep.diagnose.shapes import (
     SHIP_VARIABLES,
     VARIABLES,
@@ -78,6 +80,16 @@ class ShapeProposal:
     #: {variable: its values at evenly spaced quantiles of the training samples} of the chosen
     #: groups (:func:`sample_values`): where closed forms are fitted to their shapes
     samples: dict[str, list[float]] = field(default_factory=dict)
+    #: the selection before the backward check by output error (:mod:`sweep.diagnose.pruning`)
+    #: when that dropped groups (None: nothing dropped), and its steps
+    chosen: ShapeSelection | None = None
+    dropped: list[Dropped] = field(default_factory=list)
+
+    @property
+    def flexible(self) -> ShapeSelection:
+        """The selection before the backward check: how much a flexible smooth correction
+        explains (linearised)."""
+        return self.chosen if self.chosen is not None else self.selection
 
     @property
     def effect(self) -> Effect:
@@ -114,6 +126,8 @@ class ShapeProposal:
             "closest": self.closest.name if self.closest is not None else None,
             "named": [None if c is None else asdict(c) for c in (self.named or [])],
             "variables": list(self.variables),
+            "before_backward_check": self.chosen.spec if self.chosen is not None else None,
+            "dropped": [d.as_dict() for d in self.dropped],
         }
 
 
@@ -354,12 +368,14 @@ def default_variables(ctx: Context) -> tuple[str, ...]:
     return VARIABLES if ctx.session_w is not None else SHIP_VARIABLES
 
 
-def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapeProposal | None:
-    """The shape candidate at the base ``params`` (None with shapes off), logged."""
+def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | None:
+    """The shape candidate at the ``base`` model (None with shapes off), checked group by group
+    by output error (:mod:`sweep.diagnose.pruning`) when it has several, logged."""
     s = ctx.settings
     if not s.shapes:
         return None
     t0 = time.perf_counter()
+    params = base.params
     variables = default_variables(ctx)
     columns = ShapeColumns(cal.lin, candidate_groups(ctx.windows, params, variables=variables))
     r = cal.lin.residuals(ctx.windows)
@@ -386,7 +402,12 @@ def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapePr
     start: list[float] = []
     closest: Effect | None = None
     closest_start: list[float] = []
+    chosen: ShapeSelection | None = None
+    dropped: list[Dropped] = []
     if proposed:
+        full = selection
+        selection, dropped = prune(ctx, base, columns, r, selection)
+        chosen = full if dropped else None
         samples = sample_values(ctx.windows, params, selection.groups)
         named, form, start = named_form(columns, selection, r, samples)
         closest, closest_start = closest_form(selection, samples)
@@ -419,12 +440,11 @@ def propose_shape(ctx: Context, params: Parameters, cal: Calibration) -> ShapePr
         closest_start,
         tuple(variables),
         samples,
+        chosen,
+        dropped,
     )
     if proposed:
-        ctx.penalties[out.effect.name] = out.penalty()
-        ctx.dof[out.effect.name] = out.dof
-        lo, hi = out.effect.bounds  # a memory's share within [0, 1]
-        ctx.starts[out.effect.name] = [float(v) for v in np.clip(selection.values(), lo, hi)]
+        register(ctx, selection)
     if form is not None:
         ctx.starts[form.name] = start
     if closest is not None:

@@ -34,6 +34,7 @@ from mmg.shapes import (
     penalty_matrix,
     probe_effect,
     probe_rows,
+    serves,
     shape_effect,
     shape_name,
     variable_values,
@@ -299,6 +300,27 @@ def test_probes_of_one_structure_share_their_code_whatever_the_ranges() -> None:
         assert got == pytest.approx(want, rel=1e-12, abs=1e-300), i
     with pytest.raises(ValueError, match="no group of the structure"):
         probe_rows(eff, 0.7, wider[:1])
+    # a group of one component is served by a probe's group of the same structure with more
+    # components (the lane's C picks the component): no probe of its own, the same force
+    one = Group("N", "beta", -0.6, 0.4, 7)
+    assert serves(Group("XYN", "beta", 0.0, 1.0, 8), one)
+    assert not serves(Group("XY", "beta", 0.0, 1.0, 8), one)
+    assert not serves(Group("XYN", "beta", 0.0, 1.0, 8, "Y_H"), one)
+    from sweep.diagnose.shapes import probe_groups
+
+    default = probe_groups([])
+    assert probe_groups([one]) == default
+    single = shape_effect([one])
+    rows = probe_rows(single, 0.7, default)
+    assert rows[:, 1].tolist() == [2.0] * 7  # component N
+    big = probe_effect(default)
+    assert big.force_at is not None and single.force_at is not None
+    for i, row in enumerate(rows):
+        values = np.zeros(len(rows))
+        values[i] = 0.7
+        want = single.force_at(*args, single.param_type(*values), p.theta, p.ship)
+        got = big.force_at(*args, big.param_type(*row), p.theta, p.ship)
+        assert got == pytest.approx(want, rel=1e-12, abs=1e-300), i
 
 
 def test_variables_from_recorded_samples() -> None:

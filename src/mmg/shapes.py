@@ -1135,13 +1135,13 @@ def probe_rows(effect: Effect, step: float, probe: Sequence[Group] | None = None
     """(k, 7) parameter rows of a probe for ``effect`` (a shape effect with k coefficients):
     row i sets the shape effect's coefficient i to ``step`` (G, C, J, A, L, U, H). ``probe``: the
     groups the probe was made for (default: the effect's own); each of the effect's groups is
-    the probe's group of its structure, at its own range. Raises ValueError for a group whose
-    structure the probe lacks."""
+    the probe's first group that serves it (:func:`serves`), at its own range. Raises
+    ValueError for a group whose structure the probe lacks."""
     groups = groups_of(effect)
-    index = {g.structure: k for k, g in enumerate(groups if probe is None else probe)}
+    within = groups if probe is None else probe
     rows = []
     for group in groups:
-        g = index.get(group.structure)
+        g = next((k for k, h in enumerate(within) if serves(h, group)), None)
         if g is None:
             raise ValueError(f"the probe has no group of the structure {group.structure}")
         knots = (0.0, 1.0, 1.0)  # a constant's lanes: the neutral knots
@@ -1150,6 +1150,18 @@ def probe_rows(effect: Effect, step: float, probe: Sequence[Group] | None = None
         for c in group.components:
             rows += [(g, COMPONENTS.index(c), j, step, *knots) for j in range(group.n)]
     return np.asarray(rows, dtype=np.float64)
+
+
+def serves(probe: Group, group: Group) -> bool:
+    """Whether the probe's group ``probe`` gives the columns of ``group``: the same structure,
+    or the same but for components, ``probe``'s among them (the probe computes each of its
+    components' force and the lane's C picks one: ``XYN~beta`` serves ``N~beta``)."""
+    if probe.structure == group.structure:
+        return True
+    body = probe.structure.partition("~")[2]
+    return body == group.structure.partition("~")[2] and set(group.components) <= set(
+        probe.components
+    )
 
 
 def groups_of(effect: Effect) -> tuple[Group, ...]:
@@ -1248,6 +1260,7 @@ __all__ = [
     "probe_effect",
     "probe_rows",
     "rebuild",
+    "serves",
     "shape_effect",
     "shape_name",
     "variable_values",

@@ -359,15 +359,16 @@ def explainable_text(d: Diagnosis) -> str:
         f"{100 * e['flexible_heldout_gain']:.0f} % off the held-out runs' J when linearised"
         f"{kept}."
     )
-    dropped = d.shape.dropped if d.shape is not None else []
-    if dropped:
+    sp = d.shape
+    final = e["shape"]
+    if sp is not None and sp.dropped:
+        final = sp.selection.spec
         text += (
             " The backward check by output error left out "
-            + ", ".join(f"{x.group}" for x in dropped)
+            + ", ".join(x.group for x in sp.dropped)
             + f" (each took less than {MIN_GAIN:.0%} more off the held-out runs' J than the "
-            f"rest): {d.shape.selection.spec if d.shape is not None else ''}."
+            f"rest): {final}."
         )
-    final = d.shape.selection.spec if d.shape is not None else e["shape"]
     fitted = next((c for c in d.candidates if c.effect == final), None)
     if fitted is not None:
         text += (
@@ -1066,7 +1067,8 @@ def _shape_md(d: Diagnosis) -> list[str]:
         "",
         _variables_md(sp.variables, bool(d.settings.shape_variables)),
         "",
-        f"Groups chosen on the trajectory residuals: `{sel.spec or 'none'}`; effective degrees "
+        f"{'Groups chosen on the trajectory residuals' if sp.chosen is None else 'Groups kept'}: "
+        f"`{sel.spec or 'none'}`; effective degrees "
         f"of freedom {sum(sel.edf):.1f}; held-out gain "
         + ", ".join(f"{100 * g:.0f} %" for g in sel.heldout_gain)
         + f" of the control's held-out J; linearised dBIC {sel.dbic:.1f} against the null's "
@@ -1074,6 +1076,20 @@ def _shape_md(d: Diagnosis) -> list[str]:
         + ("proposed." if sp.proposed else "not proposed."),
         "",
     ]
+    if sp.chosen is not None:
+        md += [
+            f"Chosen on the trajectory residuals: `{sp.chosen.spec}`. Backward check by output "
+            "error, each shape fitted with the 57 parameters on one half of the runs and judged "
+            f"on the other (a group stays when it adds {MIN_GAIN:.0%} to the held-out gain of "
+            "the rest): "
+            + "; ".join(
+                f"`{x.group}` left out (held-out gain {x.gain_with:.4g} with it, "
+                f"{x.gain_without:.4g} without)"
+                for x in sp.dropped
+            )
+            + ".",
+            "",
+        ]
     entry = shape_entry(d)
     for g in entry.get("groups", []):
         md += [f"`{g['formula']}`", ""]

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mmg import efd_parameters, get_effect
+from mmg import Effect, efd_parameters, get_effect
 from mmg.hull import hull_forces
 from mmg.model import rudder_inflow_at
 from mmg.params import N_THETA
@@ -290,14 +290,19 @@ def test_probes_of_one_structure_share_their_code_whatever_the_ranges() -> None:
     probe = probe_effect(wider)
     rows = probe_rows(eff, 0.7, wider)
     assert rows[:, 0].min() == 1.0  # the effect's groups are the probe's groups 1, 2, ...
-    assert probe.force_at is not None and eff.force_at is not None
     args = (12.0, 1.0, 2.0, 0.5, -0.08, 0.02, 0.3, 0.1, 10.0, 1.0, 0.5)
-    for i, row in enumerate(rows):
-        values = np.zeros(len(rows))
-        values[i] = 0.7
-        want = eff.force_at(*args, eff.param_type(*values), p.theta, p.ship)
-        got = probe.force_at(*args, probe.param_type(*row), p.theta, p.ship)
-        assert got == pytest.approx(want, rel=1e-12, abs=1e-300), i
+
+    def probe_is_effect(probe: Effect, eff: Effect, rows: np.ndarray) -> None:
+        """Each row of the probe gives the effect's force with that coefficient alone."""
+        assert probe.force_at is not None and eff.force_at is not None
+        for i, row in enumerate(rows):
+            values = np.zeros(len(rows))
+            values[i] = 0.7
+            want = eff.force_at(*args, eff.param_type(*values), p.theta, p.ship)
+            got = probe.force_at(*args, probe.param_type(*row), p.theta, p.ship)
+            assert got == pytest.approx(want, rel=1e-12, abs=1e-300), i
+
+    probe_is_effect(probe, eff, rows)
     with pytest.raises(ValueError, match="no group of the structure"):
         probe_rows(eff, 0.7, wider[:1])
     # a group of one component is served by a probe's group of the same structure with more
@@ -313,14 +318,7 @@ def test_probes_of_one_structure_share_their_code_whatever_the_ranges() -> None:
     single = shape_effect([one])
     rows = probe_rows(single, 0.7, default)
     assert rows[:, 1].tolist() == [2.0] * 7  # component N
-    big = probe_effect(default)
-    assert big.force_at is not None and single.force_at is not None
-    for i, row in enumerate(rows):
-        values = np.zeros(len(rows))
-        values[i] = 0.7
-        want = single.force_at(*args, single.param_type(*values), p.theta, p.ship)
-        got = big.force_at(*args, big.param_type(*row), p.theta, p.ship)
-        assert got == pytest.approx(want, rel=1e-12, abs=1e-300), i
+    probe_is_effect(probe_effect(default), single, rows)
 
 
 def test_variables_from_recorded_samples() -> None:

@@ -333,6 +333,13 @@ class ShapeSelection:
         return _block_diag(self.penalties)
 
 
+def _dbic(J0: float, gain: float, edf: Sequence[float], n_eff: float) -> float:
+    """The linearised dBIC of units taking ``gain`` off the control's J ``J0``, with their
+    effective degrees of freedom ``edf`` in place of a parameter count."""
+    ratio = max((J0 - gain) / J0, 1e-12) if J0 > 0 else 1.0
+    return float(n_eff * np.log(ratio) + sum(edf) * np.log(n_eff))
+
+
 #: what the selection gives for one residual vector: ((unit, kappa) chosen, held-out gain path
 #: as a share of the control fits' held-out J, edf per chosen unit, dBIC)
 _Row = tuple[list[tuple[int, float]], list[float], list[float], float]
@@ -613,8 +620,7 @@ class ShapeColumns:
             if not np.isfinite(g) or g <= 0.0 or g <= best * (1.0 + opts.min_gain):
                 break
             gain, dof = self._insample(cs, [*chosen, (u, kap)])
-            ratio = max((J0 - gain) / J0, 1e-12) if J0 > 0 else 1.0
-            new = float(n_eff * np.log(ratio) + sum(dof) * np.log(n_eff))
+            new = _dbic(J0, gain, dof, n_eff)
             if new >= dbic:
                 break
             chosen.append((u, kap))
@@ -646,11 +652,18 @@ class ShapeColumns:
         """(len(trials),) the held-out gain for the base's residual vector ``r`` (S, M) of each
         trial (units chosen, {unit: W} of those fitted as closed forms, :meth:`_fit`); the
         same sums as the selection's."""
+        _, cs, ehs, EEs = self._one(r)
+        return np.array([self._heldout(cs, ehs, EEs, chosen, f) for chosen, f in trials])
+
+    def _one(
+        self, r: FloatArray
+    ) -> tuple[_Sides, list[FloatArray], list[FloatArray], list[FloatArray]]:
+        """The sides of the fits for the one residual vector ``r`` (S, M): (the sides, per fit
+        fold L'Rf, per pair E'ho0, per pair the held-out columns' E'E)."""
         sides = self._sides(r[..., None])
         cs = [c[:, 0] for c in sides.c]
         ehs = [e[:, 0] for e in sides.eh]
-        EEs = [self._held(0, 1), self._held(1, 0)]
-        return np.array([self._heldout(cs, ehs, EEs, chosen, f) for chosen, f in trials])
+        return sides, cs, ehs, [self._held(0, 1), self._held(1, 0)]
 
     def form_fit(
         self,
@@ -723,19 +736,14 @@ class ShapeColumns:
         and effective degrees of freedom. A choice with one of its groups left out."""
         unit = {self.units[u].group.text: u for u in range(len(self.units))}
         chosen = [(unit[g.text], float(kappa)) for g, kappa in groups]
-        sides = self._sides(r[..., None])
-        cs = [c[:, 0] for c in sides.c]
-        ehs = [e[:, 0] for e in sides.eh]
-        EEs = [self._held(0, 1), self._held(1, 0)]
+        sides, cs, ehs, EEs = self._one(r)
         Jho = max(float(sides.Jho[0]), 1e-300)
         path = [self._heldout(cs, ehs, EEs, chosen[: i + 1]) / Jho for i in range(len(chosen))]
         edf: list[float] = []
         dbic = 0.0
         if chosen:
-            J0 = float(sides.J0[0])
             gain, edf = self._insample(cs, chosen)
-            ratio = max((J0 - gain) / J0, 1e-12) if J0 > 0 else 1.0
-            dbic = float(n_eff * np.log(ratio) + sum(edf) * np.log(n_eff))
+            dbic = _dbic(float(sides.J0[0]), gain, edf, n_eff)
         return self._selection(r, chosen, path, edf, dbic)
 
     def _selection(

@@ -96,15 +96,6 @@ class ShapeProposal:
         """The shape effect of the chosen groups."""
         return self.selection.effect()
 
-    @property
-    def dof(self) -> float:
-        """Its effective degrees of freedom (the dBIC's parameter count)."""
-        return float(sum(self.selection.edf))
-
-    def penalty(self) -> tuple[tuple[float, ...], ...]:
-        """Its smoothness penalty (k, k) in coefficient units, as the fits take it."""
-        return tuple(tuple(float(v) for v in row) for row in self.selection.penalty())
-
     def as_dict(self) -> dict[str, Any]:
         """As ``report.json`` shows it (``shapes``)."""
         sel = self.selection

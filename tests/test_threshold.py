@@ -17,7 +17,7 @@ from sweep.diagnose.fit import FitSettings, fit
 from sweep.diagnose.floor import NoiseModel, simulate_windows
 from sweep.diagnose.linearised import Linearised
 from sweep.diagnose.scoring import delta_bic, n_effective
-from sweep.diagnose.threshold import CEILING, acceptance_null
+from sweep.diagnose.threshold import CEILING, acceptance_null, heldout_parts
 from sweep.diagnose.windows import cut_windows
 from sweep.identification.polish import PolishSettings
 from sweep.identification.vector import with_effects
@@ -145,6 +145,28 @@ def test_null_of_the_best_candidate_on_noise_only_windows(case):
     step = 1e-3 * np.ones(N_THETA)
     R = (A @ step)[..., None]  # (S, M, 1): the residual of the parameters moved by 1e-3
     assert lin.refit_factor(R) < 0.05
+
+
+def test_the_nulls_copies_side_by_side_give_the_same_figures_on_any_machine(case):
+    """The held-out fits of noise-only copies in parts on the threads of the process: the same
+    figures, to the last bit, on one thread as on several, and those of all copies at once to
+    rounding."""
+    ship, windows, _ = case
+    cands = tuple(get_effect(n) for n in ("current", "rudder_offset"))
+    lin = Linearised(ship, windows, ([0, 2], [1, 3]), cands, library_terms=2)
+    S, M = lin.A.shape[:2]
+    R = np.random.default_rng(5).normal(size=(S, M, 7))
+    n_eff = n_effective(windows, "J2")
+    whole = lin.heldout(R, n_eff)
+    one, two = (heldout_parts(lin, R, n_eff, threads) for threads in (1, 2))
+    assert list(one.dbic) == list(two.dbic) == list(whole.dbic)
+    for name, v in whole.dbic.items():
+        np.testing.assert_array_equal(one.dbic[name], two.dbic[name])
+        np.testing.assert_allclose(two.dbic[name], v, rtol=1e-12, atol=1e-12)
+    for field in ("gain", "worst_run"):
+        a, b, c = (getattr(h, field) for h in (one, two, whole))
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_allclose(b, c, rtol=1e-12, atol=1e-12)
 
 
 def test_a_fit_with_the_effect_held_refits_the_base_alone(case):

@@ -41,6 +41,7 @@ from mmg.params import N_THETA
 from mmg.precompile import precompile, tasks
 from sweep.data.recordings import Recording
 from sweep.diagnose.floor import NoiseModel, simulate_windows
+from sweep.diagnose.threads import map_threads
 from sweep.identification.vector import effect_values
 
 FloatArray = NDArray[np.float64]
@@ -503,9 +504,12 @@ def discover(
     # the regression view: the selected terms, or (none selected) the three best alone
     shown = sel.labels or [str(r["term"]) for r in sel.single[:3]]
     view = regression_view(data, shown)
-    null: list[float] = []
-    for recs in null_sets(params, windows, noise, rng, s.null_draws):
-        null.append(select(equation_data(params, recs, s, where), s, with_alternatives=False).cv_r2)
+
+    def statistic(recs: list[Recording]) -> float:
+        return select(equation_data(params, recs, s, where), s, with_alternatives=False).cv_r2
+
+    # the noise-only copies side by side (each drawn before, in order: the same null)
+    null = map_threads(statistic, null_sets(params, windows, noise, rng, s.null_draws))
     threshold = float(np.quantile(null, 1.0 - s.alpha)) if null else 0.0
     proposed = bool(sel.terms) and sel.cv_r2 > threshold
     if log is not None:

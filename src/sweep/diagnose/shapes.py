@@ -45,6 +45,7 @@ from mmg.shapes import VARIABLES as SHAPE_VARIABLES
 from sweep.data.objective import Objective
 from sweep.data.recordings import Recording
 from sweep.diagnose.linearised import LIBRARY_STEP, MIN_FREE, Linearised
+from sweep.diagnose.threads import PARTS, map_threads
 from sweep.identification.polish import residual_vectors
 
 FloatArray = NDArray[np.float64]
@@ -395,8 +396,11 @@ def _tmul(lib: FloatArray, ix: Sequence[int], X: FloatArray) -> FloatArray:
     (len(ix) M, D)): (T, D) in float64, one window at a time."""
     M = lib.shape[1]
     out = np.zeros((lib.shape[2], X.shape[1]))
-    for i, s in enumerate(ix):
-        out += lib[s].astype(np.float64).T @ X[i * M : (i + 1) * M]
+    products = map_threads(
+        lambda i: lib[ix[i]].astype(np.float64).T @ X[i * M : (i + 1) * M], range(len(ix))
+    )
+    for p in products:  # summed in the windows' order, as one after another
+        out += p
     return out
 
 
@@ -435,7 +439,7 @@ class ShapeColumns:
         self.lib = self._columns(step, dtype)
         self.simulation_seconds = time.perf_counter() - t0
         # per-window Gram matrices, then each fold's (fit fold 0, fit fold 1, all windows)
-        self.grams = np.stack([_gram(s) for s in self.lib])
+        self.grams = np.stack(map_threads(_gram, list(self.lib)))
         self.parts = [_Part(f, self.lib, lin.A, self.grams) for f in lin.folds]
         self.all = _Part(lin.all, self.lib, lin.A, self.grams)
         raw = np.array([np.trace(self.all.G[np.ix_(u.columns, u.columns)]) for u in self.units])
@@ -466,8 +470,13 @@ class ShapeColumns:
             idx = np.arange(lo, min(T, lo + per))
             rows = np.repeat(th[None, :], idx.size, axis=0)
             rows[:, lin.theta.size :] = units[idx]
-            d = (residual_vectors(obj, rows)[0] - r0[None]) / units[idx, 3, None, None]
-            lib[:, :, idx] = np.moveaxis(np.where(np.isfinite(d), d, 0.0), 0, -1)
+            res = residual_vectors(obj, rows)[0]
+
+            def store(w: int, res: FloatArray = res, idx: NDArray[np.int64] = idx) -> None:
+                d = (res[:, w] - r0[None, w]) / units[idx, 3, None]
+                lib[w][:, idx] = np.where(np.isfinite(d), d, 0.0).T
+
+            map_threads(store, range(S))  # window by window, side by side
         return lib
 
     # -- the residual's side of the fits ------------------------------------------------------
@@ -790,5 +799,8 @@ class ShapeColumns:
     ) -> FloatArray:
         """(D,) the statistic of :meth:`select` (dBIC, 0 when nothing is chosen) for residual
         vectors R (S, M, D), e.g. of noise-only copies of the windows: its null distribution."""
-        rows = self._statistic(R, n_eff, _Options(max_groups, min_gain, tuple(kappas)))
-        return np.array([row[-1] for row in rows])
+        opts = _Options(max_groups, min_gain, tuple(kappas))
+        # the copies in PARTS parts side by side: the same figures on any machine
+        parts = [p for p in np.array_split(np.arange(R.shape[-1]), PARTS) if p.size]
+        done = map_threads(lambda ix: self._statistic(R[..., ix], n_eff, opts), parts)
+        return np.array([row[-1] for rows in done for row in rows])

@@ -30,10 +30,14 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sweep.diagnose.discover import null_sets
 from sweep.diagnose.floor import NoiseModel
-from sweep.diagnose.linearised import Linearised
+from sweep.diagnose.linearised import HeldOut, Linearised
+from sweep.diagnose.threads import PARTS, map_threads
+
+FloatArray = NDArray[np.float64]
 
 #: the threshold is never above this dBIC (Kass and Raftery: a BIC difference beyond 10 is very
 #: strong evidence); it matters only when the null's quantile is closer to zero
@@ -184,6 +188,23 @@ class AcceptanceNull:
         }
 
 
+def heldout_parts(
+    lin: Linearised, R: FloatArray, n_eff: float, threads: int | None = None
+) -> HeldOut:
+    """:meth:`Linearised.heldout` of residual vectors R (S, M, D), the columns in
+    :data:`PARTS` parts, up to ``threads`` (default: the cores) side by side: the same figures
+    on any machine; to rounding those of all columns at once."""
+    parts = [p for p in np.array_split(np.arange(R.shape[-1]), PARTS) if p.size]
+    done = map_threads(lambda ix: lin.heldout(R[..., ix], n_eff), parts, threads)
+    if len(done) == 1:
+        return done[0]
+    return HeldOut(
+        dbic={k: np.concatenate([h.dbic[k] for h in done]) for k in done[0].dbic},
+        gain=np.concatenate([h.gain for h in done]),
+        worst_run=np.concatenate([h.worst_run for h in done]),
+    )
+
+
 def acceptance_null(
     lin: Linearised,
     noise: NoiseModel,
@@ -200,9 +221,9 @@ def acceptance_null(
     t0 = time.perf_counter()
     params, windows = lin.params, lin.windows
     # null residual vectors of the base model on noisy copies of the windows
-    cols = [lin.residuals(recs) for recs in null_sets(params, windows, noise, rng, draws)]
+    cols = map_threads(lin.residuals, null_sets(params, windows, noise, rng, draws))
     R = np.stack(cols, axis=-1)
-    ho = lin.heldout(R, n_eff)
+    ho = heldout_parts(lin, R, n_eff)
     per, held = ho.dbic, ho.gain
     best = np.min(np.stack(list(per.values())), axis=0)
     q = float(np.quantile(best, alpha))

@@ -9,6 +9,11 @@ are made before, in order), so the results do not depend on the number of thread
 copy's figures come out of one matrix product with others' (the columns of a held-out fit),
 the copies are split into a fixed number of parts (:data:`PARTS`), not one per core.
 
+Nothing run here may call a function compiled with Numba's ``parallel=True`` (the residual
+rows of :func:`sweep.identification.polish.residual_vectors`): where neither OpenMP nor TBB is
+installed, Numba's workqueue layer aborts the process on a second concurrent call. The kernels'
+own threads (:mod:`mmg._threads`) are plain Python threads and may be shared.
+
 *Rejected*: sharing :mod:`mmg._threads`'s pool, whose threads run the kernels' shares: a copy
 that waits there for its own kernel's share could hold the thread that share needs.
 """

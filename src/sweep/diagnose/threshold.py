@@ -221,7 +221,8 @@ def acceptance_null(
     t0 = time.perf_counter()
     params, windows = lin.params, lin.windows
     # null residual vectors of the base model on noisy copies of the windows
-    cols = map_threads(lin.residuals, null_sets(params, windows, noise, rng, draws))
+    # (one after another: the residual rows are a Numba-parallel function, see threads.py)
+    cols = [lin.residuals(recs) for recs in null_sets(params, windows, noise, rng, draws)]
     R = np.stack(cols, axis=-1)
     ho = heldout_parts(lin, R, n_eff)
     per, held = ho.dbic, ho.gain

@@ -45,7 +45,7 @@ from mmg.shapes import VARIABLES as SHAPE_VARIABLES
 from sweep.data.objective import Objective
 from sweep.data.recordings import Recording
 from sweep.diagnose.linearised import LIBRARY_STEP, MIN_FREE, Linearised
-from sweep.diagnose.threads import PARTS, map_threads
+from sweep.diagnose.threads import column_parts, map_threads
 from sweep.identification.polish import residual_vectors
 
 FloatArray = NDArray[np.float64]
@@ -801,6 +801,7 @@ class ShapeColumns:
         vectors R (S, M, D), e.g. of noise-only copies of the windows: its null distribution."""
         opts = _Options(max_groups, min_gain, tuple(kappas))
         # the copies in PARTS parts side by side: the same figures on any machine
-        parts = [p for p in np.array_split(np.arange(R.shape[-1]), PARTS) if p.size]
-        done = map_threads(lambda ix: self._statistic(R[..., ix], n_eff, opts), parts)
+        done = map_threads(
+            lambda ix: self._statistic(R[..., ix], n_eff, opts), column_parts(R.shape[-1])
+        )
         return np.array([row[-1] for rows in done for row in rows])

@@ -24,6 +24,9 @@ from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
+import numpy as np
+from numpy.typing import NDArray
+
 from sweep.identification.workers import available_cores
 
 #: the parts that copies whose figures depend, to rounding, on the copies computed with them
@@ -33,6 +36,11 @@ PARTS = 2
 
 T = TypeVar("T")
 R = TypeVar("R")
+
+
+def column_parts(count: int) -> list[NDArray[np.int64]]:
+    """The indices 0 .. count - 1 in :data:`PARTS` consecutive parts (none empty)."""
+    return [p for p in np.array_split(np.arange(count), PARTS) if p.size]
 
 
 def map_threads(func: Callable[[T], R], items: Iterable[T], threads: int | None = None) -> list[R]:
@@ -47,4 +55,4 @@ def map_threads(func: Callable[[T], R], items: Iterable[T], threads: int | None 
         return list(pool.map(func, work))
 
 
-__all__ = ["PARTS", "map_threads"]
+__all__ = ["PARTS", "column_parts", "map_threads"]

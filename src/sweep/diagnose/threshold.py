@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from sweep.diagnose.discover import null_sets
 from sweep.diagnose.floor import NoiseModel
 from sweep.diagnose.linearised import HeldOut, Linearised
-from sweep.diagnose.threads import PARTS, map_threads
+from sweep.diagnose.threads import column_parts, map_threads
 
 FloatArray = NDArray[np.float64]
 
@@ -194,8 +194,9 @@ def heldout_parts(
     """:meth:`Linearised.heldout` of residual vectors R (S, M, D), the columns in
     :data:`PARTS` parts, up to ``threads`` (default: the cores) side by side: the same figures
     on any machine; to rounding those of all columns at once."""
-    parts = [p for p in np.array_split(np.arange(R.shape[-1]), PARTS) if p.size]
-    done = map_threads(lambda ix: lin.heldout(R[..., ix], n_eff), parts, threads)
+    done = map_threads(
+        lambda ix: lin.heldout(R[..., ix], n_eff), column_parts(R.shape[-1]), threads
+    )
     if len(done) == 1:
         return done[0]
     return HeldOut(

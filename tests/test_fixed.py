@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from mmg import Parameters, efd_parameters, get_effect, simulate
-from mmg.fixed import fixed, is_fixed, split_name
+from mmg.fixed import fixed, is_fixed, kernel_effects, split_name
+from mmg.integrate import derivatives_rows, effect_accelerations_rows
+from mmg.kernel import load_kernel
 from sweep.identification.vector import full_vector, joint_box, with_effects
 from tests.conftest import SHARED_EFFECTS, kernels, shared_effects
 
@@ -25,12 +27,13 @@ HELD = {
 
 
 def held_effects() -> tuple:
-    return tuple(fixed(get_effect(n), v) for n, v in HELD.items())
+    """The shared effects, each held: at the values of :data:`HELD`, the others at neutral."""
+    return tuple(fixed(e, HELD.get(e.name, e.neutral())) for e in shared_effects())
 
 
+# a held effect runs the kernel of the effect it holds: the shared one, nothing new to compile
 pytestmark = pytest.mark.kernels(
-    *kernels(SHARED_EFFECTS, "simulate"),
-    *kernels(tuple(e.name for e in held_effects()), "simulate"),
+    *kernels(SHARED_EFFECTS, "simulate", "derivatives", "accelerations")
 )
 
 
@@ -72,10 +75,38 @@ def test_a_model_carrying_fixed_effects_simulates_as_with_the_effects_at_those_v
     w = np.tile([2.0, 1.0], (1, 300, 1))
     a = simulate(x, u, w, with_values, effects=free)
     b = simulate(x, u, w, carrying, effects=held)
-    np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12)
+    # the very kernel of the effects held, with the held values in their rows: bit for bit
+    assert kernel_effects(held) == free
+    assert load_kernel(kernel_effects(held)) is load_kernel(free)
+    np.testing.assert_array_equal(b, a)
     assert np.abs(b - simulate(x, u, w, p)).max() > 1e-2  # the held effects do act
     # a fit's vector and box do not see them; with_effects keeps them in the model
     assert full_vector(carrying, held).shape == (57,) and joint_box(held).n == 57
     walk = get_effect("propeller_walk")
     both = with_effects(carrying, (walk,), (0.02, 0.0))
     assert [n for n, _ in both.effects] == [*(e.name for e in held), "propeller_walk"]
+
+
+def test_held_rows_go_where_the_held_effects_parameters_would_be():
+    """Pointwise derivatives and accelerations of a model carrying held effects between free
+    ones: the fit's rows (57 + the free effects' parameters) are those of the effects' kernel
+    with the held values put in."""
+    p = efd_parameters()
+    free = shared_effects()
+    values = np.array([v for e in free for v in HELD.get(e.name, e.neutral())])
+    # hold every effect but the second, which stays free with the values of HELD
+    k = len(free[0].params), len(free[1].params)
+    model = (fixed(free[0], list(values[: k[0]])), free[1], *held_effects()[2:])
+    rows = np.concatenate([p.vector(), values[k[0] : k[0] + k[1]]])[None, :]
+    full = np.concatenate([p.vector(), values])[None, :]
+    x = np.array([[1.0, 0.25, -2.0, 0.03, 0.4, 0.01], [0.0, -0.1, 3.0, 0.02, -1.0, -0.02]])
+    u = np.array([[0.2, 9.0], [-0.3, -4.0]])
+    w = np.array([[2.0, 1.0], [1.0, -2.0]])
+    t = np.array([5.0, 50.0])
+    np.testing.assert_array_equal(
+        derivatives_rows(x, u, w, rows, model, t=t), derivatives_rows(x, u, w, full, free, t=t)
+    )
+    last = effect_accelerations_rows(x, u, w, rows, model, t=t)
+    np.testing.assert_array_equal(last, effect_accelerations_rows(x, u, w, full, free, t=t))
+    with pytest.raises(ValueError, match="rows must have shape"):
+        derivatives_rows(x, u, w, full, model)

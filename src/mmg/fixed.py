@@ -193,6 +193,22 @@ def fixed(effect: Effect, values: Sequence[float] | Mapping[str, float]) -> Effe
     return made
 
 
+def held_values(effect: Effect) -> tuple[Effect, tuple[float, ...] | None]:
+    """(the effect whose kernel runs ``effect``, the values its parameters take there): an
+    effect held at values runs the effect inside it (through any number of holds) with those
+    values; any other effect runs itself (None: its own parameters' values)."""
+    if not isinstance(effect, FixedEffect) or effect.inner is None:
+        return effect, None
+    inner, values = held_values(effect.inner)
+    return inner, (effect.values if values is None else values)
+
+
+def kernel_effects(effects: Sequence[Effect]) -> tuple[Effect, ...]:
+    """The effects whose kernel simulates ``effects``: each held effect replaced by the effect it
+    holds (:func:`held_values`). The kernel's parameter rows are those of these effects."""
+    return tuple(held_values(e)[0] for e in effects)
+
+
 def by_name(name: str, get: Any) -> Effect:
     """The fixed effect ``name`` (``<effect>@fixed(p=v,...)``), its inner effect looked up with
     ``get`` (:func:`mmg.get_effect`). Raises ValueError or KeyError."""
@@ -205,4 +221,13 @@ def by_name(name: str, get: Any) -> Effect:
     return fixed(get(inner), values)
 
 
-__all__ = ["FixedEffect", "by_name", "fixed", "is_fixed", "spec_of", "split_name"]
+__all__ = [
+    "FixedEffect",
+    "by_name",
+    "fixed",
+    "held_values",
+    "is_fixed",
+    "kernel_effects",
+    "spec_of",
+    "split_name",
+]

@@ -20,6 +20,7 @@ import numba
 import numpy as np
 
 from mmg.effect import Effect
+from mmg.fixed import held_values, kernel_effects
 from mmg.kernel import LANE_BLOCK, LIMIT_A, load_kernel
 from mmg.params import ESSO_OSAKA, N_THETA, FloatArray, Parameters, Ship
 
@@ -67,6 +68,29 @@ def kernel_array(a: Any, dtype: type = np.float64) -> np.ndarray:
 
 
 def parameter_matrix(p: ParamsLike, B: int, effects: tuple[Effect, ...] = ()) -> FloatArray:
+    """Per-lane parameters as a contiguous, writable (rows, B) float64 matrix: the kernel's
+    rows for ``effects`` (:func:`kernel_rows`; n_params rows unless an effect is held)."""
+    return kernel_rows(_parameter_matrix(p, B, effects), effects)
+
+
+def kernel_rows(P: FloatArray, effects: tuple[Effect, ...]) -> FloatArray:
+    """The (n_params, B) parameter matrix ``P`` of ``effects`` as the rows of their kernel
+    (:func:`mmg.fixed.kernel_effects`): a held effect, which has no parameters, runs the kernel
+    of the effect it holds, so its held values are put in as that effect's rows."""
+    if all(held_values(e)[1] is None for e in effects):
+        return P
+    blocks, k = [P[:N_THETA]], N_THETA
+    for e in effects:
+        held = held_values(e)[1]
+        if held is None:
+            blocks.append(P[k : k + len(e.params)])
+            k += len(e.params)
+        else:
+            blocks.append(np.repeat(np.asarray(held, dtype=np.float64)[:, None], P.shape[1], 1))
+    return kernel_array(np.concatenate(blocks, axis=0))
+
+
+def _parameter_matrix(p: ParamsLike, B: int, effects: tuple[Effect, ...]) -> FloatArray:
     """Per-lane parameters as a contiguous, writable (n_params, B) float64 matrix."""
     n = N_THETA + sum(len(e.params) for e in effects)
     if isinstance(p, Parameters):
@@ -139,7 +163,7 @@ def derivatives(
     if isinstance(p, np.ndarray) and p.ndim > 1:
         p = np.broadcast_to(p, (*shape, p.shape[-1]))  # one parameter set per point
     P = parameter_matrix(p, M, effects)
-    kern = load_kernel(effects)
+    kern = load_kernel(kernel_effects(effects))
     out = np.empty((6, M))
     kern.rhs_rows(
         T,
@@ -229,14 +253,14 @@ def _rows(
     Wd = lanes(w_arr, 2)
     T = lanes(t_arr[..., None], 1)[0]
     out = np.empty((k_out, R * M))
-    getattr(load_kernel(effects), entry)(
+    getattr(load_kernel(kernel_effects(effects)), entry)(
         kernel_array(T),
         X,
         kernel_array(U[0]),
         kernel_array(U[1]),
         kernel_array(Wd[0]),
         kernel_array(Wd[1]),
-        kernel_array(P_rows.T),
+        kernel_rows(kernel_array(P_rows.T), effects),
         kernel_array(np.repeat(np.arange(R, dtype=np.int64), M), np.int64),
         _ship_of(P_rows, ship),
         out,
@@ -296,7 +320,7 @@ def simulate_batch(
         raise ValueError(f"n_steps must have shape ({B},) with values in [0, {K}]")
     sh = _ship_of(p, ship)
     P = parameter_matrix(p, B, effects)
-    kern = load_kernel(effects)
+    kern = load_kernel(kernel_effects(effects))
     order = np.argsort(-steps, kind="stable")  # similar lengths share a chunk
     if out is None:
         out = np.empty((B, K + 1, 6))
@@ -440,7 +464,7 @@ def segment_moments(
     C = 1 if isinstance(p, Parameters) else len(p)
     sh = _ship_of(p, ship)
     P = parameter_matrix(p, C, effects)
-    kern = load_kernel(effects)
+    kern = load_kernel(kernel_effects(effects))
     seg_order = np.argsort(-segments.n_steps, kind="stable")  # long segments first
     lane_seg = np.repeat(seg_order, C)
     lane_cand = np.tile(np.arange(C), S)

@@ -20,6 +20,7 @@ import numpy as np
 
 from mmg.effect import Effect
 from mmg.effects import get_effect
+from mmg.fixed import kernel_effects
 from mmg.kernel import load_kernel
 from mmg.params import N_THETA, efd_parameters
 
@@ -35,7 +36,7 @@ ENTRIES: dict[str, str] = {
 def is_compiled(effects: tuple[Effect, ...], entry: str) -> bool:
     """Whether Numba's on-disk cache holds ``entry`` of the kernel for ``effects`` (its index
     file exists; an index written on another CPU still leads to a compilation at first use)."""
-    dispatcher = getattr(load_kernel(effects), ENTRIES[entry])
+    dispatcher = getattr(load_kernel(kernel_effects(effects)), ENTRIES[entry])
     cache = getattr(dispatcher, "_cache", None)
     index = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
     return index is not None and Path(index).exists()
@@ -101,11 +102,14 @@ def precompile(
     the cache, ``processes`` at a time (default: one per CPU); returns how many were compiled.
     Effects travel by name (:func:`mmg.get_effect` rebuilds catalog and discovered ones in the
     workers)."""
-    missing = [
-        (tuple(e.name for e in effects), entry)
-        for effects, entry in dict.fromkeys(wanted)
-        if not is_compiled(effects, entry)
-    ]
+    # by the effects whose kernel runs (a held effect runs the kernel of the effect it holds)
+    missing = list(
+        dict.fromkeys(
+            (tuple(e.name for e in kernel_effects(effects)), entry)
+            for effects, entry in dict.fromkeys(wanted)
+            if not is_compiled(effects, entry)
+        )
+    )
     if not missing:
         return 0
     workers = max(1, min(len(missing), processes or os.cpu_count() or 1))

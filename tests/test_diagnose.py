@@ -20,6 +20,7 @@ from benchmarks.planted import (
 )
 
 from mmg import efd_parameters
+from sweep.data.objective import PENALTY_FACTOR, split_recording
 from sweep.data.parameters import load_parameters
 from sweep.data.recordings import read_recordings
 from sweep.diagnose.__main__ import main
@@ -622,3 +623,27 @@ def test_a_second_base_start_runs_when_asked_and_the_lower_end_is_the_base(runs,
     J_base = report["training"]["J_base_fit"]
     assert J_base == pytest.approx(min(retry["J_first"], retry["J_second"]), rel=1e-9)
     assert report["verdict"] == "rudder_offset"
+
+
+@pytest.mark.kernels(*kernels((), "moments"))
+def test_test_recordings_where_the_model_diverges_are_named_with_their_subsequences(runs):
+    """A model whose simulation diverges on a test recording: the test table is the same as
+    without the count, and the recording is named with how many of its 100-s subsequences
+    diverged (its J there is the divergence penalty, not a misfit)."""
+    from sweep.diagnose.scoring import diverged_text, test_table, test_table_diverged
+
+    recs = [runs["zigzag"][0], runs["turning"][0]]
+    labels = ["zz", "turn"]
+    good = efd_parameters()
+    table, diverged = test_table_diverged(good, recs, labels)
+    assert diverged == {} and table == test_table(good, recs, labels)
+    # m + m_x = 0: the surge acceleration explodes from the first step on
+    bad = good.replace(m_x=-0.27078 + 1e-14)
+    table, diverged = test_table_diverged(bad, recs, labels)
+    assert table == test_table(bad, recs, labels)
+    n = [len(split_recording(r)) for r in recs]
+    assert diverged == {"zz": [n[0], n[0]], "turn": [n[1], n[1]]}
+    assert table["J2"]["zz"] == pytest.approx(PENALTY_FACTOR * recs[0].duration * 7)
+    assert diverged_text(diverged) == (
+        f"zz ({n[0]}/{n[0]} subsequences), turn ({n[1]}/{n[1]} subsequences)"
+    )

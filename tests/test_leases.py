@@ -146,6 +146,30 @@ def test_of_drivers_claiming_one_job_at_once_exactly_one_gets_it(tmp_path, expir
     assert sorted(got) == [False] * 7 + [True]
 
 
+def test_a_claim_made_below_a_higher_generation_does_not_hold_the_job(tmp_path, monkeypatch):
+    """A listing made while another driver takes the next generation and removes the one before
+    can show neither file; the driver that saw no lease then makes generation 0 again while
+    the other holds generation 1. (Eight drivers claiming an expired lease at once did so about
+    twice in a hundred rounds on a loaded machine.) Its claim is not the highest: it does not
+    hold the job, and it is told who does."""
+    Lease(str(tmp_path), ELSEWHERE, seconds=-1.0).acquire()  # generation 0, expired
+    other = Driver("h", 1, "other")
+    assert Lease(str(tmp_path), other).acquire() is None  # generation 1; 0 is removed
+    late = Lease(str(tmp_path), Driver("h", 1, "late"))
+    real, calls = late.holder, []
+
+    def listing_that_missed_both_files() -> Holder | None:  # the first look only
+        calls.append(1)
+        return None if len(calls) == 1 else real()
+
+    monkeypatch.setattr(late, "holder", listing_that_missed_both_files)
+    holder = late.acquire()
+    assert holder is not None and holder.driver == other and holder.generation == 1
+    assert late.generation is None
+    current = Lease(str(tmp_path), other).holder()
+    assert current is not None and current.driver == other
+
+
 def test_sweep_lease_seconds_is_checked_and_reaches_the_job(tmp_path):
     rule = next(r for r in RULES if r.key == "sweep.lease_seconds")
     assert [rule.check(v) for v in (30, 1.0, 0.5, 0, -3, True, "30")] == [

@@ -27,7 +27,7 @@ from sweep.diagnose.context import Context
 from sweep.diagnose.final import Final
 from sweep.diagnose.floor import NoiseModel
 from sweep.diagnose.generalise import GeneralisationTest, generalisation_test
-from sweep.diagnose.scoring import test_table
+from sweep.diagnose.scoring import diverged_text, test_table, test_table_diverged
 from sweep.diagnose.windows import cut_windows
 
 
@@ -50,6 +50,9 @@ class CarryOver:
     #: {J: {label: value}} of the finding without its box (extrapolated; empty when the
     #: finding has no force or there is no test)
     test_unbounded: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: {"before"/"after": {label: [diverged, all] subsequences}} of the test recordings whose
+    #: simulation diverged (their J is the divergence penalty; empty: none diverged)
+    test_diverged: dict[str, dict[str, list[int]]] = field(default_factory=dict)
 
 
 def bounded(ctx: Context, final: Final) -> tuple[Final, Ranges | None]:
@@ -93,15 +96,22 @@ def _test_departures(ctx: Context, ranges: Ranges | None) -> list[Departure]:
 
 def test_tables(
     ctx: Context, final: Final
-) -> tuple[dict[str, dict[str, float]], dict[str, dict[str, float]]]:
-    """J1, J2, J3 of the models before and after on every test recording (logged)."""
+) -> tuple[
+    dict[str, dict[str, float]], dict[str, dict[str, float]], dict[str, dict[str, list[int]]]
+]:
+    """J1, J2, J3 of the models before and after on every test recording (logged), and the
+    test recordings on which either model's simulation diverged (:attr:`CarryOver.test_diverged`,
+    logged)."""
     if not ctx.test:
-        return {}, {}
-    before = test_table(final.before.params, ctx.test, ctx.test_labels)
-    after = test_table(final.after.params, ctx.test, ctx.test_labels)
+        return {}, {}, {}
+    before, div_before = test_table_diverged(final.before.params, ctx.test, ctx.test_labels)
+    after, div_after = test_table_diverged(final.after.params, ctx.test, ctx.test_labels)
     J = ctx.settings.objective
     ctx.log(f"test {J}: before {before[J]['Total']:.1f}, after {after[J]['Total']:.1f}")
-    return before, after
+    diverged = {k: v for k, v in (("before", div_before), ("after", div_after)) if v}
+    for which, runs in diverged.items():
+        ctx.log(f"test recordings where the model {which} diverges: {diverged_text(runs)}")
+    return before, after, diverged
 
 
 def generalisation(
@@ -139,7 +149,7 @@ def carry_over(ctx: Context, final: Final, noise: NoiseModel) -> CarryOver:
     unbounded = final.after.params
     final, ranges = bounded(ctx, final)
     found = _test_departures(ctx, ranges)
-    test_before, test_after = test_tables(ctx, final)
+    test_before, test_after, diverged = test_tables(ctx, final)
     test_unbounded: dict[str, dict[str, float]] = {}
     if ctx.test and unbounded is not final.after.params:
         test_unbounded = test_table(unbounded, ctx.test, ctx.test_labels)
@@ -147,6 +157,7 @@ def carry_over(ctx: Context, final: Final, noise: NoiseModel) -> CarryOver:
         "ranges": ranges,
         "departures": found,
         "test_unbounded": test_unbounded,
+        "test_diverged": diverged,
     }
     # (every window the test J sums over, the short last one of each recording too)
     draws = ctx.settings.generalisation_draws

@@ -21,7 +21,7 @@ from sweep.data.recordings import Recording
 from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
 from sweep.diagnose.run import Diagnosis, round_dir
-from sweep.diagnose.scoring import CandidateScore, form_share, shape_and_form
+from sweep.diagnose.scoring import CandidateScore, diverged_text, form_share, shape_and_form
 from sweep.diagnose.shapes import MIN_GAIN, PLACE_AND_TIME
 from sweep.diagnose.threshold import NEGLIGIBLE
 from sweep.diagnose.verdict import shape_name
@@ -569,12 +569,36 @@ def harm_text(d: Diagnosis) -> str:
 
 def statement(d: Diagnosis) -> str:
     """The verdict in plain words (the harm a finding does on the test recordings first)."""
+    diverged = diverged_sentence(d)
+    tail = " " + diverged if diverged else ""
     if d.verdict == "unexplained":
-        return _unexplained_statement(d)
+        return _unexplained_statement(d) + tail
     if d.verdict == "none":
-        return _none_statement(d)
+        return _none_statement(d) + tail
     warning = harm_text(d)
-    return (warning + " " if warning else "") + _found_statement(d)
+    return (warning + " " if warning else "") + _found_statement(d) + tail
+
+
+def diverged_sentence(d: Diagnosis) -> str:
+    """The test recordings on which the model before or after diverges ("" for none): their J
+    is the divergence penalty (10 x the duration per channel), so a test total with them says
+    that the model leaves the recorded motion, not by how much."""
+    before, after = d.test_diverged.get("before"), d.test_diverged.get("after")
+    if not before and not after:
+        return ""
+    if before == after:  # (the same model when nothing was found)
+        parts = [f"the model before and after on {diverged_text(before or {})}"]
+    else:
+        parts = [
+            f"{label} on {diverged_text(runs)}"
+            for label, runs in (("the base model", before), ("the model after", after))
+            if runs
+        ]
+    return (
+        "The simulation diverges (the limiter of Algorithm 1) on test recordings: "
+        + "; ".join(parts)
+        + "; there J is the divergence penalty, not a misfit."
+    )
 
 
 def _generalisation_dict(g: GeneralisationTest | None) -> dict[str, Any] | None:
@@ -645,6 +669,7 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
         "outside": d.settings.outside,
         "departures": [x.as_dict() for x in d.departures],
         "J_after_unbounded": d.test_unbounded,
+        "test_diverged": d.test_diverged,
         "candidate_fit_params": chosen.params if chosen else {},
         "J_before": d.test_before,
         "J_after": d.test_after,
@@ -1272,6 +1297,8 @@ def _test_md(d: Diagnosis, test: Sequence[Recording]) -> list[str]:
         "",
         _table_md(d.test_before, d.test_after),
     ]
+    if d.test_diverged:
+        md += [diverged_sentence(d), ""]
     if test:
         md += [
             "![residual vs regime](residual_vs_regime.png)",

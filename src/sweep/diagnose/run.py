@@ -91,6 +91,9 @@ class Diagnosis:
     departures: list[Departure] = field(default_factory=list)
     #: the test table of the finding without its box (extrapolated beyond the ranges)
     test_unbounded: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: {"before"/"after": {label: [diverged, all] subsequences}}: the test recordings on which
+    #: the model's simulation diverged (their J is the divergence penalty, not a misfit)
+    test_diverged: dict[str, dict[str, list[int]]] = field(default_factory=dict)
     #: the learned shape of the missing force (None with shapes off)
     shape: ShapeProposal | None = None
 
@@ -344,6 +347,7 @@ def report(
         ranges=tested.ranges,
         departures=tested.departures,
         test_unbounded=tested.test_unbounded,
+        test_diverged=tested.test_diverged,
         extra={
             "J_heldout_control": float(J_ho_control.sum()),
             "J_heldout_control_per_window": [float(v) for v in J_ho_control],

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from mmg import Parameters, get_effect
 from mmg.effect import DISCOVERED_PREFIX
 from mmg.shapes import SHAPE_PREFIX, is_closed_form
-from sweep.data.objective import CHANNELS, OBJECTIVES, Objective
+from sweep.data.objective import CHANNELS, OBJECTIVES, Objective, objective_per_segment
 from sweep.data.recordings import Recording
 
 FloatArray = NDArray[np.float64]
@@ -206,12 +206,36 @@ def test_table(
     params: Parameters, recordings: Sequence[Recording], labels: Sequence[str]
 ) -> dict[str, dict[str, float]]:
     """{J: {label: value, "Total": value}} of ``params`` (with its effects) on the recordings."""
+    return test_table_diverged(params, recordings, labels)[0]
+
+
+def diverged_text(runs: dict[str, list[int]]) -> str:
+    """``label (k/n subsequences), ...`` of {label: [diverged, all]}."""
+    return ", ".join(f"{label} ({k}/{n} subsequences)" for label, (k, n) in runs.items())
+
+
+def test_table_diverged(
+    params: Parameters, recordings: Sequence[Recording], labels: Sequence[str]
+) -> tuple[dict[str, dict[str, float]], dict[str, list[int]]]:
+    """(:func:`test_table`, {label: [diverged, all]} subsequences of t_f = 100 s of each label
+    whose simulation diverged, for the labels with at least one): a diverged subsequence hit the
+    limiter of Algorithm 1 or left the finite numbers, and its J is the divergence penalty
+    (:data:`sweep.data.objective.PENALTY_FACTOR` x its duration per channel), not a misfit."""
     effects = tuple(get_effect(n) for n, _ in params.effects)
     obj = Objective(recordings, labels=labels, effects=effects, ship=params.ship)
-    raw = obj.table(params)
+    cost, bad = obj.costs(params)
     out: dict[str, dict[str, float]] = {}
     for J in OBJECTIVES:
-        row = {label: float(raw[J][label][0]) for label in dict.fromkeys(labels)}
+        per_seg = objective_per_segment(cost, J)
+        row = {
+            label: float(per_seg[:, obj.data.groups[label]].sum(axis=1)[0])
+            for label in dict.fromkeys(labels)
+        }
         row["Total"] = float(sum(row.values()))
         out[J] = row
-    return out
+    diverged = {
+        label: [int(bad[0, obj.data.groups[label]].sum()), len(obj.data.groups[label])]
+        for label in dict.fromkeys(labels)
+        if bad[0, obj.data.groups[label]].any()
+    }
+    return out, diverged

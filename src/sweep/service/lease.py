@@ -155,6 +155,13 @@ class Lease:
             generation = 0 if current is None else current.generation + 1
             mine = Holder(self.driver, generation, now + self.seconds)
             if storage.create_exclusive(self._file(generation), mine.to_bytes()):
+                # a directory listed while another driver makes the next generation and
+                # removes the one before may show neither file (entries added or removed
+                # during a listing may be missed): a driver that saw no lease then makes
+                # generation 0 again while another holds generation 1. The claim stands only
+                # if it is the highest generation; else look again (the higher one is live)
+                if self._generations()[-1:] != [generation]:
+                    continue
                 self.generation = generation
                 for old in self._generations():  # keep the directory short
                     if old < generation:

@@ -77,11 +77,11 @@ def kernel_rows(P: FloatArray, effects: tuple[Effect, ...]) -> FloatArray:
     """The (n_params, B) parameter matrix ``P`` of ``effects`` as the rows of their kernel
     (:func:`mmg.fixed.kernel_effects`): a held effect, which has no parameters, runs the kernel
     of the effect it holds, so its held values are put in as that effect's rows."""
-    if all(held_values(e)[1] is None for e in effects):
+    values = [held_values(e)[1] for e in effects]
+    if all(v is None for v in values):
         return P
     blocks, k = [P[:N_THETA]], N_THETA
-    for e in effects:
-        held = held_values(e)[1]
+    for e, held in zip(effects, values, strict=True):
         if held is None:
             blocks.append(P[k : k + len(e.params)])
             k += len(e.params)

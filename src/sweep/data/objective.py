@@ -253,7 +253,10 @@ class Objective:
 
     def table(self, thetas: Any) -> dict[str, dict[str, FloatArray]]:
         """{J: {group label: (C,) values}} for J1, J2, J3 and each group of subsequences."""
-        cost, _ = self.costs(thetas)
+        return self.table_of(self.costs(thetas)[0])
+
+    def table_of(self, cost: FloatArray) -> dict[str, dict[str, FloatArray]]:
+        """:meth:`table` of per-channel integrals ``cost`` (C, S, 7) from :meth:`costs`."""
         out: dict[str, dict[str, FloatArray]] = {}
         for J in OBJECTIVES:
             per_seg = objective_per_segment(cost, J)

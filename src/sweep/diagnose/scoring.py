@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from mmg import Parameters, get_effect
 from mmg.effect import DISCOVERED_PREFIX
 from mmg.shapes import SHAPE_PREFIX, is_closed_form
-from sweep.data.objective import CHANNELS, OBJECTIVES, Objective, objective_per_segment
+from sweep.data.objective import CHANNELS, OBJECTIVES, Objective
 from sweep.data.recordings import Recording
 
 FloatArray = NDArray[np.float64]
@@ -224,13 +224,10 @@ def test_table_diverged(
     effects = tuple(get_effect(n) for n, _ in params.effects)
     obj = Objective(recordings, labels=labels, effects=effects, ship=params.ship)
     cost, bad = obj.costs(params)
+    raw = obj.table_of(cost)
     out: dict[str, dict[str, float]] = {}
     for J in OBJECTIVES:
-        per_seg = objective_per_segment(cost, J)
-        row = {
-            label: float(per_seg[:, obj.data.groups[label]].sum(axis=1)[0])
-            for label in dict.fromkeys(labels)
-        }
+        row = {label: float(raw[J][label][0]) for label in dict.fromkeys(labels)}
         row["Total"] = float(sum(row.values()))
         out[J] = row
     diverged = {

@@ -11,8 +11,11 @@ generation. A driver takes a free job (no lease, a released one, an expired one,
 process of this host that is gone) by creating generation n + 1 create-exclusive
 (:func:`sweep.service.storage.create_exclusive`): of two drivers that try at once, exactly one
 makes the file (on one file system; on an object store, see that function for the limit), and
-the other sees it held. Generations only grow, so a stalled holder whose lease was taken over
-finds a higher generation at its next renewal and knows it lost the job (:meth:`Lease.renew`).
+the other sees it held. A claim holds only if its generation is the highest right after it is
+made (a listing taken while another driver swaps generations can miss both files, and the
+driver that saw no lease would make generation 0 again beside the other's 1). Generations
+only grow, so a stalled holder whose lease was taken over finds a higher generation at its next
+renewal and knows it lost the job (:meth:`Lease.renew`).
 
 Expiry is wall-clock time: the drivers' clocks must agree to well within ``lease_seconds``.
 """
@@ -160,10 +163,11 @@ class Lease:
                 # during a listing may be missed): a driver that saw no lease then makes
                 # generation 0 again while another holds generation 1. The claim stands only
                 # if it is the highest generation; else look again (the higher one is live)
-                if self._generations()[-1:] != [generation]:
+                listed = self._generations()
+                if listed[-1:] != [generation]:
                     continue
                 self.generation = generation
-                for old in self._generations():  # keep the directory short
+                for old in listed:  # keep the directory short
                     if old < generation:
                         storage.delete(self._file(old))
                 return None

@@ -1,7 +1,7 @@
 # Common commands; see README.md.
 PY ?= python
 
-.PHONY: install test test-integration test-all lint format typecheck check bench bench-peak bench-parts bench-lm bench-grid bench-grid-fit bench-faults bench-diagnose bench-unforeseen \
+.PHONY: install test test-integration test-all lint format typecheck check bench bench-peak bench-compile bench-parts bench-lm bench-grid bench-grid-fit bench-faults bench-diagnose bench-unforeseen \
 	bench-coverage bench-manoeuvres manoeuvres data sweep \
 	smoke ui diagnose
 
@@ -36,6 +36,9 @@ bench:  ## simulator throughput (traj-steps/s) for B = 20, 540, 19440
 
 bench-peak:  ## simulate and moments throughput as a fraction of ../shared/tools/fma_peak.py
 	PYTHONPATH=. $(PY) benchmarks/peak_fraction.py
+
+bench-compile:  ## seconds to compile the base model's and two effects' kernels in one process, empty cache (2-5 min)
+	$(PY) benchmarks/compile_time.py
 
 bench-parts:  ## the objective kernel's time by part of the right-hand side (each left out in turn; 10 min)
 	PYTHONPATH=. $(PY) benchmarks/kernel_parts.py

@@ -276,17 +276,23 @@ def test_the_rk4_stage_loop_compiles_to_vector_instructions(step):
     bool(getattr(numba.config, "DISABLE_JIT", 0)), reason="inspects the compiled code"
 )
 def test_a_sub_model_used_by_the_fused_kernel_is_contracted_there_and_strict_elsewhere():
-    """The objective's kernel contracts the sub-models' multiply-adds; the same sub-model called
-    from Python afterwards (or by the simulator's kernel) keeps strict arithmetic: Numba lets a
-    callee compiled on its own inherit ``fastmath`` from the function that compiles it first, so a
-    sub-model compiled once for both would make the simulator's last bits depend on which kernel
-    a process compiled first."""
-    from mmg._jit import FUSED_OPTIONS, subfunction
+    """The objective's kernel calls the sub-models' fused twins, which contract their
+    multiply-adds, also in the sub-models they call; the sub-model itself, called from Python
+    afterwards (or by the simulator's kernel), keeps strict arithmetic. Numba compiles a callee
+    once per process with the arithmetic of whichever caller reached it first, so one compiled
+    form for both would make the simulator's last bits depend on which kernel a process compiled
+    first."""
+    from mmg._jit import FUSED_OPTIONS, fused_source, subfunction
 
     def scaled_sum(a, b, c):
         return a * b + c
 
-    sub: Any = subfunction(scaled_sum)  # the dispatcher (typed as the function it wraps)
+    inner: Any = subfunction(scaled_sum)  # the dispatcher (typed as the function it wraps)
+
+    def twice(a, b, c):
+        return inner(a, b, c) * b + c
+
+    sub: Any = subfunction(twice)
 
     def fused_caller(x):
         s = 0.0
@@ -294,13 +300,16 @@ def test_a_sub_model_used_by_the_fused_kernel_is_contracted_there_and_strict_els
             s = s + sub(x[i], x[i], 1.0)
         return s
 
-    caller = numba.njit(**FUSED_OPTIONS)(fused_caller)
-    caller(np.arange(3.0))  # compiles sub into the fused caller first
-    assert sub(2.0, 3.0, 1.0) == 7.0  # then on its own, from Python
-    sub_ir = sub.inspect_llvm(sub.signatures[0])
-    assert re.search(r"fmul (?:[a-z]+ )*double", sub_ir) and " contract " not in sub_ir
+    caller = numba.njit(**FUSED_OPTIONS)(fused_source(fused_caller))
+    assert caller(np.arange(3.0)) == 1.0 + 3.0 + 11.0  # compiles the fused twins first
+    assert sub(2.0, 3.0, 1.0) == 22.0  # then the sub-models on their own, from Python
+    for strict in (sub, inner):
+        ir = strict.inspect_llvm(strict.signatures[0])
+        assert re.search(r"fmul (?:[a-z]+ )*double", ir) and " contract " not in ir
     caller_ir = caller.inspect_llvm(caller.signatures[0])
-    assert re.search(r"fmul contract double", caller_ir), "the fused caller's sub is not contracted"
+    # both multiply-adds of the inlined twins contracted: no strict multiplication is left
+    assert re.search(r"fmul contract ", caller_ir), "the fused caller's sub is not contracted"
+    assert not re.search(r"fmul (?!contract)", caller_ir), "a strict multiply in the fused caller"
 
 
 def test_thread_shares_cover_every_chunk_once_and_an_error_reaches_the_caller():

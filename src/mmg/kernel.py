@@ -160,9 +160,10 @@ def rk4_step(
         bad[i] = k if ((not ok) and bad[i] < 0) else bad[i]
 
 
-#: the same step with fused multiply-adds (the objective's kernel, FUSED_OPTIONS); with
-#: NUMBA_DISABLE_JIT, rk4_step is the plain function itself
-rk4_step_fused = numba.njit(**FUSED_OPTIONS)(getattr(rk4_step, "py_func", rk4_step))
+#: the same step with fused multiply-adds (the objective's kernel, FUSED_OPTIONS): its right-hand
+#: side and sub-models are their fused twins (mmg._jit.fused_source); with NUMBA_DISABLE_JIT,
+#: rk4_step is the plain function itself
+rk4_step_fused = numba.njit(**FUSED_OPTIONS)(fused_source(getattr(rk4_step, "py_func", rk4_step)))
 
 
 @numba.njit(inline="always", **JIT_OPTIONS)
@@ -345,7 +346,6 @@ def simulate_lanes(
     )  # fmt: skip
 
 
-@numba.njit(cache=True, **FUSED_OPTIONS)
 def moments_thread(
     t, seg_x0, seg_t0, seg_u, seg_w, seg_ref, seg_shift, seg_steps, P, lane_cand, lane_seg,
     sh, dt, lim_lin, lim_ang, W, n_threads, mom, bad,
@@ -429,6 +429,10 @@ def moments_thread(
                 for m in range(5):
                     mom[lane, q, m] = acc[q, m, i]
             bad[lane] = fb[i] if fb[i] < seg_steps[seg[i]] else -1
+
+
+#: compiled with its helpers' and sub-models' fused twins (FUSED_OPTIONS throughout)
+moments_thread = numba.njit(cache=True, **FUSED_OPTIONS)(fused_source(moments_thread))
 
 
 def moments_lanes(
@@ -581,6 +585,7 @@ _FORCE_ARGS = ("u_w", "v_w", "r", "psi", "delta", "n_p", "U_T", "gamma_T")
 #: what the generated kernel may import from mmg (only the names its code uses are imported)
 _MMG_NAMES = (
     ("mmg._jit", "FUSED_OPTIONS"),
+    ("mmg._jit", "fused_source"),
     ("mmg._jit", "JIT_OPTIONS"),
     ("mmg._threads", "run_threads"),
     ("mmg.model", "Inertia"),

@@ -256,7 +256,9 @@ def test_the_rk4_stage_loop_compiles_to_vector_instructions(step):
     operations in the simulator's step and in the objective's fused one. One construct that LLVM
     cannot vectorise in a sub-model (a float ``min()``, for instance) leaves the whole loop scalar
     and the kernel about half as fast, with every result unchanged: this finds it without
-    timing anything. (Compiles the step on its own, about 10 s.)"""
+    timing anything. The step's multiplies, its sub-models' included, are all strict in the
+    simulator's step and all contracted in the objective's. (Compiles the step on its own, about
+    10 s.)"""
     kern = load_kernel()
     W = 16
     cur = np.zeros((4, W))
@@ -270,6 +272,13 @@ def test_the_rk4_stage_loop_compiles_to_vector_instructions(step):
     ir = fn.inspect_llvm(fn.signatures[0])
     assert re.search(r"llvm\.sqrt\.v\d+f64", ir), "no vector square root in the stage loop"
     assert re.search(r"fdiv (?:[a-z]+ )*<\d+ x double>", ir), "no vector division either"
+    # the sub-models inlined into the step have its arithmetic: the fused step calls their fused
+    # twins (no strict multiply left), the simulator's step the strict ones (no contraction)
+    assert re.search(r"= fmul ", ir)
+    if step == "rk4_step_fused":
+        assert not re.search(r"= fmul (?!contract)", ir), "a strict multiply in the fused step"
+    else:
+        assert " contract " not in ir, "a contracted multiply in the simulator's step"
 
 
 @pytest.mark.skipif(

@@ -28,11 +28,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="mmg-compile-") as directory:
         os.environ["MMG_KERNEL_DIR"] = directory  # before mmg reads it
-        from mmg.precompile import ENTRIES, _compile
+        from mmg.precompile import compile_entry, tasks
 
-        unknown = [e for e in args.entries if e not in ENTRIES]
-        if unknown:
-            print(f"unknown entry point(s) {unknown}; known: {sorted(ENTRIES)}", file=sys.stderr)
+        try:
+            tasks([], args.entries)  # checks the entry points' names
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
             return 2
         total = 0.0
         t0 = time.perf_counter()
@@ -40,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
         for spec in args.kernels:
             names = tuple(n for n in spec.split(",") if n and n != "-")
             for entry in args.entries:
-                seconds = _compile(names, entry)
+                seconds = compile_entry(names, entry)
                 total += seconds
                 print(f"{spec:32s} {entry:14s} {seconds:8.1f}", flush=True)
         print(f"{'total':47s} {total:8.1f}  (wall {time.perf_counter() - t0:.1f} s)")

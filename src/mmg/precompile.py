@@ -42,8 +42,9 @@ def is_compiled(effects: tuple[Effect, ...], entry: str) -> bool:
     return index is not None and Path(index).exists()
 
 
-def _compile(names: tuple[str, ...], entry: str) -> float:
-    """In a worker: compile ``entry`` of the kernel for the named effects; seconds taken."""
+def compile_entry(names: tuple[str, ...], entry: str) -> float:
+    """Compile ``entry`` of the kernel for the named effects in this process (a worker of
+    :func:`precompile`, or ``benchmarks/compile_time.py``); seconds taken."""
     from mmg.integrate import (
         Segments,
         derivatives,
@@ -122,7 +123,9 @@ def precompile(
     done = 0
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-        futures = {pool.submit(_compile, names, entry): (names, entry) for names, entry in missing}
+        futures = {
+            pool.submit(compile_entry, names, entry): (names, entry) for names, entry in missing
+        }
         for future in as_completed(futures):
             names, entry = futures[future]
             future.result()  # a failure here would fail the same way in the run: say it now

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import shutil
 import subprocess
 import sys
 import warnings
@@ -149,10 +150,39 @@ def run_smoke(cwd: Path, data_dir: Path) -> subprocess.CompletedProcess[str]:
 
 @pytest.fixture(scope="session")
 def smoke(tmp_path_factory: pytest.TempPathFactory, data_dir: Path):
-    """(directory, completed process) of one smoke sweep, shared by the CLI and UI tests."""
-    cwd = tmp_path_factory.mktemp("sweep")
-    first = run_smoke(cwd, data_dir)
+    """(directory, completed process) of one smoke sweep, shared by the CLI and UI tests.
+
+    The sweep runs once per test run, not once per xdist worker (the CLI and UI tests are in
+    different files, so under ``--dist loadfile`` usually in different workers; each run costs a
+    minute or two of both cores): the first worker to take the lock runs it into a directory
+    of the run's shared temporary root, and every worker gets its own copy of that directory
+    (its tests rerun the command there and start servers on its store)."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the root that the workers' own temporary directories share
+    pristine = root / "smoke-sweep"
+    with open(root / "smoke-sweep.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if not (pristine / "returncode").exists():
+                shutil.rmtree(pristine, ignore_errors=True)
+                pristine.mkdir()
+                done = run_smoke(pristine, data_dir)
+                (pristine / "stdout").write_text(done.stdout)
+                (pristine / "stderr").write_text(done.stderr)
+                (pristine / "returncode").write_text(str(done.returncode))
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+    first = subprocess.CompletedProcess(
+        SMOKE_COMMAND,
+        int((pristine / "returncode").read_text()),
+        (pristine / "stdout").read_text(),
+        (pristine / "stderr").read_text(),
+    )
     assert first.returncode == 0, first.stderr[-3000:]
+    cwd = tmp_path_factory.mktemp("sweep")
+    own = shutil.ignore_patterns("stdout", "stderr", "returncode")
+    shutil.copytree(pristine, cwd, dirs_exist_ok=True, ignore=own)
     return cwd, first
 
 

@@ -172,13 +172,15 @@ class RayExecutor:
         """``jobs``: how many the sweep will run (to balance the rounds); ``cpus_per_worker``:
         the CPU share of an evaluation worker, None: 1 unless balancing asks for less."""
         os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # local runs: no token file needed
-        env_vars = {k: v for k, v in os.environ.items() if k.startswith(("MMG_", "NUMBA_"))}
-        env_vars.update(env or {})
-        kwargs: dict[str, Any] = {
-            "include_dashboard": False,
-            "log_to_driver": True,
-            "runtime_env": {"env_vars": env_vars},
-        }
+        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": True}
+        if address or env:
+            # a cluster's workers run in the nodes' own environments: they are given the
+            # driver's MMG_* and NUMBA_* variables (the data and kernel directories); a local
+            # Ray's workers inherit the driver's environment, and a runtime environment would
+            # only start a setup process before every worker (1-2 s of a core each)
+            env_vars = {k: v for k, v in os.environ.items() if k.startswith(("MMG_", "NUMBA_"))}
+            env_vars.update(env or {})
+            kwargs["runtime_env"] = {"env_vars": env_vars}
         if address:
             ray.init(address=address, **kwargs)
         else:

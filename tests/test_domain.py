@@ -168,3 +168,34 @@ def test_ranges_and_the_recordings_that_leave_them():
     # a short excursion (at most 1 % of the samples) is not named
     blip = _recording("blip", np.full(200, 0.8), np.r_[np.full(198, 8.0), 11.0, 11.0])
     assert departures(rng, [blip]) == []
+
+
+def test_boxes_of_the_same_bounds_run_one_kernel_with_the_bounds_in_its_rows():
+    """The kernel's code holds no bound: the boxes of one effect that bound the same variables
+    share one compiled kernel, the bounds being parameter rows after the effect's own. Each box
+    acts through those rows: a state inside box a and outside box b (n_p 4.5) gets the
+    effect's force with a, and none with b switched off outside it."""
+    from mmg.fixed import kernel_effects
+    from mmg.integrate import derivatives_rows
+    from mmg.kernel import load_kernel
+
+    walk = get_effect("propeller_walk")
+    a = within(walk, BOX.with_mode("off"))
+    b = within(walk, Domain({"u": 0.1, "n_p": 2.0}, {"u": 0.9, "n_p": 4.0}, "off"))
+    assert kernel_effects((a,)) == kernel_effects((b,)) != (walk,)
+    assert load_kernel(kernel_effects((a,))) is load_kernel(kernel_effects((b,)))
+    p = efd_parameters()
+    rows = np.concatenate([p.vector(), [0.01, -0.004]])[None, :]  # (1, 57 + C_Yw, C_Nw)
+    x = np.array([0.0, 0.8, 0.0, 0.05, 0.0, 0.01])
+    w = np.zeros(2)
+
+    def xdot(effects: tuple, n_p: float) -> np.ndarray:
+        u = np.array([0.1, n_p])
+        return derivatives_rows(x, u, w, rows[:, : 57 + 2 * len(effects)], effects)[0]
+
+    inside_both, outside_b = 3.5, 4.5
+    for n_p in (inside_both, outside_b):
+        np.testing.assert_allclose(xdot((a,), n_p), xdot((walk,), n_p), rtol=1e-13, atol=0)
+    np.testing.assert_allclose(xdot((b,), inside_both), xdot((walk,), inside_both), rtol=1e-13)
+    np.testing.assert_allclose(xdot((b,), outside_b), xdot((), outside_b), rtol=1e-13, atol=0)
+    assert np.abs(xdot((walk,), outside_b) - xdot((), outside_b)).max() > 1e-6

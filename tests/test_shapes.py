@@ -15,7 +15,9 @@ import numpy as np
 import pytest
 
 from mmg import Effect, efd_parameters, get_effect
+from mmg.fixed import kernel_effects
 from mmg.hull import hull_forces
+from mmg.integrate import derivatives_rows
 from mmg.model import rudder_inflow_at
 from mmg.params import N_THETA
 from mmg.shapes import (
@@ -275,6 +277,12 @@ def test_the_probe_gives_the_force_of_each_coefficient() -> None:
         assert nothing == (0.0, 0.0, 0.0)
 
 
+@pytest.mark.kernels(
+    *kernels((HOOK_SPEC,), "derivatives"),
+    *kernels(
+        (shape_name((Group("XYN", "U", 0.0, 1.0, 6), *parse(HOOK_SPEC))) + "#probe",), "derivatives"
+    ),
+)
 def test_probes_of_one_structure_share_their_code_whatever_the_ranges() -> None:
     """A probe's ranges come with its lanes: the probes of the same groups over other ranges
     are one module (one kernel), and a probe made for more groups gives each of the effect's
@@ -285,7 +293,9 @@ def test_probes_of_one_structure_share_their_code_whatever_the_ranges() -> None:
     other = tuple(replace(g, lo=g.lo - 0.1, hi=g.hi + 0.3) if g.variable != "1" else g for g in gs)
     assert shape_name(other) != shape_name(gs)
     assert probe_effect(other).param_type is probe_effect(gs).param_type
-    assert shape_effect(other).param_type is not eff.param_type  # the effect's own are constants
+    # the shape effects too: their knot ranges are parameter rows of one kernel
+    assert kernel_effects((shape_effect(other),)) == kernel_effects((eff,)) != (eff,)
+    assert shape_effect(other).force_at is not eff.force_at  # its hook: the numbers written in
     wider = (Group("XYN", "U", 0.0, 1.0, 6), *gs)
     probe = probe_effect(wider)
     rows = probe_rows(eff, 0.7, wider)
@@ -303,6 +313,17 @@ def test_probes_of_one_structure_share_their_code_whatever_the_ranges() -> None:
             assert got == pytest.approx(want, rel=1e-12, abs=1e-300), i
 
     probe_is_effect(probe, eff, rows)
+    # in the kernel too: a coefficient's row of the shape effect (the knot ranges put in after
+    # the coefficients) moves the ship as its row of the probe (the ranges in the lane's rows)
+    x = np.array([1.0, 0.5, 2.0, -0.08, 0.3, 0.02])
+    u, w = np.array([0.1, 10.0]), np.array([1.0, 0.5])
+    theta = p.vector()
+    for i in (0, 5, len(rows) - 1):
+        values = np.zeros(len(rows))
+        values[i] = 0.7
+        want = derivatives_rows(x, u, w, np.concatenate([theta, values])[None], (eff,), t=12.0)
+        got = derivatives_rows(x, u, w, np.concatenate([theta, rows[i]])[None], (probe,), t=12.0)
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-300)
     with pytest.raises(ValueError, match="no group of the structure"):
         probe_rows(eff, 0.7, wider[:1])
     # a group of one component is served by a probe's group of the same structure with more

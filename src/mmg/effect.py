@@ -123,5 +123,16 @@ class Effect:
         """Parameter values for which the effect vanishes."""
         return tuple(p.neutral for p in self.params)
 
+    def kernel_form(self) -> tuple[Effect, tuple[float, ...] | None, tuple[float, ...]]:
+        """How the compiled kernel runs this effect: (the effect whose code it is compiled
+        from, the values of that effect's leading parameters when this effect holds them (None:
+        this effect's own parameters, from the parameter vector), numbers that follow them in
+        that effect's parameter rows). A plain effect runs itself. An effect held at values
+        (:mod:`mmg.fixed`) or restricted to a box (:mod:`mmg.domain`) runs a kernel whose code
+        holds none of its numbers: they are parameter rows, and one compiled kernel serves
+        every value and every box (:func:`mmg.fixed.kernel_effects`,
+        :func:`mmg.integrate.kernel_rows`)."""
+        return self, None, ()
+
 
 __all__ = ["DISCOVERED_PREFIX", "Effect", "EffectParam"]

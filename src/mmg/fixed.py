@@ -121,6 +121,13 @@ class FixedEffect(Effect):
     def __reduce__(self) -> tuple[Any, ...]:
         return (fixed, (self.inner, self.values))
 
+    def kernel_form(self) -> tuple[Effect, tuple[float, ...] | None, tuple[float, ...]]:
+        """The kernel of the effect held (through any number of holds), with the held values in
+        its parameters' rows."""
+        assert self.inner is not None
+        kernel, held, constants = self.inner.kernel_form()
+        return kernel, (self.values if held is None else held), constants
+
 
 def is_fixed(effect: Effect) -> bool:
     """Whether ``effect`` is held at given values (no parameters of its own)."""
@@ -193,20 +200,11 @@ def fixed(effect: Effect, values: Sequence[float] | Mapping[str, float]) -> Effe
     return made
 
 
-def held_values(effect: Effect) -> tuple[Effect, tuple[float, ...] | None]:
-    """(the effect whose kernel runs ``effect``, the values its parameters take there): an
-    effect held at values runs the effect inside it (through any number of holds) with those
-    values; any other effect runs itself (None: its own parameters' values)."""
-    if not isinstance(effect, FixedEffect) or effect.inner is None:
-        return effect, None
-    inner, values = held_values(effect.inner)
-    return inner, (effect.values if values is None else values)
-
-
 def kernel_effects(effects: Sequence[Effect]) -> tuple[Effect, ...]:
-    """The effects whose kernel simulates ``effects``: each held effect replaced by the effect it
-    holds (:func:`held_values`). The kernel's parameter rows are those of these effects."""
-    return tuple(held_values(e)[0] for e in effects)
+    """The effects whose kernel simulates ``effects`` (:meth:`mmg.effect.Effect.kernel_form`):
+    a held effect runs the kernel of the effect it holds, a wrapped one the boxed kernel of the
+    effect inside. The kernel's parameter rows are those of these effects."""
+    return tuple(e.kernel_form()[0] for e in effects)
 
 
 def by_name(name: str, get: Any) -> Effect:
@@ -225,7 +223,6 @@ __all__ = [
     "FixedEffect",
     "by_name",
     "fixed",
-    "held_values",
     "is_fixed",
     "kernel_effects",
     "spec_of",

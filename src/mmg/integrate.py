@@ -20,7 +20,7 @@ import numba
 import numpy as np
 
 from mmg.effect import Effect
-from mmg.fixed import held_values, kernel_effects
+from mmg.fixed import kernel_effects
 from mmg.kernel import LANE_BLOCK, LIMIT_A, load_kernel
 from mmg.params import ESSO_OSAKA, N_THETA, FloatArray, Parameters, Ship
 
@@ -76,17 +76,21 @@ def parameter_matrix(p: ParamsLike, B: int, effects: tuple[Effect, ...] = ()) ->
 def kernel_rows(P: FloatArray, effects: tuple[Effect, ...]) -> FloatArray:
     """The (n_params, B) parameter matrix ``P`` of ``effects`` as the rows of their kernel
     (:func:`mmg.fixed.kernel_effects`): a held effect, which has no parameters, runs the kernel
-    of the effect it holds, so its held values are put in as that effect's rows."""
-    values = [held_values(e)[1] for e in effects]
-    if all(v is None for v in values):
+    of the effect it holds, so its held values are put in as that effect's rows; the numbers of
+    an effect's kernel form (a box's bounds) follow its rows."""
+    forms = [e.kernel_form() for e in effects]
+    if all(held is None and not numbers for _, held, numbers in forms):
         return P
+    B = P.shape[1]
     blocks, k = [P[:N_THETA]], N_THETA
-    for e, held in zip(effects, values, strict=True):
+    for e, (_, held, numbers) in zip(effects, forms, strict=True):
         if held is None:
             blocks.append(P[k : k + len(e.params)])
             k += len(e.params)
         else:
-            blocks.append(np.repeat(np.asarray(held, dtype=np.float64)[:, None], P.shape[1], 1))
+            blocks.append(np.repeat(np.asarray(held, dtype=np.float64)[:, None], B, 1))
+        if numbers:
+            blocks.append(np.repeat(np.asarray(numbers, dtype=np.float64)[:, None], B, 1))
     return kernel_array(np.concatenate(blocks, axis=0))
 
 

@@ -104,13 +104,16 @@ def precompile(
     Effects travel by name (:func:`mmg.get_effect` rebuilds catalog and discovered ones in the
     workers)."""
     # by the effects whose kernel runs (a held effect runs the kernel of the effect it holds)
-    missing = list(
-        dict.fromkeys(
-            (tuple(e.name for e in kernel_effects(effects)), entry)
-            for effects, entry in dict.fromkeys(wanted)
-            if not is_compiled(effects, entry)
-        )
-    )
+    # (the effects travel by their own names: a kernel's effect, e.g. a boxed one, has none
+    # that mmg.get_effect reads)
+    kernel_of: dict[tuple[tuple[str, ...], str], tuple[tuple[str, ...], str]] = {}
+    for effects, entry in dict.fromkeys(wanted):
+        if not is_compiled(effects, entry):
+            names = tuple(e.name for e in effects)
+            kernel_of.setdefault(
+                (tuple(e.name for e in kernel_effects(effects)), entry), (names, entry)
+            )
+    missing = list(kernel_of.values())
     if not missing:
         return 0
     workers = max(1, min(len(missing), processes or os.cpu_count() or 1))

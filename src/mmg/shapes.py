@@ -48,11 +48,16 @@ force present only going astern. The parameters are the spline coefficients, nam
 ``s<g>_<C><j>`` (group g, component C, basis function j), neutral 0 and searched in
 [-:data:`DEFAULT_BOUND`, +:data:`DEFAULT_BOUND`].
 
-Like :mod:`mmg.discovered`, :func:`shape_effect` writes a module with the parameter NamedTuple
-and a ``force_at`` hook (free of branches per group: min/max and selects only, so that the
-kernel's lane loop stays vectorised), imports it from ``<kernel dir>/effects`` (named by a hash
-of its text) and keeps the effect under its name; any process rebuilds it from the name
-(:func:`mmg.get_effect`, :class:`ShapeEffect` pickles by name). In numpy: :func:`basis`,
+Like :mod:`mmg.discovered`, a module is generated with the parameter NamedTuple and a
+``force_at`` hook (free of branches per group: min/max and selects only, so that the kernel's
+lane loop stays vectorised), imported from ``<kernel dir>/effects`` (named by a hash of its
+text). Its code is that of the groups' structure (:func:`structure_text`): the knot ranges and
+a closed form's numbers are read from the parameters after the coefficients (:func:`numbers`,
+:func:`shape_kernel`), so that shapes of one structure learnt over other ranges, on other data,
+run one compiled kernel; the shape effect's own hooks call it with its numbers written in
+(:meth:`ShapeEffect.kernel_form`). :func:`shape_effect` keeps the effect under its name; any
+process rebuilds it from the name (:func:`mmg.get_effect`, :class:`ShapeEffect` pickles by
+name). In numpy: :func:`basis`,
 :func:`curve` (a shape for given coefficients) and :func:`penalty` (the second-difference
 penalty of P-splines, per group).
 """
@@ -62,6 +67,7 @@ from __future__ import annotations
 import hashlib
 import math
 import re
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -69,7 +75,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mmg._generated import generated_module
+from mmg._generated import generated_module, with_numbers
 from mmg.effect import Effect, EffectParam
 from mmg.library import T_REF, U_0, U_REF
 
@@ -805,12 +811,39 @@ def {func}(delta_log, n_log, delta_prev, n_prev, dt, e):
 '''
 
 
-def _clamped(group: Group) -> str:
-    """The group's variable clamped to [lo, hi], in knot intervals from lo (0 .. n - 3)."""
-    h = (group.hi - group.lo) / (group.n - 3)
-    lo, hi = float(group.lo), float(group.hi)
-    shift = f"+ {-lo!r}" if lo < 0 else f"- {lo!r}"
-    return f"(min(max({VARIABLES[group.variable].code}, {lo!r}), {hi!r}) {shift}) * {1.0 / h!r}"
+def _clamped(g: int, group: Group) -> str:
+    """Group ``g``'s variable clamped to its knot range [lo, hi], in knot intervals from lo
+    (0 .. n - 3): the range and the knots per unit 1 / h are the group's numbers in the
+    parameters (``k<g>_lo``, ``k<g>_hi``, ``k<g>_h``: :func:`numbers`), not constants of the
+    code, so one kernel serves every range."""
+    code = VARIABLES[group.variable].code
+    return f"(min(max({code}, e.k{g}_lo), e.k{g}_hi) - e.k{g}_lo) * e.k{g}_h"
+
+
+def numbers(groups: Sequence[Group]) -> list[tuple[str, float]]:
+    """(field, value) of the numbers of ``groups`` that the code of their kernel reads from its
+    parameters after the coefficients: a spline's knot range and knots per unit (``k<g>_lo``,
+    ``k<g>_hi``, ``k<g>_h`` = (n - 3) / (hi - lo)); a closed form's range, its numbers
+    (``k<g>_a0``, ...) and 1 / g_max (``k<g>_gs``); nothing for a constant."""
+    out: list[tuple[str, float]] = []
+    for g, group in enumerate(groups):
+        if group.variable == "1":
+            continue
+        out += [(f"k{g}_lo", float(group.lo)), (f"k{g}_hi", float(group.hi))]
+        if group.form:
+            args = parse_form(group.form).args
+            out += [(f"k{g}_a{i}", float(a)) for i, a in enumerate(args)]
+            out.append((f"k{g}_gs", 1.0 / form_scale(group)))
+        else:
+            out.append((f"k{g}_h", 1.0 / ((group.hi - group.lo) / (group.n - 3))))
+    return out
+
+
+def structure_text(group: Group) -> str:
+    """The group as a spec writes it without its knot range and its closed form's numbers
+    (``N~beta/23*Y_H``, ``YN~beta:oddup*Y_H``): what the code of its kernel depends on."""
+    text = re.sub(r"\[[^\]]*\]", "", group.text)
+    return re.sub(r":([a-z]+)\([^)]*\)", r":\1", text)
 
 
 def _lane_clamped(group: Group) -> str:
@@ -842,15 +875,17 @@ def _factors(group: Group) -> tuple[list[str], dict[str, str]]:
 
 def _group_lines(g: int, group: Group) -> list[str]:
     """The hook's code of group ``g``: the clamped variable, its basis, each component's sum."""
-    lines = [f"    # {group.text}"]
+    lines = [f"    # {structure_text(group)}"]
     if group.variable == "1":
         b = ["1.0"]
     elif group.form:  # f = a + b g(z) / g_max, z held at the ends of its range
-        code, lo, hi = VARIABLES[group.variable].code, float(group.lo), float(group.hi)
-        lines.append(f"    z = min(max({code}, {lo!r}), {hi!r})")
-        b = ["1.0", f"({parse_form(group.form).code('z')}) * {1.0 / form_scale(group)!r}"]
+        code = VARIABLES[group.variable].code
+        lines.append(f"    z = min(max({code}, e.k{g}_lo), e.k{g}_hi)")
+        form = parse_form(group.form)
+        args = [f"e.k{g}_a{i}" for i in range(len(form.args))]
+        b = ["1.0", f"({FORMS[form.key][2].format(z='z', a=args)}) * e.k{g}_gs"]
     else:
-        lines += _basis_lines(group)
+        lines += _basis_lines(g, group)
         b = [f"b{j}" for j in range(group.n)]
     setup, factor = _factors(group)
     lines += setup
@@ -865,9 +900,9 @@ def _group_lines(g: int, group: Group) -> list[str]:
     return lines
 
 
-def _basis_lines(group: Group) -> list[str]:
-    """The spline group's clamped variable ``s`` and its basis functions ``b0`` .. ``b<n-1>``."""
-    lines = [f"    s = {_clamped(group)}"]
+def _basis_lines(g: int, group: Group) -> list[str]:
+    """Spline group ``g``'s clamped variable ``s`` and its basis functions ``b0`` .. ``b<n-1>``."""
+    lines = [f"    s = {_clamped(g, group)}"]
     for j in range(group.n):
         lines.append(f"    b{j} = _b3(s {'+' if j < 1 else '-'} {abs(float(j - 1))!r})")
     return lines
@@ -885,7 +920,7 @@ def _gap_lines(group: Group) -> list[str]:
 
 def _memory_lines(g: int, group: Group) -> list[str]:
     """The inputs hook's code of memory group ``g``: the control less the share of its gap."""
-    lines = [f"    # {group.text}", *_gap_lines(group), *_basis_lines(group)]
+    lines = [f"    # {structure_text(group)}", *_gap_lines(group), *_basis_lines(g, group)]
     c = group.control
     terms = " + ".join(f"e.s{g}_{c}{j} * b{j}" for j in range(group.n))
     lines.append(f"    {CONTROLS[c].symbol} -= gap * ({terms})")
@@ -955,6 +990,7 @@ def _source(name: str, groups: Sequence[Group], key: str, probe: bool = False) -
     lines: list[str] = []
     memory: list[str] = []
     fields: list[str] = []
+    extra = ""
     if probe:
         lines = _probe_lines(groups)
         memory = _probe_memory_lines(groups)
@@ -977,6 +1013,11 @@ def _source(name: str, groups: Sequence[Group], key: str, probe: bool = False) -
             for c in group.components:
                 formula = group.formula(c, g)
                 fields += [f"    s{g}_{c}{j}: float  # {formula}" for j in range(group.n)]
+        # the kernel's rows: the coefficients, then the groups' numbers (the same code for
+        # every knot range and closed form's numbers)
+        rows = [*fields, *(f"    {f}: float" for f, _ in numbers(groups))]
+        extra = f"\n\nclass ShapeRows_{key}(NamedTuple):\n" + "\n".join(rows) + "\n"
+        name = "kernel of " + "+".join(structure_text(g) for g in groups)
     force_name, inputs_name = hook_names(groups, key)
     hooks = ""
     if force_name:
@@ -991,7 +1032,7 @@ def _source(name: str, groups: Sequence[Group], key: str, probe: bool = False) -
     return _TEMPLATE.format(
         name=name,
         ptype=f"ShapeParams_{key}",
-        fields="\n".join(fields),
+        fields="\n".join(fields) + ("" if probe else extra),
         sixth=1.0 / 6.0,
         hooks=hooks,
     )
@@ -1012,6 +1053,64 @@ class ShapeEffect(Effect):
     def __reduce__(self) -> tuple[Any, ...]:
         """(:func:`rebuild`, (name, parameter table))."""
         return (rebuild, (self.name, tuple(tuple(p) for p in self.params)))
+
+    def kernel_form(self) -> tuple[Effect, tuple[float, ...] | None, tuple[float, ...]]:
+        """The kernel of the shapes' structure (:func:`shape_kernel`), the groups' numbers
+        (:func:`numbers`) after the coefficients; a probe runs itself."""
+        if self.name.endswith(PROBE_SUFFIX):
+            return self, None, ()
+        groups = groups_of(self)
+        return shape_kernel(groups), None, tuple(v for _, v in numbers(groups))
+
+
+#: the kernels' effects of shape structures, by the text of the structure
+_kernels: dict[str, Effect] = {}
+
+
+def shape_kernel(groups: Sequence[Group]) -> Effect:
+    """The effect whose code the kernel of shapes of ``groups``' structure is compiled from: the
+    coefficients and then the groups' numbers (knot ranges, closed forms' numbers:
+    :func:`numbers`) are its parameters, so shapes learnt on other data, over other ranges,
+    run the same compiled kernel."""
+    name = "kernel of " + "+".join(structure_text(g) for g in groups)
+    made = _kernels.get(name)
+    if made is not None:
+        return made
+    module, key = _module(name, groups)
+    params = _coefficients(groups) + [
+        EffectParam(f, "-", v, v, v, "a number of the groups' code") for f, v in numbers(groups)
+    ]
+    made = Effect(
+        name=name,
+        description="the code of shapes " + "+".join(structure_text(g) for g in groups),
+        regime="shapes",
+        params=tuple(params),
+        param_type=getattr(module, f"ShapeRows_{key}"),
+        **_hooks(module, groups, key),
+    )
+    _kernels[name] = made
+    return made
+
+
+def _coefficients(groups: Sequence[Group]) -> list[EffectParam]:
+    """The coefficients of a shape effect of ``groups``: neutral 0, searched in
+    [-:data:`DEFAULT_BOUND`, :data:`DEFAULT_BOUND`] (a memory's in [0, DEFAULT_BOUND])."""
+    params: list[EffectParam] = []
+    for k, g in enumerate(groups):
+        for c in g.components:
+            formula = g.formula(c, k)
+            params += [
+                EffectParam(
+                    f"s{k}_{c}{j}",
+                    "-",
+                    0.0,
+                    0.0 if g.control else -DEFAULT_BOUND,
+                    DEFAULT_BOUND,
+                    (f"{'ab'[j]} of {formula}" if g.form else f"coefficient {j} of {formula}"),
+                )
+                for j in range(g.n)
+            ]
+    return params
 
 
 #: the shape effects of this process by name, with the default search intervals
@@ -1049,22 +1148,13 @@ def shape_effect(groups: Sequence[Group] | str, bound: float = DEFAULT_BOUND) ->
         raise ValueError(f"repeated shape group in {name!r}")
     effect = _generated.get(name)
     if effect is None:
-        module, key = _module(name, gs)
-        params: list[EffectParam] = []
-        for k, g in enumerate(gs):
-            for c in g.components:
-                formula = g.formula(c, k)
-                params += [
-                    EffectParam(
-                        f"s{k}_{c}{j}",
-                        "-",
-                        0.0,
-                        0.0 if g.control else -DEFAULT_BOUND,
-                        DEFAULT_BOUND,
-                        (f"{'ab'[j]} of {formula}" if g.form else f"coefficient {j} of {formula}"),
-                    )
-                    for j in range(g.n)
-                ]
+        kernel = shape_kernel(gs)
+        params = tuple(_coefficients(gs))
+        # its hooks: the kernel's, with the groups' numbers written in
+        hooks = with_numbers(
+            "mmg.shapes", name, [q.name for q in params], kernel, [v for _, v in numbers(gs)]
+        )
+        module = sys.modules[kernel.param_type.__module__]
         effect = ShapeEffect(
             name=name,
             description=(
@@ -1076,9 +1166,10 @@ def shape_effect(groups: Sequence[Group] | str, bound: float = DEFAULT_BOUND) ->
             )
             + "; ".join(g.text for g in gs),
             regime="shapes",
-            params=tuple(params),
-            param_type=getattr(module, f"ShapeParams_{key}"),
-            **_hooks(module, gs, key),
+            params=params,
+            param_type=getattr(module, kernel.param_type.__name__.replace("Rows", "Params")),
+            force_at=hooks.get("force_at"),
+            inputs=hooks.get("inputs"),
         )
         _generated[name] = effect
     if bound == DEFAULT_BOUND:
@@ -1253,6 +1344,7 @@ __all__ = [
     "hook_names",
     "is_closed_form",
     "memory_steps",
+    "numbers",
     "parse",
     "parse_form",
     "penalty",
@@ -1262,6 +1354,8 @@ __all__ = [
     "rebuild",
     "serves",
     "shape_effect",
+    "shape_kernel",
     "shape_name",
+    "structure_text",
     "variable_values",
 ]

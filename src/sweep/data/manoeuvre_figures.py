@@ -131,8 +131,14 @@ def plot_manoeuvres(
     L = L or 3.0
     cols = 3
     rows = 1 + math.ceil(len(comparisons) / cols)
-    fig = Figure(figsize=(4.6 * cols, 4.2 * rows), layout="constrained")
-    grid = fig.add_gridspec(rows, cols)
+    # fixed margins [in]: a constrained layout measured every label and took about half of
+    # the figure's time (one of these per job of a sweep)
+    width, height = 4.6 * cols, 4.2 * rows
+    fig = Figure(figsize=(width, height))
+    grid = fig.add_gridspec(
+        rows, cols, left=0.75 / width, right=1.0 - 0.15 / width, bottom=0.55 / height,
+        top=1.0 - (0.75 if title else 0.35) / height, hspace=0.3, wspace=0.25,
+    )  # fmt: skip
     _standard_row(fig, grid, pred, L)
     for i, c in enumerate(comparisons):
         _recorded_panel(fig.add_subplot(grid[1 + i // cols, i % cols]), c, L)

@@ -29,7 +29,10 @@ The wrapped effect keeps the name of the effect it wraps followed by its box, e.
 its parameters are the inner effect's, so a parameter file written with the plain effect's values
 reads the same values. Like a ``discovered:`` effect it is generated at run time (a small module
 in ``<kernel dir>/effects``, named by a hash of its text) and rebuilt from its name in any process
-(:func:`mmg.get_effect` splits the name, :func:`split_name`, and wraps the inner effect). Hooks
+(:func:`mmg.get_effect` splits the name, :func:`split_name`, and wraps the inner effect). The
+kernel runs it as a *boxed* effect (:func:`boxed`) whose code reads the box's bounds from
+parameter rows after the effect's own: every box of an effect that bounds the same variables
+shares one compiled kernel (:meth:`DomainEffect.kernel_form`). Hooks
 that are not forces (a current, the controls, the measurement) pass through unchanged. A box
 without U (a name written before U was part of it) clamps each variable alone.
 """
@@ -178,8 +181,9 @@ class {own}(NamedTuple):
 
 def bound_fields(d: Domain) -> list[tuple[str, float]]:
     """(field, value) of the bounds the code of a box uses, in :data:`VARIABLES` order: the top
-    speed U_max (``hi_U``) and the finite ends of the clamped variables (``lo_u``, ``hi_u``,
-    ...). Boxes with the same fields share one kernel; the values are parameter rows."""
+    speed U_max (``box_hi_U``) and the finite ends of the clamped variables (``box_lo_u``,
+    ``box_hi_u``, ...). Boxes with the same fields share one kernel; the values are parameter
+    rows."""
     out: list[tuple[str, float]] = []
     for var in VARIABLES:
         lo, hi = d.lower.get(var, -math.inf), d.upper.get(var, math.inf)

@@ -340,9 +340,11 @@ class Form:
         """g in the variable's symbol ``z``."""
         return FORMS[self.key][1].format(z=z, a=[_num(a) for a in self.args])
 
-    def code(self, z: str) -> str:
-        """g in the generated hook, of the variable named ``z`` (branch-free)."""
-        return FORMS[self.key][2].format(z=z, a=[repr(float(a)) for a in self.args])
+    def code(self, z: str, args: Sequence[str] | None = None) -> str:
+        """g in the generated hook, of the variable named ``z`` (branch-free); its numbers are
+        the expressions ``args`` (the kernel's parameters), else written in."""
+        a = [repr(float(x)) for x in self.args] if args is None else list(args)
+        return FORMS[self.key][2].format(z=z, a=a)
 
     def __call__(self, z: Any) -> FloatArray:
         """g at z (numpy, the same arithmetic as :meth:`code`)."""
@@ -883,7 +885,7 @@ def _group_lines(g: int, group: Group) -> list[str]:
         lines.append(f"    z = min(max({code}, e.k{g}_lo), e.k{g}_hi)")
         form = parse_form(group.form)
         args = [f"e.k{g}_a{i}" for i in range(len(form.args))]
-        b = ["1.0", f"({FORMS[form.key][2].format(z='z', a=args)}) * e.k{g}_gs"]
+        b = ["1.0", f"({form.code('z', args)}) * e.k{g}_gs"]
     else:
         lines += _basis_lines(g, group)
         b = [f"b{j}" for j in range(group.n)]

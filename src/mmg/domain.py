@@ -270,9 +270,9 @@ def boxed(inner: Effect, d: Domain) -> Effect:
     )
     key = hashlib.sha256(text.encode()).hexdigest()[:16]
     module = generated_module(f"mmg_box_{key}", text.replace("KEY", key))
+    # (the bounds' values come with each wrapped effect's rows: DomainEffect.kernel_form)
     box_params = tuple(
-        EffectParam(f, "-", v, v, v, f"bound of the box ({f[4:6]} {f[7:]})")
-        for f, v in bound_fields(d)
+        EffectParam(f, "-", 0.0, 0.0, 0.0, f"bound of the box ({f[4:6]} {f[7:]})") for f in fields
     )
     made = Effect(
         name=f"{inner.name}@{d.mode}[{','.join(f[4:] for f in fields)}]",

@@ -1079,8 +1079,10 @@ def shape_kernel(groups: Sequence[Group]) -> Effect:
     if made is not None:
         return made
     module, key = _module(name, groups)
+    # (the numbers' values come with each shape effect's rows: :meth:`ShapeEffect.kernel_form`)
     params = _coefficients(groups) + [
-        EffectParam(f, "-", v, v, v, "a number of the groups' code") for f, v in numbers(groups)
+        EffectParam(f, "-", 0.0, 0.0, 0.0, "a number of the groups' code")
+        for f, _ in numbers(groups)
     ]
     made = Effect(
         name=name,

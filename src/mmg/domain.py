@@ -47,7 +47,7 @@ from decimal import ROUND_CEILING, ROUND_FLOOR, Decimal
 from typing import Any
 
 from mmg._generated import HOOK_ARGS, generated_module, with_numbers
-from mmg.effect import Effect, EffectParam
+from mmg.effect import Effect, EffectParam, KernelForm
 
 #: the variables of the box, in the order of a name's box
 VARIABLES = ("U", "u", "v_m", "r", "delta", "n_p")
@@ -298,7 +298,7 @@ class DomainEffect(Effect):
     def __reduce__(self) -> tuple[Any, ...]:
         return (within, (self.inner, self.domain))
 
-    def kernel_form(self) -> tuple[Effect, tuple[float, ...] | None, tuple[float, ...]]:
+    def kernel_form(self) -> KernelForm:
         """The boxed kernel of the inner effect's kernel (:func:`boxed`), its rows followed by
         the box's bounds."""
         assert self.inner is not None and self.domain is not None

@@ -45,6 +45,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+#: how the compiled kernel runs an effect (:meth:`Effect.kernel_form`): the effect whose code is
+#: compiled, the values of its leading parameters when held (None: from the parameter vector),
+#: the numbers that follow them in its parameter rows
+KernelForm = tuple["Effect", tuple[float, ...] | None, tuple[float, ...]]
+
 #: names of generated effects start with this (the rest lists the library terms)
 DISCOVERED_PREFIX = "discovered:"
 
@@ -123,7 +128,7 @@ class Effect:
         """Parameter values for which the effect vanishes."""
         return tuple(p.neutral for p in self.params)
 
-    def kernel_form(self) -> tuple[Effect, tuple[float, ...] | None, tuple[float, ...]]:
+    def kernel_form(self) -> KernelForm:
         """How the compiled kernel runs this effect: (the effect whose code it is compiled
         from, the values of that effect's leading parameters when this effect holds them (None:
         this effect's own parameters, from the parameter vector), numbers that follow them in
@@ -135,4 +140,4 @@ class Effect:
         return self, None, ()
 
 
-__all__ = ["DISCOVERED_PREFIX", "Effect", "EffectParam"]
+__all__ = ["DISCOVERED_PREFIX", "Effect", "EffectParam", "KernelForm"]

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 from mmg._generated import HOOK_ARGS, generated_module
-from mmg.effect import Effect
+from mmg.effect import Effect, KernelForm
 
 #: separates an effect's name from its held values
 SEPARATOR = "@fixed("
@@ -107,7 +107,7 @@ class FixedEffect(Effect):
     def __reduce__(self) -> tuple[Any, ...]:
         return (fixed, (self.inner, self.values))
 
-    def kernel_form(self) -> tuple[Effect, tuple[float, ...] | None, tuple[float, ...]]:
+    def kernel_form(self) -> KernelForm:
         """The kernel of the effect held (through any number of holds), with the held values in
         its parameters' rows."""
         assert self.inner is not None

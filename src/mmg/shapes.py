@@ -76,7 +76,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mmg._generated import generated_module, with_numbers
-from mmg.effect import Effect, EffectParam
+from mmg.effect import Effect, EffectParam, KernelForm
 from mmg.library import T_REF, U_0, U_REF
 
 FloatArray = NDArray[np.float64]
@@ -1056,17 +1056,23 @@ class ShapeEffect(Effect):
         """(:func:`rebuild`, (name, parameter table))."""
         return (rebuild, (self.name, tuple(tuple(p) for p in self.params)))
 
-    def kernel_form(self) -> tuple[Effect, tuple[float, ...] | None, tuple[float, ...]]:
+    def kernel_form(self) -> KernelForm:
         """The kernel of the shapes' structure (:func:`shape_kernel`), the groups' numbers
         (:func:`numbers`) after the coefficients; a probe runs itself."""
         if self.name.endswith(PROBE_SUFFIX):
             return self, None, ()
-        groups = groups_of(self)
-        return shape_kernel(groups), None, tuple(v for _, v in numbers(groups))
+        form = _forms.get(self.name)  # (every simulation asks: parsing the name took 0.2 ms)
+        if form is None:
+            groups = groups_of(self)
+            form = shape_kernel(groups), None, tuple(v for _, v in numbers(groups))
+            _forms[self.name] = form
+        return form
 
 
 #: the kernels' effects of shape structures, by the text of the structure
 _kernels: dict[str, Effect] = {}
+#: the kernel forms of shape effects, by name (the search intervals take no part in them)
+_forms: dict[str, tuple[Effect, None, tuple[float, ...]]] = {}
 
 
 def shape_kernel(groups: Sequence[Group]) -> Effect:

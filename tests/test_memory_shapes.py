@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from mmg import efd_parameters, get_effect
+from mmg import Effect, efd_parameters, get_effect
 from mmg.shapes import (
     CONTROLS,
     Group,
@@ -124,6 +124,92 @@ def test_a_memory_shape_expresses_rate_limits_play_and_lags(kind: str, size: flo
     assert rms < 0.2 and rms < before / 8.0, (rms, before)
 
 
+def _planted_log(kind: str, size: float) -> tuple[np.ndarray, np.ndarray]:
+    """A logged rudder (holds of 3-15 s at angles within +-35 deg, in the log's 0.56-deg steps)
+    and the acting rudder of a gear of ``kind`` (rate [rad/s], play [rad], lag [s])."""
+    rng = np.random.default_rng(1)
+    holds: list[float] = []
+    while len(holds) < 1500:
+        holds += [rng.uniform(-0.61, 0.61)] * int(rng.integers(30, 150))
+    log = np.round(np.array(holds[:1500]) / 0.0098) * 0.0098
+    planted = {
+        "rate": lambda lg, pv: pv + np.clip(lg - pv, -size * DT, size * DT),
+        "play": lambda lg, pv: max(lg - size, min(lg + size, pv)),
+        "lag": lambda lg, pv: pv + (1.0 - math.exp(-DT / size)) * (lg - pv),
+    }[kind]
+    return log, _acting(log, planted)
+
+
+@pytest.mark.parametrize(
+    ("kind", "size"), [("rate", 0.8727), ("rate", 0.2), ("play", 0.03), ("lag", 0.5)]
+)
+def test_a_memory_spline_is_named_by_its_closed_form(kind: str, size: float) -> None:
+    """A memory spline fitted to a rate-limited gear, to a gear with play and to a lag is closest
+    to that family (:func:`sweep.diagnose.naming.memory_forms`), with its size; the closed form
+    fitted through its own hook then reproduces the acting rudder to a hundredth of a degree,
+    and its report states the gear in the control's terms."""
+    from sweep.diagnose.naming import memory_forms
+
+    log, truth = _planted_log(kind, size)
+    z_max = math.asinh(0.7 / math.radians(1.0))
+    spline = Group("D", "ed", -z_max, z_max, 16)
+
+    def residual(c: np.ndarray, effect: Effect) -> np.ndarray:
+        hook, p = effect.inputs, effect.param_type(*c)
+        assert hook is not None
+        return _acting(log, lambda lg, pv: hook(lg, 10.0, pv, 10.0, DT, p)[0]) - truth
+
+    eff = shape_effect([spline])
+    fit = least_squares(residual, np.full(16, 0.5), bounds=eff.bounds, args=(eff,), max_nfev=100)
+    forms = memory_forms(spline, list(fit.x))
+    assert forms[0].form == kind, forms
+    assert forms[0].r2 > 0.9 and forms[1].r2 < forms[0].r2
+    named = Group("D", "ed", -z_max, z_max, 1, form=kind)
+    assert named.text == f"D~ed[{named.lo:g}:{named.hi:g}]:{kind}"
+    closed = shape_effect([named])
+    assert closed.bounds == ((0.0,), (1.0,)) and closed.inputs is not None
+    e_max = CONTROLS["D"].quantum * math.sinh(z_max)
+    want = {"rate": 1.0 - size * DT / e_max, "play": size / e_max, "lag": math.exp(-DT / size)}
+    assert forms[0].a == pytest.approx(want[kind], abs=0.05)
+    refit = least_squares(residual, [forms[0].a], bounds=closed.bounds, args=(closed,), max_nfev=50)
+    assert refit.x[0] == pytest.approx(want[kind], rel=1e-3)
+    assert math.degrees(float(np.sqrt(np.mean(refit.fun**2)))) < 0.01
+    text = named.memory_closed(float(refit.x[0]), DT)
+    shown = {
+        "rate": f"a rate limit of the rudder angle: {math.degrees(size):.3g} deg/s",
+        "play": f"play of the rudder angle: {math.degrees(size):.3g} deg",
+        "lag": f"a first-order lag of the rudder angle: T = {size:.3g} s",
+    }
+    assert text.startswith(shown[kind]), text
+
+
+def test_a_memory_closed_form_takes_the_steps_of_its_family() -> None:
+    """Through the hook: a lag closes (1 - c) of the gap, a rate limit at most (1 - c) e_max,
+    play nothing below c e_max and the rest beyond; c = 0 is the paper's model."""
+    from mmg.shapes import memory_steps
+
+    e_max = math.radians(1.0) * math.sinh(4.0)
+    for kind, c, gap, step in (
+        ("lag", 0.25, 0.2, 0.15),
+        ("rate", 0.9, 0.2, 0.1 * e_max),
+        ("rate", 0.9, -0.01, -0.01),
+        ("play", 0.02, 0.2, 0.2 - 0.02 * e_max),
+        ("play", 0.02, -0.005, 0.0),
+    ):
+        g = Group("D", "ed", -4.0, 4.0, 1, form=kind)
+        eff = shape_effect([g])
+        assert eff.inputs is not None
+        for c_ in (c, 0.0):
+            want = step if c_ else gap
+            got = eff.inputs(0.1 + gap, 10.0, 0.1, 10.0, DT, eff.param_type(c_))[0]
+            assert got == pytest.approx(0.1 + want, abs=1e-12), (kind, c_)
+            assert memory_steps(g, [c_], [gap])[1][0] == pytest.approx(want, abs=1e-12)
+    assert get_effect("shape:D~ed[-4:4]:play").params[0].description == (
+        "delta = delta_prev + sign(e_delta) max(|e_delta| - b, 0),  b = s0_D0 e_max,  "
+        f"e_max = {e_max:.6g} rad  [rad]"
+    )
+
+
 def test_memory_groups_are_written_one_way() -> None:
     """The gap of the rudder is a memory of the rudder alone, without multiplier, scaling or
     closed form; a force group cannot take a control's letter."""
@@ -133,7 +219,9 @@ def test_memory_groups_are_written_one_way() -> None:
         ("shape:P~ed[-4:4]/8", "its shape's component is D"),
         ("shape:D~beta[0:1]/6", "one or more of X, Y, N"),
         ("shape:D~ed[-4:4]/8*v", "no multiplier"),
-        ("shape:D~ed[-4:4]:odd", "no multiplier, scale or closed form"),
+        ("shape:D~ed[-4:4]:odd", "a memory's closed form is one of lag, rate, play"),
+        ("shape:D~ed[-4:4]/8@U2", "no multiplier or scale"),
+        ("shape:Y~beta[-1:1]:rate", "unknown closed form 'rate'"),
     ):
         with pytest.raises(KeyError, match=why):
             get_effect(bad)

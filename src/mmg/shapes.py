@@ -208,6 +208,32 @@ CONTROLS: dict[str, Control] = {
     "D": Control("delta", "rad", "rudder angle", "delta_log", "delta_prev", math.radians(1.0), 0),
     "P": Control("n_p", "rev/s", "propeller speed", "n_log", "n_prev", 0.5, 1),
 }
+#: closed forms of a memory (``D~ed[lo:hi]:rate``): the step s a control takes in one time step
+#: towards its log, as a function of the gap e, in the families a steering gear or an engine
+#: governor is written in, each of one coefficient c in [0, 1] (0: no memory, the paper's model)
+#: and the range's largest gap e_max = quantum sinh(max(-lo, hi)): key -> (meaning, formula,
+#: code). ``lag``: linear, s = (1 - c) e (a first-order lag, c = exp(-dt / T)); ``rate``: a
+#: saturation, s = clip(e, -m, m), m = (1 - c) e_max (a rate limit m / dt); ``play``: a dead
+#: zone, s = sign(e) max(|e| - b, 0), b = c e_max (play of b). In the formulas {x} is the
+#: control, {prev} its acting value of the step before, {e} the gap, {c} the coefficient; in the
+#: code ``gap``, ``c`` and ``emax``.
+MEMORY_FORMS: dict[str, tuple[str, str, str]] = {
+    "lag": (
+        "a first-order lag",
+        "{x} = {prev} + (1 - {c}) {e}",
+        "gap * c",
+    ),
+    "rate": (
+        "a rate limit",
+        "{x} = {prev} + clip({e}, -m, m),  m = (1 - {c}) e_max",
+        "gap - min(max(gap, -(1.0 - c) * emax), (1.0 - c) * emax)",
+    ),
+    "play": (
+        "play (a dead zone of the gap)",
+        "{x} = {prev} + sign({e}) max(|{e}| - b, 0),  b = {c} e_max",
+        "gap - math.copysign(max(abs(gap) - c * emax, 0.0), gap)",
+    ),
+}
 #: quadrant indicators (multipliers only): [u < 0], [u >= 0], [n_p < 0], [n_p >= 0]
 INDICATORS: dict[str, tuple[str, str]] = {
     "ast": ("[u < 0]", "1.0 if u < 0.0 else 0.0"),
@@ -422,7 +448,7 @@ def parse_form(text: str) -> Form:
 
 def form_scale(group: Group) -> float:
     """g_max of a closed-form group: the largest |g| over its range (0 for a spline group)."""
-    if not group.form:
+    if not group.form or group.control:
         return 0.0
     g = parse_form(group.form)(np.linspace(group.lo, group.hi, FORM_GRID))
     return float(np.max(np.abs(g)))
@@ -457,9 +483,12 @@ class Group:
                     f"{self.variable} is the gap of the {CONTROLS[var.control].meaning}: its "
                     f"shape's component is {var.control}, not {c!r}"
                 )
-            if self.multiplier or self.scale or self.form:
+            if self.multiplier or self.scale:
+                raise ValueError(f"{self.variable}: a memory shape takes no multiplier or scale")
+            if self.form and self.form not in MEMORY_FORMS:
                 raise ValueError(
-                    f"{self.variable}: a memory shape takes no multiplier, scale or closed form"
+                    f"{self.variable}: a memory's closed form is one of "
+                    f"{', '.join(MEMORY_FORMS)}, not {self.form!r}"
                 )
         elif c == "S" or self.multiplier in SHARES:
             if c != "S" or self.multiplier not in SHARES:
@@ -490,7 +519,10 @@ class Group:
             object.__setattr__(self, "hi", float(_num(self.hi)))
             if not (math.isfinite(self.lo) and math.isfinite(self.hi) and self.lo < self.hi):
                 raise ValueError(f"{self.variable}: knot range [{self.lo}, {self.hi}] is empty")
-            if self.form:
+            if self.form and self.control:
+                if self.n != 1:
+                    raise ValueError(f"{self.variable}: a memory's closed form has 1 coefficient")
+            elif self.form:
                 object.__setattr__(self, "form", parse_form(self.form).text)
                 if self.n != 2:
                     raise ValueError(f"{self.variable}: a closed form has 2 coefficients (a, b)")
@@ -560,6 +592,11 @@ class Group:
         if self.control:
             k = CONTROLS[self.control]
             e = f"e_{k.log.removesuffix('_log')}"
+            if self.form:
+                body = MEMORY_FORMS[self.form][1].format(
+                    x=k.symbol, prev=k.prev, e=e, c=f"s{g}_{component}0"
+                )
+                return f"{body},  e_max = {_num(memory_range(self))} {k.unit}  [{k.unit}]"
             return f"{k.symbol} = {k.log} - {e} {f}  [{k.unit}]"
         unit = "N m" if component == "N" else "N"
         m = self.multiplier
@@ -581,6 +618,32 @@ class Group:
             mult = f" ({VARIABLES[m].factor_formula or VARIABLES[m].symbol})"
         scale = SCALES[self.scale_name][0 if component == "X" else 1]
         return f"{component} += {q} {scale} {f}{mult}  [{unit}]"
+
+    def memory_closed(self, c: float, dt: float) -> str:
+        """A memory's closed form for its coefficient ``c`` in the control's terms, at time
+        steps of ``dt`` [s]: the lag's time constant, the rate limit or the play (a rudder's in
+        degrees)."""
+        if not (self.control and self.form):
+            raise ValueError(f"{self.text} is not a memory's closed form")
+        k = CONTROLS[self.control]
+        deg = k.unit == "rad"
+        unit = "deg" if deg else k.unit
+        size = math.degrees(memory_range(self)) if deg else memory_range(self)
+        what = k.meaning
+        if self.form == "lag":
+            if c <= 0.0:
+                return f"no lag of the {what} (c = 0)"
+            if c >= 1.0:
+                return f"the {what} does not move (c = 1)"
+            T = -dt / math.log(c)
+            return (
+                f"a first-order lag of the {what}: T = {T:.3g} s "
+                f"({1.0 - c:.3g} of the gap closed in each step of {dt:.3g} s)"
+            )
+        if self.form == "rate":
+            m = (1.0 - c) * size
+            return f"a rate limit of the {what}: {m / dt:.3g} {unit}/s ({m:.3g} {unit} a step)"
+        return f"play of the {what}: {c * size:.3g} {unit} either way"
 
     def closed(self, component: str, a: float, b: float, g: int = 0) -> str:
         """:meth:`formula` of a closed-form group with f written out for its coefficients
@@ -618,7 +681,8 @@ def parse(spec: str) -> tuple[Group, ...]:
             lo, hi = (0.0, 0.0) if m["one"] else (float(m["lo"]), float(m["hi"]))
         except ValueError:
             raise ValueError(f"shape group {part!r}: the knot range is not two numbers") from None
-        n = 2 if m["f"] else int(m["n"] or 1)
+        var = VARIABLES.get(m["v"] or "")
+        n = (1 if var is not None and var.control else 2) if m["f"] else int(m["n"] or 1)
         groups.append(
             Group(m["c"], m["one"] or m["v"], lo, hi, n, m["m"] or "", m["s"] or "", m["f"] or "")
         )
@@ -656,6 +720,8 @@ def basis(group: Group, z: Any) -> FloatArray:
     z = np.atleast_1d(np.asarray(z, dtype=np.float64))
     if group.variable == "1":
         return np.ones((z.size, 1))
+    if group.control and group.form:
+        raise ValueError(f"{group.text}: a memory's closed form is no sum of basis functions")
     if group.form:  # a + b g / g_max
         g = parse_form(group.form)(np.clip(z, group.lo, group.hi)) / form_scale(group)
         return np.column_stack([np.ones_like(z), g])
@@ -666,19 +732,47 @@ def basis(group: Group, z: Any) -> FloatArray:
 
 def curve(group: Group, coefficients: Any, z: Any) -> FloatArray:
     """f(z) of one component of ``group`` for its n coefficients: the dimensionless shape; the
-    force is f times the group's scaling and multiplier (:meth:`Group.formula`)."""
+    force is f times the group's scaling and multiplier (:meth:`Group.formula`). A memory's
+    closed form: the share of the gap e = quantum sinh(z) it leaves open (:func:`memory_steps`)."""
+    if group.control and group.form:
+        e = np.sinh(np.atleast_1d(np.asarray(z, dtype=np.float64)))
+        return memory_steps(group, coefficients, e * CONTROLS[group.control].quantum)[0]
     return np.asarray(basis(group, z) @ np.asarray(coefficients, dtype=np.float64))
+
+
+def memory_range(group: Group) -> float:
+    """The largest gap of a memory group's range, e_max = quantum sinh(max(-lo, hi)) [the
+    control's unit]: the scale of a memory's closed form (:data:`MEMORY_FORMS`)."""
+    return CONTROLS[group.control].quantum * math.sinh(max(-group.lo, group.hi))
 
 
 def memory_steps(group: Group, coefficients: Any, gaps: Any) -> tuple[FloatArray, FloatArray]:
     """(share f, step e (1 - f)) of a memory group (:data:`CONTROLS`) at gaps e [the control's
     unit]: the share of the gap left open in one time step, and how far the control moves in
-    it (the same arithmetic as the hook's)."""
+    it (the same arithmetic as the hook's). A closed form's share at a gap of 0 is its limit
+    (play: 1, held; a rate limit: 0)."""
     if not group.control:
         raise ValueError(f"{group.text} is a force, not a memory of a control")
     e = np.asarray(gaps, dtype=np.float64)
-    f = curve(group, coefficients, np.arcsinh(e / CONTROLS[group.control].quantum))
-    return f, np.asarray(e * (1.0 - f))
+    if not group.form:
+        f = curve(group, coefficients, np.arcsinh(e / CONTROLS[group.control].quantum))
+        return f, np.asarray(e * (1.0 - f))
+    c = float(np.asarray(coefficients, dtype=np.float64).reshape(-1)[0])
+    emax = memory_range(group)
+    if group.form == "lag":
+        step = (1.0 - c) * e
+    elif group.form == "rate":
+        m = (1.0 - c) * emax
+        step = np.clip(e, -m, m)
+    else:
+        step = np.copysign(np.maximum(np.abs(e) - c * emax, 0.0), e)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(e != 0.0, 1.0 - step / np.where(e != 0.0, e, 1.0), 0.0)
+    if group.form == "lag":
+        f = np.where(e != 0.0, f, c)
+    elif group.form == "play":
+        f = np.where(e != 0.0, f, 1.0 if c > 0.0 else 0.0)
+    return np.asarray(f, dtype=np.float64), np.asarray(step, dtype=np.float64)
 
 
 def difference_penalty(n: int, order: int = 2) -> FloatArray:
@@ -832,6 +926,8 @@ def numbers(groups: Sequence[Group]) -> list[tuple[str, float]]:
         if group.variable == "1":
             continue
         out += [(f"k{g}_lo", float(group.lo)), (f"k{g}_hi", float(group.hi))]
+        if group.form and group.control:
+            continue  # e_max from the range
         if group.form:
             args = parse_form(group.form).args
             out += [(f"k{g}_a{i}", float(a)) for i, a in enumerate(args)]
@@ -922,8 +1018,17 @@ def _gap_lines(group: Group) -> list[str]:
 
 def _memory_lines(g: int, group: Group) -> list[str]:
     """The inputs hook's code of memory group ``g``: the control less the share of its gap."""
-    lines = [f"    # {structure_text(group)}", *_gap_lines(group), *_basis_lines(g, group)]
     c = group.control
+    if group.form:  # the step of the closed form, e_max from the range's numbers
+        k = CONTROLS[c]
+        return [
+            f"    # {structure_text(group)}",
+            f"    gap = {k.log} - {k.prev}",
+            f"    emax = {k.quantum!r} * math.sinh(max(-e.k{g}_lo, e.k{g}_hi))",
+            f"    c = e.s{g}_{c}0",
+            f"    {k.symbol} -= {MEMORY_FORMS[group.form][2]}",
+        ]
+    lines = [f"    # {structure_text(group)}", *_gap_lines(group), *_basis_lines(g, group)]
     terms = " + ".join(f"e.s{g}_{c}{j} * b{j}" for j in range(group.n))
     lines.append(f"    {CONTROLS[c].symbol} -= gap * ({terms})")
     return lines
@@ -1116,7 +1221,13 @@ def _coefficients(groups: Sequence[Group]) -> list[EffectParam]:
                     0.0,
                     0.0 if g.control else -DEFAULT_BOUND,
                     DEFAULT_BOUND,
-                    (f"{'ab'[j]} of {formula}" if g.form else f"coefficient {j} of {formula}"),
+                    (
+                        formula
+                        if g.form and g.control
+                        else f"{'ab'[j]} of {formula}"
+                        if g.form
+                        else f"coefficient {j} of {formula}"
+                    ),
                 )
                 for j in range(g.n)
             ]

@@ -20,12 +20,24 @@ and the forms are ranked by their held-out gain.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from mmg.shapes import FORM_GRID, SYMMETRIC, VARIABLES, Form, Group, basis, curve, form_scale
+from mmg.shapes import (
+    CONTROLS,
+    FORM_GRID,
+    MEMORY_FORMS,
+    SYMMETRIC,
+    VARIABLES,
+    Form,
+    Group,
+    basis,
+    curve,
+    form_scale,
+    memory_steps,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -207,6 +219,38 @@ def closest_forms(
     return out[:top]
 
 
+#: values of a memory's coefficient tried when a closed form is fitted to a memory's spline
+MEMORY_GRID = 1001
+
+
+def memory_forms(group: Group, coefficients: Sequence[float]) -> list[ClosedForm]:
+    """The closed forms of a memory (:data:`mmg.shapes.MEMORY_FORMS`: a lag, a rate limit,
+    play) fitted to a memory group's spline share f(z), best first: each form's coefficient c
+    in [0, 1] chosen on a grid of :data:`MEMORY_GRID` values to match f at an even grid of z
+    over the range (the asinh scale of the gap: small gaps as densely as large ones), and the
+    share of the memory it keeps, 1 - sum (f - f_form)^2 / sum f^2 (``r2``; ``a`` is c). None
+    for a spline that leaves no gap open."""
+    if not group.control or group.form:
+        return []
+    z = np.linspace(group.lo, group.hi, GRID)
+    f = curve(group, coefficients, z)
+    total = float((f * f).sum())
+    if total <= 0.0:
+        return []
+    e = np.sinh(z) * CONTROLS[group.control].quantum
+    out = []
+    for key, (meaning, _, _) in MEMORY_FORMS.items():
+        named = replace(group, n=1, form=key)
+        trials = np.linspace(0.0, 1.0, MEMORY_GRID)
+        sse = [float(((f - memory_steps(named, [c], e)[0]) ** 2).sum()) for c in trials]
+        c = float(trials[int(np.argmin(sse))])
+        out.append(
+            ClosedForm(meaning, named.formula(group.control), c, 0.0, 1.0 - min(sse) / total, key)
+        )
+    out.sort(key=lambda c: -c.r2)
+    return out
+
+
 def form_transform(
     group: Group, form: Form, at: Sequence[float] | FloatArray | None = None
 ) -> FloatArray | None:
@@ -250,4 +294,5 @@ __all__ = [
     "fitted_form",
     "form_group",
     "form_transform",
+    "memory_forms",
 ]

@@ -167,23 +167,27 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
     if d.verdict != "shape":
         return {}
     from mmg.shapes import VARIABLES, curve, groups_of
-    from sweep.diagnose.naming import CLOSE, closest_forms
+    from sweep.diagnose.naming import CLOSE, closest_forms, memory_forms
 
     eff = get_effect(d.verdict_effect)
     values = d.finding_values()
+    # a report.json written before the time step was kept: the recordings' 0.1 s
+    dt = d.extra.get("time_step", 0.1)
     groups = []
     for g, group in enumerate(groups_of(eff)):
         for comp in group.components:
             names = [f"s{g}_{comp}{j}" for j in range(group.n)]
             coef = [values.get(n, 0.0) for n in names]
+            if group.form and group.control:
+                formula = f"{group.memory_closed(coef[0], dt)}: {group.formula(comp, g)}"
+            elif group.form:
+                formula = group.closed(comp, coef[0], coef[1], g)
+            else:
+                formula = group.formula(comp, g)
             entry: dict[str, Any] = {
                 "group": group.text,
                 "component": comp,
-                "formula": (
-                    group.closed(comp, coef[0], coef[1], g)
-                    if group.form
-                    else group.formula(comp, g)
-                ),
+                "formula": formula,
                 "variable": group.variable,
                 "coefficients": coef,
                 "closed_form": bool(group.form),
@@ -202,11 +206,15 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
                     }
                 )
                 if group.control:
-                    # a report.json written before the time step was kept: the recordings' 0.1 s
-                    dt = d.extra.get("time_step", 0.1)
                     entry["memory"] = _memory_entry(group, coef, dt)
                 at = d.shape.samples.get(group.variable) if d.shape is not None else None
-                forms = [] if group.form else closest_forms(group, coef, at=at)
+                forms = (
+                    []
+                    if group.form
+                    else memory_forms(group, coef)[:3]
+                    if group.control
+                    else closest_forms(group, coef, at=at)
+                )
                 entry["closest"] = [asdict(c) for c in forms]
                 entry["named"] = bool(group.form) or (bool(forms) and forms[0].r2 >= CLOSE)
             groups.append(entry)
@@ -247,7 +255,7 @@ def _band(d: Diagnosis, group: Any, names: list[str], z: Any) -> list[float] | N
     from mmg.shapes import basis
 
     cov = (d.extra.get("trust") or {}).get("after", {}).get("effect_covariance")
-    if not cov or any(n not in cov["names"] for n in names):
+    if not cov or any(n not in cov["names"] for n in names) or (group.control and group.form):
         return None
     ix = [cov["names"].index(n) for n in names]
     C = np.array([[cov["matrix"][i][j] for j in ix] for i in ix], dtype=float)
@@ -1129,10 +1137,18 @@ def _shape_md(d: Diagnosis) -> list[str]:
             f"| {z:.4g} | {f:.4g} | {'-' if not np.isfinite(b) else f'{b:.2g}'} |"
             for z, f, b in zip(g["z"], g["f"], band, strict=True)
         ]
-        md += ["", "Closest closed forms (a + b g, share of the shape's variance kept):", ""]
-        md += [
-            f"- {c['a']:.3g} + {c['b']:.3g} {c['formula']}: R^2 {c['r2']:.2f}" for c in g["closest"]
-        ]
+        if "memory" in g:
+            md += ["", "Closest closed forms of a memory (share of the memory kept):", ""]
+            md += [
+                f"- {c['family']}, {c['formula']} with s = {c['a']:.3g}: {c['r2']:.2f}"
+                for c in g["closest"]
+            ]
+        else:
+            md += ["", "Closest closed forms (a + b g, share of the shape's variance kept):", ""]
+            md += [
+                f"- {c['a']:.3g} + {c['b']:.3g} {c['formula']}: R^2 {c['r2']:.2f}"
+                for c in g["closest"]
+            ]
         md.append("")
     if entry:
         md += ["![learned shape](shapes.png)", ""]

@@ -36,6 +36,7 @@ from sweep.diagnose.naming import (
     fitted_form,
     form_group,
     form_transform,
+    memory_forms,
 )
 from sweep.diagnose.pruning import Dropped, prune, register
 from sweep.diagnose.shapes import (
@@ -179,7 +180,7 @@ def named_form(
     groups = selection.groups
     extra, fine_units = _fine_structures(groups, columns.groups)
     if not fine_units:
-        return [None] * len(groups), None, []
+        return _with_memories(selection, {}, {})
     cols = ShapeColumns(columns.lin, [*groups, *extra])
     chosen = list(enumerate(selection.kappas))
     # every trial at once (one pass over the columns for r): the splines as chosen, then per
@@ -218,10 +219,28 @@ def named_form(
             picks[i] = (fine[fu], form, fu, W, v)
             taken.add(fu)
     if not picks:
-        return [None] * len(groups), None, []
+        return _with_memories(selection, {}, {})
     together = [(picks[k][2], 0.0) if k in picks else (u, kap) for k, (u, kap) in enumerate(chosen)]
     transforms = {fu: W for _, _, fu, W, _ in picks.values()}
     coefficients = cols.form_fit(r, together, transforms)
+    named = {i: (fg, form, gain, coefficients[i]) for i, (fg, form, _, _, gain) in picks.items()}
+    levels = {i: coefficients[i] for i, g in enumerate(groups) if g.variable == "1"}
+    return _with_memories(selection, named, levels, spline, samples)
+
+
+def _with_memories(
+    selection: ShapeSelection,
+    forms: Mapping[int, tuple[Group, Form, float, list[float]]],
+    coefficients: Mapping[int, list[float]],
+    spline: float = 0.0,
+    samples: Mapping[str, Sequence[float]] | None = None,
+) -> tuple[list[ClosedForm | None], Effect | None, list[float]]:
+    """:func:`named_form`'s result from its picks: per chosen force group its form ``forms``
+    {group: (fine group, form, held-out gain, coefficients (a, b))}, constant groups with their
+    ``coefficients`` (else the selection's), and each memory of a control as its closest closed form
+    (:func:`~sweep.diagnose.naming.memory_forms`: a lag, a rate limit, play), started at the
+    coefficient fitted to its spline. ``spline``: the shape's own linearised held-out gain."""
+    groups = selection.groups
     named: list[ClosedForm | None] = []
     out: list[Group] = []
     start: list[float] = []
@@ -229,15 +248,21 @@ def named_form(
         if g.variable == "1":
             named.append(None)
             out.append(g)
-            start += coefficients[i]
+            start += coefficients.get(i, selection.coefficients[i])
             continue
-        if i not in picks:
+        if g.control:
+            best = memory_forms(g, selection.coefficients[i])[:1]
+            named.append(best[0] if best else None)
+            if best:
+                out.append(replace(g, n=1, form=best[0].form))
+                start.append(best[0].a)
+            continue
+        if i not in forms:
             named.append(None)
             continue
-        fg, form, _, _, gain = picks[i]
+        fg, form, gain, (a, b) = forms[i]
         at = None if samples is None else samples.get(g.variable)
         close = fitted_form(g, selection.coefficients[i], form, fit_points(g, at))
-        a, b = coefficients[i]
         named_group = replace(fg, n=2, form=form.text)
         closed = ClosedForm(
             FAMILY[form.key],
@@ -272,6 +297,12 @@ def closest_form(
         if group.variable == "1":
             groups.append(group)
             start += coef
+            continue
+        if group.control:  # a memory: its closed form closest to the spline
+            memory = memory_forms(group, coef)[:1]
+            if memory:
+                groups.append(replace(group, n=1, form=memory[0].form))
+                start.append(memory[0].a)
             continue
         at = None if samples is None else samples.get(group.variable)
         best = closest_forms(group, coef, top=1, at=at, fine=False)
@@ -410,8 +441,13 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
         ctx.log(
             "shapes named on the trajectories: "
             + "; ".join(
-                f"{c.formula} ({100 * (c.share or 0.0):.0f} % of the spline's held-out gain, "
-                f"R^2 {c.r2:.2f})"
+                (
+                    f"{c.formula} ({100 * c.share:.0f} % of the spline's held-out gain, "
+                    f"R^2 {c.r2:.2f})"
+                    if c.share is not None
+                    else f"{c.family} ({c.form}, coefficient {c.a:.3g}; {100 * c.r2:.0f} % of "
+                    "the memory's share kept)"
+                )
                 for c in named
                 if c is not None
             )

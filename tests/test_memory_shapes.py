@@ -163,7 +163,8 @@ def test_a_memory_spline_is_named_by_its_closed_form(kind: str, size: float) -> 
     fit = least_squares(residual, np.full(16, 0.5), bounds=eff.bounds, args=(eff,), max_nfev=100)
     forms = memory_forms(spline, list(fit.x))
     assert forms[0].form == kind, forms
-    assert forms[0].r2 > 0.9 and forms[1].r2 < forms[0].r2
+    assert forms[0].r2 > 0.9 and all(0.0 < f.r2 < forms[0].r2 for f in forms[1:])
+    assert memory_forms(spline, [0.0] * 16) == []  # no memory: nothing to name
     named = Group("D", "ed", -z_max, z_max, 1, form=kind)
     assert named.text == f"D~ed[{named.lo:g}:{named.hi:g}]:{kind}"
     closed = shape_effect([named])
@@ -275,3 +276,7 @@ def test_the_report_states_a_memory_as_the_steps_it_lets_the_control_take() -> N
     md = "\n".join(_memory_md(m))
     assert "| gap [deg] | share left open f | step in 0.1 s [deg] | as a rate [deg/s] |" in md
     assert "A constant share is a first-order lag" in md
+    # a rate limit named: no step beyond a tenth of the range's largest gap (2.73 deg, 27.3 deg/s)
+    rate = _memory_entry(Group("D", "ed", -4.0, 4.0, 1, form="rate"), [0.9], 0.1)
+    assert rate["gap"] == m["gap"]
+    np.testing.assert_allclose(np.abs(rate["rate"]), np.minimum(np.abs(gaps), 0.1 * gaps[-1]) / 0.1)

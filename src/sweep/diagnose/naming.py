@@ -228,8 +228,9 @@ def memory_forms(group: Group, coefficients: Sequence[float]) -> list[ClosedForm
     play) fitted to a memory group's spline share f(z), best first: each form's coefficient c
     in [0, 1] chosen on a grid of :data:`MEMORY_GRID` values to match f at an even grid of z
     over the range (the asinh scale of the gap: small gaps as densely as large ones), and the
-    share of the memory it keeps, 1 - sum (f - f_form)^2 / sum f^2 (``r2``; ``a`` is c). None
-    for a spline that leaves no gap open."""
+    share of the memory it keeps, 1 - sum (f - f_form)^2 / sum f^2 (``r2``; ``a`` is c). A
+    form that keeps none of it (its best c is 0, the paper's model) names nothing and is left
+    out; none for a spline that leaves no gap open."""
     if not group.control or group.form:
         return []
     z = np.linspace(group.lo, group.hi, GRID)
@@ -244,6 +245,8 @@ def memory_forms(group: Group, coefficients: Sequence[float]) -> list[ClosedForm
         trials = np.linspace(0.0, 1.0, MEMORY_GRID)
         sse = [float(((f - memory_steps(named, [c], e)[0]) ** 2).sum()) for c in trials]
         c = float(trials[int(np.argmin(sse))])
+        if min(sse) >= total:
+            continue
         out.append(
             ClosedForm(meaning, named.formula(group.control), c, 0.0, 1.0 - min(sse) / total, key)
         )

@@ -280,3 +280,28 @@ def test_the_report_states_a_memory_as_the_steps_it_lets_the_control_take() -> N
     rate = _memory_entry(Group("D", "ed", -4.0, 4.0, 1, form="rate"), [0.9], 0.1)
     assert rate["gap"] == m["gap"]
     np.testing.assert_allclose(np.abs(rate["rate"]), np.minimum(np.abs(gaps), 0.1 * gaps[-1]) / 0.1)
+
+
+def test_a_learned_memory_becomes_its_closed_form_candidate() -> None:
+    """A selection of a memory alone (a share of 1 below 2 deg, falling beyond: play) is named
+    play, started at the coefficient fitted to the spline, both as the name on the trajectories
+    and as the closest form (then one candidate)."""
+    from types import SimpleNamespace
+
+    from sweep.diagnose.shapes import ShapeSelection
+    from sweep.diagnose.shaping import closest_form, named_form
+
+    g = Group("D", "ed", -4.0, 4.0, 16)
+    e = np.sinh(np.linspace(-4.0, 4.0, 400)) * math.radians(1.0)
+    share = np.minimum(1.0, math.radians(2.0) / np.abs(e))
+    z = np.arcsinh(e / math.radians(1.0))
+    coef = [float(c) for c in np.linalg.lstsq(basis(g, z), share, rcond=None)[0]]
+    sel = ShapeSelection([g], [coef], [np.zeros((16, 16))], [0.5], [6.0], -100.0)
+    columns = SimpleNamespace(groups=[g])  # no force group: the naming needs no columns
+    named, form, start = named_form(columns, sel, np.zeros((1, 1)))  # type: ignore[arg-type]
+    assert form is not None and form.name == "shape:D~ed[-4:4]:play"
+    assert named[0] is not None and named[0].family.startswith("play")
+    e_max = math.radians(1.0) * math.sinh(4.0)
+    assert start[0] * e_max == pytest.approx(math.radians(2.0), rel=0.02)
+    closest, closest_start = closest_form(sel)
+    assert closest is not None and closest.name == form.name and closest_start == start

@@ -1140,7 +1140,7 @@ def _shape_md(d: Diagnosis) -> list[str]:
         if "memory" in g:
             md += ["", "Closest closed forms of a memory (share of the memory kept):", ""]
             md += [
-                f"- {c['family']}, {c['formula']} with s = {c['a']:.3g}: {c['r2']:.2f}"
+                f"- {c['family']} ({c['formula']}), coefficient {c['a']:.3g}: {c['r2']:.2f}"
                 for c in g["closest"]
             ]
         else:

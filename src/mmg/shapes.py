@@ -210,8 +210,9 @@ CONTROLS: dict[str, Control] = {
 }
 #: closed forms of a memory (``D~ed[lo:hi]:rate``): the step s a control takes in one time step
 #: towards its log, as a function of the gap e, in the families a steering gear or an engine
-#: governor is written in, each of one coefficient c in [0, 1] (0: no memory, the paper's model)
-#: and the range's largest gap e_max = quantum sinh(max(-lo, hi)): key -> (meaning, formula,
+#: governor is written in, each of one coefficient c in [0, 1] (0: no memory, the paper's model,
+#: for gaps up to the range's largest; a rate limit at 0 still stops a larger step at e_max) and
+#: the range's largest gap e_max = quantum sinh(max(-lo, hi)): key -> (meaning, formula,
 #: code). ``lag``: linear, s = (1 - c) e (a first-order lag, c = exp(-dt / T)); ``rate``: a
 #: saturation, s = clip(e, -m, m), m = (1 - c) e_max (a rate limit m / dt); ``play``: a dead
 #: zone, s = sign(e) max(|e| - b, 0), b = c e_max (play of b). In the formulas {x} is the
@@ -920,14 +921,16 @@ def numbers(groups: Sequence[Group]) -> list[tuple[str, float]]:
     """(field, value) of the numbers of ``groups`` that the code of their kernel reads from its
     parameters after the coefficients: a spline's knot range and knots per unit (``k<g>_lo``,
     ``k<g>_hi``, ``k<g>_h`` = (n - 3) / (hi - lo)); a closed form's range, its numbers
-    (``k<g>_a0``, ...) and 1 / g_max (``k<g>_gs``); nothing for a constant."""
+    (``k<g>_a0``, ...) and 1 / g_max (``k<g>_gs``); a memory's closed form its range's largest
+    gap e_max (``k<g>_em``, :func:`memory_range`); nothing for a constant."""
     out: list[tuple[str, float]] = []
     for g, group in enumerate(groups):
         if group.variable == "1":
             continue
+        if group.form and group.control:  # a memory's closed form: the range's largest gap
+            out.append((f"k{g}_em", memory_range(group)))
+            continue
         out += [(f"k{g}_lo", float(group.lo)), (f"k{g}_hi", float(group.hi))]
-        if group.form and group.control:
-            continue  # e_max from the range
         if group.form:
             args = parse_form(group.form).args
             out += [(f"k{g}_a{i}", float(a)) for i, a in enumerate(args)]
@@ -1019,12 +1022,12 @@ def _gap_lines(group: Group) -> list[str]:
 def _memory_lines(g: int, group: Group) -> list[str]:
     """The inputs hook's code of memory group ``g``: the control less the share of its gap."""
     c = group.control
-    if group.form:  # the step of the closed form, e_max from the range's numbers
+    if group.form:  # the step of the closed form; e_max is the group's number k<g>_em
         k = CONTROLS[c]
         return [
             f"    # {structure_text(group)}",
             f"    gap = {k.log} - {k.prev}",
-            f"    emax = {k.quantum!r} * math.sinh(max(-e.k{g}_lo, e.k{g}_hi))",
+            f"    emax = e.k{g}_em",
             f"    c = e.s{g}_{c}0",
             f"    {k.symbol} -= {MEMORY_FORMS[group.form][2]}",
         ]

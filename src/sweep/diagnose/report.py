@@ -211,7 +211,7 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
                 forms = (
                     []
                     if group.form
-                    else memory_forms(group, coef)[:3]
+                    else memory_forms(group, coef)
                     if group.control
                     else closest_forms(group, coef, at=at)
                 )

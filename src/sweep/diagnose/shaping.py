@@ -180,7 +180,7 @@ def named_form(
     groups = selection.groups
     extra, fine_units = _fine_structures(groups, columns.groups)
     if not fine_units:
-        return _with_memories(selection, {}, {})
+        return _named_forms(selection, {}, {})
     cols = ShapeColumns(columns.lin, [*groups, *extra])
     chosen = list(enumerate(selection.kappas))
     # every trial at once (one pass over the columns for r): the splines as chosen, then per
@@ -219,16 +219,16 @@ def named_form(
             picks[i] = (fine[fu], form, fu, W, v)
             taken.add(fu)
     if not picks:
-        return _with_memories(selection, {}, {})
+        return _named_forms(selection, {}, {})
     together = [(picks[k][2], 0.0) if k in picks else (u, kap) for k, (u, kap) in enumerate(chosen)]
     transforms = {fu: W for _, _, fu, W, _ in picks.values()}
     coefficients = cols.form_fit(r, together, transforms)
     named = {i: (fg, form, gain, coefficients[i]) for i, (fg, form, _, _, gain) in picks.items()}
     levels = {i: coefficients[i] for i, g in enumerate(groups) if g.variable == "1"}
-    return _with_memories(selection, named, levels, spline, samples)
+    return _named_forms(selection, named, levels, spline, samples)
 
 
-def _with_memories(
+def _named_forms(
     selection: ShapeSelection,
     forms: Mapping[int, tuple[Group, Form, float, list[float]]],
     coefficients: Mapping[int, list[float]],

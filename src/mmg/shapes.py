@@ -651,6 +651,8 @@ class Group:
         (a, b): f = a + (b / g_max) g(z)."""
         if not self.form:
             raise ValueError(f"{self.text} is a spline, not a closed form")
+        if self.control:
+            raise ValueError(f"{self.text} is a memory: its closed form is memory_closed's")
         z = VARIABLES[self.variable].symbol
         f = f"{z}"
         form = parse_form(self.form).formula(f)
@@ -1215,25 +1217,17 @@ def _coefficients(groups: Sequence[Group]) -> list[EffectParam]:
     [-:data:`DEFAULT_BOUND`, :data:`DEFAULT_BOUND`] (a memory's in [0, DEFAULT_BOUND])."""
     params: list[EffectParam] = []
     for k, g in enumerate(groups):
+        lower = 0.0 if g.control else -DEFAULT_BOUND
         for c in g.components:
             formula = g.formula(c, k)
-            params += [
-                EffectParam(
-                    f"s{k}_{c}{j}",
-                    "-",
-                    0.0,
-                    0.0 if g.control else -DEFAULT_BOUND,
-                    DEFAULT_BOUND,
-                    (
-                        formula
-                        if g.form and g.control
-                        else f"{'ab'[j]} of {formula}"
-                        if g.form
-                        else f"coefficient {j} of {formula}"
-                    ),
-                )
-                for j in range(g.n)
-            ]
+            for j in range(g.n):
+                if g.form and g.control:  # the memory's one coefficient, named in the formula
+                    role = formula
+                elif g.form:
+                    role = f"{'ab'[j]} of {formula}"
+                else:
+                    role = f"coefficient {j} of {formula}"
+                params.append(EffectParam(f"s{k}_{c}{j}", "-", 0.0, lower, DEFAULT_BOUND, role))
     return params
 
 

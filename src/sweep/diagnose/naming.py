@@ -239,10 +239,10 @@ def memory_forms(group: Group, coefficients: Sequence[float]) -> list[ClosedForm
     if total <= 0.0:
         return []
     e = np.sinh(z) * CONTROLS[group.control].quantum
+    trials = np.linspace(0.0, 1.0, MEMORY_GRID)
     out = []
     for key, (meaning, _, _) in MEMORY_FORMS.items():
         named = replace(group, n=1, form=key)
-        trials = np.linspace(0.0, 1.0, MEMORY_GRID)
         sse = [float(((f - memory_steps(named, [c], e)[0]) ** 2).sum()) for c in trials]
         c = float(trials[int(np.argmin(sse))])
         if min(sse) >= total:

@@ -208,13 +208,12 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
                 if group.control:
                     entry["memory"] = _memory_entry(group, coef, dt)
                 at = d.shape.samples.get(group.variable) if d.shape is not None else None
-                forms = (
-                    []
-                    if group.form
-                    else memory_forms(group, coef)
-                    if group.control
-                    else closest_forms(group, coef, at=at)
-                )
+                if group.form:
+                    forms = []
+                elif group.control:
+                    forms = memory_forms(group, coef)
+                else:
+                    forms = closest_forms(group, coef, at=at)
                 entry["closest"] = [asdict(c) for c in forms]
                 entry["named"] = bool(group.form) or (bool(forms) and forms[0].r2 >= CLOSE)
             groups.append(entry)

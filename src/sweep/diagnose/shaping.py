@@ -19,11 +19,23 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mmg import Effect, Parameters
-from mmg.shapes import DEFAULT_BOUND, MAX_BASIS, Form, Group, form_scale, shape_effect
+from mmg.shapes import (
+    DEFAULT_BOUND,
+    MAX_BASIS,
+    Form,
+    Group,
+    form_scale,
+    groups_of,
+    parse_form,
+    shape_effect,
+)
 from mmg.shapes import VARIABLES as SHAPE_VARIABLES
 from sweep.data.recordings import Recording
 from sweep.diagnose.calibration import Calibration
+from sweep.diagnose.candidates import candidate_settings
 from sweep.diagnose.context import Context
+from sweep.diagnose.corners import ITERATIONS as CORNER_ITERATIONS
+from sweep.diagnose.corners import fit_numbers
 from sweep.diagnose.discover import null_sets
 from sweep.diagnose.fit import Fit
 from sweep.diagnose.naming import (
@@ -48,6 +60,8 @@ from sweep.diagnose.shapes import (
     sampled,
 )
 from sweep.diagnose.threshold import CEILING
+from sweep.identification.polish import PolishSettings
+from sweep.identification.vector import with_effects
 
 FloatArray = NDArray[np.float64]
 
@@ -379,6 +393,52 @@ def sample_values(
     }
 
 
+def fitted_numbers(
+    ctx: Context,
+    base: Fit,
+    effect: Effect,
+    start: Sequence[float],
+    named: Sequence[ClosedForm | None] = (),
+    variables: Sequence[str] = (),
+) -> tuple[Effect, list[float], list[ClosedForm | None]]:
+    """The closed-form ``effect`` (coefficients ``start``) with its corners and widths fitted
+    by output error on the training windows (:func:`~sweep.diagnose.corners.fit_numbers`, each
+    trial a short joint fit with the base from ``base``), its coefficients there, and the
+    closed forms ``named`` (of the shapes of ``variables``, in order) with the fitted numbers;
+    unchanged when no group has a corner. Each number fitted counts as a parameter in the
+    effect's dBIC."""
+    settings = replace(
+        candidate_settings(ctx),
+        budget=0,
+        effect_only_budget=0,
+        polish=ctx.lm(CORNER_ITERATIONS, PolishSettings.rtol),
+    )
+
+    def refit(e: Effect, p0: Parameters) -> tuple[float, Parameters]:
+        f = ctx.refit(ctx.windows, p0, (e,), settings, f"numbers of {e.name}")
+        return f.f, f.params
+
+    p0 = with_effects(base.params, (effect,), start)
+    fitted = fit_numbers(effect, p0, refit, FINE_BASIS, ctx.log)
+    if fitted is None:
+        return effect, list(start), list(named)
+    ctx.dof[fitted.effect.name] = float(len(fitted.effect.params) + fitted.count)
+    renamed = {
+        (g.variable, g.form): h.form
+        for g, h in zip(groups_of(effect), groups_of(fitted.effect), strict=True)
+        if g.form != h.form
+    }
+    out: list[ClosedForm | None] = []
+    for c, variable in zip(named, variables, strict=True):
+        text = renamed.get((variable, c.form)) if c is not None else None
+        if c is None or text is None:
+            out.append(c)
+            continue
+        formula = parse_form(text).formula(SHAPE_VARIABLES[variable].symbol)
+        out.append(replace(c, form=text, formula=formula))
+    return fitted.effect, fitted.start, out
+
+
 def default_variables(ctx: Context) -> tuple[str, ...]:
     """The variables the shapes may depend on: ``--shape-variables`` when given; else every
     variable when the training runs come from several sessions (a shape in heading, position
@@ -433,6 +493,11 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
         samples = sample_values(ctx.windows, params, selection.groups)
         named, form, start = named_form(columns, selection, r, samples)
         closest, closest_start = closest_form(selection, samples)
+        if form is not None:
+            variables_named = [g.variable for g in selection.groups]
+            form, start, named = fitted_numbers(ctx, base, form, start, named, variables_named)
+        if closest is not None:
+            closest, closest_start, _ = fitted_numbers(ctx, base, closest, closest_start)
         if closest is not None and form is not None and closest.name == form.name:
             closest = None
         if closest is not None:
@@ -483,6 +548,7 @@ __all__ = [
     "ShapeProposal",
     "closest_form",
     "default_variables",
+    "fitted_numbers",
     "form_effect",
     "named_form",
     "propose_shape",

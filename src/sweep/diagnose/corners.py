@@ -1,0 +1,164 @@
+"""A closed form's corner, and a step's width, fitted by output error.
+
+The naming (:func:`sweep.diagnose.shaping.named_form`) places a hinge's or a step's corner on a
+grid: shares of the range and quantiles of the training samples, compared on trajectory columns
+of a spline with knots a fortieth of the range apart. A force that sets in within a degree
+(a rudder whose normal force collapses beyond an angle of attack) is then named with a corner
+a few degrees off and a width as wide as the grid's, and the fit by output error, which moves
+the coefficients only, cannot mend it: on a strong collapse planted at |alpha_R| = 23 deg, the
+form named at 20 deg reached a training J of 0.711, the same form at 23 deg 0.646.
+
+:func:`fit_numbers` fits them by output error on the training windows, one group at a time:
+the base held at its values, the form's coefficients refitted (Levenberg-Marquardt) at each
+trial corner; the corner moves over the naming's grid spacing, two of them either way, and
+the search halves its step around the best corner :data:`ROUNDS` times; a step's width is
+then tried at shares of the named one (:data:`WIDTHS`), and the corner once more at the best
+width. A candidate with fitted numbers counts each of them as a parameter in its dBIC.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+from mmg import Effect, Parameters
+from mmg.shapes import SHAPE_PREFIX, SYMMETRIC, Form, Group, groups_of, parse_form, shape_effect
+from sweep.identification.vector import effect_values, with_effects
+
+#: closed forms whose first number is a corner (:data:`mmg.shapes.FORMS`)
+CORNERED = ("up", "down", "absup", "oddup", "step", "absstep")
+#: closed forms whose second number is a width
+WIDTHED = ("step", "absstep")
+#: halvings of the corner's step around the best corner
+ROUNDS = 3
+#: a step's widths tried, as shares of the named one
+WIDTHS = (0.25, 0.5, 2.0)
+#: Levenberg-Marquardt iterations of each trial's fit (coefficients and base)
+ITERATIONS = 6
+
+
+@dataclass(frozen=True)
+class Fitted:
+    """A closed-form effect with its numbers fitted: ``effect`` (named with them), its
+    coefficients ``start`` at the best trial, the training J before (the named numbers) and
+    after, the numbers fitted (``count``) and the trials' (form text, J)."""
+
+    effect: Effect
+    start: list[float]
+    J_named: float
+    J_fitted: float
+    count: int
+    trials: list[tuple[str, float]]
+    seconds: float
+
+
+def corner_range(group: Group, form: Form) -> tuple[float, float]:
+    """The open interval a corner of ``form`` lies in over ``group``'s range: a symmetric
+    form's in [0, the range's larger side), another's in (lo, hi)."""
+    if form.key in (*SYMMETRIC, "absstep"):
+        return 0.0, max(abs(group.lo), abs(group.hi))
+    return group.lo, group.hi
+
+
+def grid_step(group: Group, fine: int) -> float:
+    """The naming's corner resolution over ``group``'s range: the knot spacing of ``fine``
+    basis functions."""
+    return (group.hi - group.lo) / (fine - 3)
+
+
+#: J and the fitted parameters of shapes whose coefficients, and the base, are refitted from
+#: given parameters (the coefficients in them under any shape's name: by position)
+Evaluate = Callable[[Sequence[Group], Parameters], tuple[float, Parameters]]
+
+
+def _fit_group(
+    evaluate: Evaluate, groups: Sequence[Group], i: int, at: Parameters, fine: int
+) -> tuple[Group, Parameters, int]:
+    """Group ``i``'s corner (and a step's width) fitted, the other ``groups`` as they are,
+    each trial started from the best one's fit (``at`` at first): (the group, the best trial's
+    fit, the numbers fitted)."""
+    g = groups[i]
+    form = parse_form(g.form)
+    lo, hi = corner_range(g, form)
+    best = list(form.args)
+    best_J, at = evaluate(groups, at)
+
+    def with_group(args: Sequence[float]) -> list[Group]:
+        return [*groups[:i], _with_args(g, args), *groups[i + 1 :]]
+
+    step = grid_step(g, fine)
+    widths = [[best[1] * share] for share in WIDTHS] if form.key in WIDTHED else []
+    # the corner moved by one and two steps either way, the step halved around the best corner
+    # each round; a step's widths at the best corner, then one more round of the corner
+    plan: list[tuple[str, float]] = [("corner", step / 2**r) for r in range(ROUNDS)]
+    if widths:
+        plan += [("width", 0.0), ("corner", step / 2**ROUNDS)]
+    for what, h in plan:
+        if what == "corner":
+            tries = [[best[0] + m * h, *best[1:]] for m in (-2, -1, 1, 2)]
+            tries = [t for t in tries if lo < t[0] < hi]
+        else:
+            tries = [[best[0], *w] for w in widths]
+        start = at
+        for args in tries:
+            J, p = evaluate(with_group(args), start)
+            if best_J > J:
+                best, best_J, at = list(args), J, p
+    return _with_args(g, best), at, 1 + (1 if widths else 0)
+
+
+def _with_args(group: Group, args: Sequence[float]) -> Group:
+    """``group`` with its closed form's numbers ``args`` (rounded as a spec writes them)."""
+    return replace(group, form=Form(parse_form(group.form).key, tuple(args)).text)
+
+
+def fit_numbers(
+    effect: Effect,
+    start: Parameters,
+    refit: Callable[[Effect, Parameters], tuple[float, Parameters]],
+    fine: int,
+    log: Callable[[str], None] | None = None,
+) -> Fitted | None:
+    """The closed-form shape ``effect`` with the corner of each of its hinges and steps, and
+    each step's width, fitted by output error: ``refit(effect, p0)`` fits an effect's
+    coefficients and the base from ``p0`` and returns (J, its parameters); ``start``: the base
+    with ``effect``'s coefficients; ``fine``: the basis functions of the naming's grid (its
+    corner resolution). None when no group has a corner."""
+    groups = list(groups_of(effect))
+    if not any(g.form and not g.control and parse_form(g.form).key in CORNERED for g in groups):
+        return None
+    t0 = time.perf_counter()
+    done: dict[str, tuple[float, Parameters]] = {}
+    source = effect
+
+    def evaluate(gs: Sequence[Group], p0: Parameters) -> tuple[float, Parameters]:
+        """(J, parameters) of the shapes ``gs`` fitted from ``p0``."""
+        trial = shape_effect(gs)
+        if trial.name not in done:
+            shapes = [vals for name, vals in p0.effects if name.startswith(SHAPE_PREFIX)]
+            values = [v for _, v in shapes[-1]] if shapes else []
+            if len(values) != len(trial.params):
+                raise ValueError(f"{trial.name}: {len(values)} coefficients to start from")
+            done[trial.name] = refit(trial, with_effects(p0, (trial,), values))
+        return done[trial.name]
+
+    J_named, at = evaluate(groups, with_effects(start, (source,), effect_values(start, (source,))))
+    count = 0
+    for i, g in enumerate(groups):
+        if g.form and not g.control and parse_form(g.form).key in CORNERED:
+            groups[i], at, k = _fit_group(evaluate, groups, i, at, fine)
+            count += k
+    best = shape_effect(groups)
+    J_fitted, at = evaluate(groups, at)
+    seconds = time.perf_counter() - t0
+    if log is not None:
+        log(
+            f"closed form's numbers fitted by output error: {effect.name} -> {best.name}, "
+            f"training J {J_named:.4g} -> {J_fitted:.4g} ({len(done)} trials, {seconds:.0f} s)"
+        )
+    trials = [(name, J) for name, (J, _) in done.items()]
+    return Fitted(best, effect_values(at, (best,)), J_named, J_fitted, count, trials, seconds)
+
+
+__all__ = ["CORNERED", "Fitted", "corner_range", "fit_numbers", "grid_step"]

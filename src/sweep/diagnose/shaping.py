@@ -99,6 +99,9 @@ class ShapeProposal:
     #: when that dropped groups (None: nothing dropped), and its steps
     chosen: ShapeSelection | None = None
     dropped: list[Dropped] = field(default_factory=list)
+    #: the closed-form candidates whose corners or widths were fitted by output error
+    #: (:func:`fitted_numbers`): the named effect, the fitted one, their training J, the trials
+    numbers: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def flexible(self) -> ShapeSelection:
@@ -133,6 +136,7 @@ class ShapeProposal:
             "named": [None if c is None else asdict(c) for c in (self.named or [])],
             "variables": list(self.variables),
             "before_backward_check": self.chosen.spec if self.chosen is not None else None,
+            "numbers": self.numbers,
             "dropped": [d.as_dict() for d in self.dropped],
         }
 
@@ -400,13 +404,14 @@ def fitted_numbers(
     start: Sequence[float],
     named: Sequence[ClosedForm | None] = (),
     variables: Sequence[str] = (),
-) -> tuple[Effect, list[float], list[ClosedForm | None]]:
+) -> tuple[Effect, list[float], list[ClosedForm | None], dict[str, Any] | None]:
     """The closed-form ``effect`` (coefficients ``start``) with its corners and widths fitted
     by output error on the training windows (:func:`~sweep.diagnose.corners.fit_numbers`, each
     trial a short joint fit with the base from ``base``), its coefficients there, and the
     closed forms ``named`` (of the shapes of ``variables``, in order) with the fitted numbers;
-    unchanged when no group has a corner. Each number fitted counts as a parameter in the
-    effect's dBIC."""
+    unchanged when no group has a corner; and what was fitted (None then: the effects' names,
+    training J, trials and seconds, as ``report.json`` shows it). Each number fitted counts as
+    a parameter in the effect's dBIC."""
     settings = replace(
         candidate_settings(ctx),
         budget=0,
@@ -421,7 +426,7 @@ def fitted_numbers(
     p0 = with_effects(base.params, (effect,), start)
     fitted = fit_numbers(effect, p0, refit, FINE_BASIS, ctx.log)
     if fitted is None:
-        return effect, list(start), list(named)
+        return effect, list(start), list(named), None
     ctx.dof[fitted.effect.name] = float(len(fitted.effect.params) + fitted.count)
     renamed = {
         (g.variable, g.form): h.form
@@ -436,7 +441,16 @@ def fitted_numbers(
             continue
         formula = parse_form(text).formula(SHAPE_VARIABLES[variable].symbol)
         out.append(replace(c, form=text, formula=formula))
-    return fitted.effect, fitted.start, out
+    record = {
+        "named": effect.name,
+        "fitted": fitted.effect.name,
+        "J_named": fitted.J_named,
+        "J_fitted": fitted.J_fitted,
+        "numbers": fitted.count,
+        "trials": [{"effect": name, "J": J} for name, J in fitted.trials],
+        "seconds": fitted.seconds,
+    }
+    return fitted.effect, fitted.start, out, record
 
 
 def default_variables(ctx: Context) -> tuple[str, ...]:
@@ -486,6 +500,7 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
     closest_start: list[float] = []
     chosen: ShapeSelection | None = None
     dropped: list[Dropped] = []
+    numbers: list[dict[str, Any]] = []
     if proposed:
         full = selection
         selection, dropped = prune(ctx, base, columns, r, selection)
@@ -495,9 +510,13 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
         closest, closest_start = closest_form(selection, samples)
         if form is not None:
             variables_named = [g.variable for g in selection.groups]
-            form, start, named = fitted_numbers(ctx, base, form, start, named, variables_named)
+            form, start, named, record = fitted_numbers(
+                ctx, base, form, start, named, variables_named
+            )
+            numbers += [record] if record is not None else []
         if closest is not None:
-            closest, closest_start, _ = fitted_numbers(ctx, base, closest, closest_start)
+            closest, closest_start, _, record = fitted_numbers(ctx, base, closest, closest_start)
+            numbers += [record] if record is not None else []
         if closest is not None and form is not None and closest.name == form.name:
             closest = None
         if closest is not None:
@@ -534,6 +553,7 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
         samples,
         chosen,
         dropped,
+        numbers,
     )
     if proposed:
         register(ctx, selection)

@@ -93,6 +93,8 @@ PROBE_RANGE = 1e12
 #: the fewest basis functions of a spline (one cubic piece) and the most
 MIN_BASIS = 4
 MAX_BASIS = 40
+#: the most basis functions of a shape of two variables, per component (n x n2)
+MAX_TENSOR = 100
 
 
 @dataclass(frozen=True)
@@ -464,7 +466,13 @@ class Group:
     ``multiplier`` "" or a key of :data:`VARIABLES`, :data:`INDICATORS` or :data:`FORCES`
     (a key of :data:`SHARES` with the component S alone);
     ``scale`` "" (the variable's default) or a key of :data:`SCALES`; ``form`` "" (a spline)
-    or a closed form (:func:`parse_form`, ``n`` = 2: a + b g / g_max)."""
+    or a closed form (:func:`parse_form`, ``n`` = 2: a + b g / g_max).
+
+    A *tensor* group (``variable2`` given) is a shape of two variables, an interaction:
+    f_C(z, z2) = sum_ij c_C,ij B_i(z) B_j(z2), ``n`` x ``n2`` cubic B-splines over [lo, hi] x
+    [lo2, hi2] (both clamped), coefficient i n2 + j of each component; a spline of two force
+    variables (no closed form, no memory), with the scaling of the first unless ``scale``
+    says otherwise."""
 
     components: str
     variable: str
@@ -474,6 +482,10 @@ class Group:
     multiplier: str = ""
     scale: str = ""
     form: str = ""
+    variable2: str = ""
+    lo2: float = 0.0
+    hi2: float = 0.0
+    n2: int = 1
 
     def __post_init__(self) -> None:
         c = self.components
@@ -534,6 +546,8 @@ class Group:
                     )
             elif not MIN_BASIS <= self.n <= MAX_BASIS:
                 raise ValueError(f"{self.variable}: {self.n} basis functions, need 4 to 40")
+        if self.variable2:
+            self._check_tensor()
         m = self.multiplier
         known = [k for k, v in VARIABLES.items() if v.factor] + [*INDICATORS, *FORCES, *SHARES]
         if m and m not in known:
@@ -546,11 +560,52 @@ class Group:
         if self.scale == default:  # one spelling of each group: the default scale is implied
             object.__setattr__(self, "scale", "")
 
+    def _check_tensor(self) -> None:
+        """A tensor group's second variable, range and basis: ValueError when not one."""
+        v2 = VARIABLES.get(self.variable2)
+        if v2 is None:
+            names = ", ".join(VARIABLES)
+            raise ValueError(f"unknown shape variable {self.variable2!r}; known: {names}")
+        if self.variable == "1" or self.control or v2.control:
+            raise ValueError(
+                "a shape of two variables is of two force variables (no constant, no gap)"
+            )
+        if self.variable2 == self.variable:
+            raise ValueError(f"a shape of two variables needs two: {self.variable} twice")
+        if self.form:
+            raise ValueError("a shape of two variables is a spline (no closed form)")
+        object.__setattr__(self, "lo2", float(_num(self.lo2)))
+        object.__setattr__(self, "hi2", float(_num(self.hi2)))
+        if not (math.isfinite(self.lo2) and math.isfinite(self.hi2) and self.lo2 < self.hi2):
+            raise ValueError(f"{self.variable2}: knot range [{self.lo2}, {self.hi2}] is empty")
+        if not MIN_BASIS <= self.n2 <= MAX_BASIS:
+            raise ValueError(f"{self.variable2}: {self.n2} basis functions, need 4 to 40")
+        if self.n * self.n2 > MAX_TENSOR:
+            raise ValueError(
+                f"{self.variable}&{self.variable2}: {self.n} x {self.n2} basis functions, at "
+                f"most {MAX_TENSOR} per component"
+            )
+
+    @property
+    def tensor(self) -> bool:
+        """Whether this is a shape of two variables."""
+        return bool(self.variable2)
+
+    @property
+    def size(self) -> int:
+        """Coefficients per component: n, or n n2 for a shape of two variables."""
+        return self.n * self.n2 if self.tensor else self.n
+
     @property
     def text(self) -> str:
         """The group as a spec writes it (canonical)."""
         if self.variable == "1":
             out = f"{self.components}~1"
+        elif self.tensor:
+            out = (
+                f"{self.components}~{self.variable}&{self.variable2}[{_num(self.lo)}:"
+                f"{_num(self.hi)}&{_num(self.lo2)}:{_num(self.hi2)}]/{self.n}x{self.n2}"
+            )
         elif self.form:
             out = f"{self.components}~{self.variable}[{_num(self.lo)}:{_num(self.hi)}]:{self.form}"
         else:
@@ -565,7 +620,7 @@ class Group:
     def structure(self) -> str:
         """The group as a spec writes it without its knot range and number of basis functions
         (``XYN~beta*Y_H``): what the code of its probe depends on (:func:`probe_effect`)."""
-        return re.sub(r"\[[^\]]*\](/\d+)?", "", self.text)
+        return re.sub(r"\[[^\]]*\](/\d+(x\d+)?)?", "", self.text)
 
     @property
     def control(self) -> str:
@@ -584,11 +639,13 @@ class Group:
 
     def param_names(self, g: int) -> list[str]:
         """The coefficients' names when this is group ``g``: components major."""
-        return [f"s{g}_{c}{j}" for c in self.components for j in range(self.n)]
+        return [f"s{g}_{c}{j}" for c in self.components for j in range(self.size)]
 
     def formula(self, component: str, g: int = 0) -> str:
         """What the group adds to ``component``, in the paper's notation, with units."""
         arg = "" if self.variable == "1" else f"({VARIABLES[self.variable].symbol})"
+        if self.tensor:
+            arg = f"({VARIABLES[self.variable].symbol}, {VARIABLES[self.variable2].symbol})"
         f = f"f_{component}{g}{arg}"
         if self.control:
             k = CONTROLS[self.control]
@@ -663,8 +720,9 @@ class Group:
 
 
 _GROUP = re.compile(
-    r"^(?P<c>[XYNDPS]+)~(?:(?P<one>1)|(?P<v>\w+)\[(?P<lo>[^:\]]+):(?P<hi>[^\]]+)\]"
-    r"(?:/(?P<n>\d+)|:(?P<f>[a-z]+(?:\([^)]*\))?)))"
+    r"^(?P<c>[XYNDPS]+)~(?:(?P<one>1)|(?P<v>\w+)(?:&(?P<v2>\w+))?"
+    r"\[(?P<lo>[^:\]]+):(?P<hi>[^\]&]+)(?:&(?P<lo2>[^:\]]+):(?P<hi2>[^\]]+))?\]"
+    r"(?:/(?P<n>\d+)(?:x(?P<n2>\d+))?|:(?P<f>[a-z]+(?:\([^)]*\))?)))"
     r"(?:\*(?P<m>\w+))?(?:@(?P<s>\w+))?$"
 )
 
@@ -686,8 +744,34 @@ def parse(spec: str) -> tuple[Group, ...]:
             raise ValueError(f"shape group {part!r}: the knot range is not two numbers") from None
         var = VARIABLES.get(m["v"] or "")
         n = (1 if var is not None and var.control else 2) if m["f"] else int(m["n"] or 1)
+        if bool(m["v2"]) != bool(m["lo2"]) or bool(m["v2"]) != bool(m["n2"]):
+            raise ValueError(
+                f"shape group {part!r}: a shape of two variables is written "
+                "'N~u&gammaA[lo:hi&lo2:hi2]/n x n2' (e.g. 'N~u&gammaA[0:0.4&-3.1:3.1]/5x8')"
+            )
+        second: dict[str, Any] = {}
+        if m["v2"]:
+            try:
+                second = {
+                    "variable2": m["v2"],
+                    "lo2": float(m["lo2"]),
+                    "hi2": float(m["hi2"]),
+                    "n2": int(m["n2"]),
+                }
+            except ValueError:
+                raise ValueError(f"shape group {part!r}: the knot range is not numbers") from None
         groups.append(
-            Group(m["c"], m["one"] or m["v"], lo, hi, n, m["m"] or "", m["s"] or "", m["f"] or "")
+            Group(
+                m["c"],
+                m["one"] or m["v"],
+                lo,
+                hi,
+                n,
+                m["m"] or "",
+                m["s"] or "",
+                m["f"] or "",
+                **second,
+            )
         )
     if len({g.text for g in groups}) != len(groups):
         raise ValueError(f"repeated shape group in {spec!r}")
@@ -721,6 +805,8 @@ def basis(group: Group, z: Any) -> FloatArray:
     j is the cardinal B-spline at s - (j - 1): the knots lie at lo + k h (k = -3 .. n), the basis
     sums to 1 on [lo, hi]. A constant group's basis is 1."""
     z = np.atleast_1d(np.asarray(z, dtype=np.float64))
+    if group.tensor:
+        raise ValueError(f"{group.text} is a shape of two variables: its basis is basis2's")
     if group.variable == "1":
         return np.ones((z.size, 1))
     if group.control and group.form:
@@ -731,6 +817,32 @@ def basis(group: Group, z: Any) -> FloatArray:
     h = (group.hi - group.lo) / (group.n - 3)
     s = (np.clip(z, group.lo, group.hi) - group.lo) / h
     return cardinal_bspline(s[:, None] - (np.arange(group.n)[None, :] - 1.0))
+
+
+def _spline_basis(lo: float, hi: float, n: int, z: FloatArray) -> FloatArray:
+    """(len(z), n) cubic B-splines on the uniform grid of n basis functions over [lo, hi], z
+    clamped to it (as :func:`basis`)."""
+    h = (hi - lo) / (n - 3)
+    s = (np.clip(z, lo, hi) - lo) / h
+    return cardinal_bspline(s[:, None] - (np.arange(n)[None, :] - 1.0))
+
+
+def basis2(group: Group, z: Any, z2: Any) -> FloatArray:
+    """(N, n n2) basis functions of a shape of two variables at N pairs (z, z2) (their units):
+    B_i(z) B_j(z2) in column i n2 + j, each variable clamped to its range (the products sum to
+    1 over the rectangle)."""
+    if not group.tensor:
+        raise ValueError(f"{group.text} is a shape of one variable: its basis is basis's")
+    z = np.atleast_1d(np.asarray(z, dtype=np.float64))
+    z2 = np.atleast_1d(np.asarray(z2, dtype=np.float64))
+    a = _spline_basis(group.lo, group.hi, group.n, z)
+    b = _spline_basis(group.lo2, group.hi2, group.n2, z2)
+    return np.asarray((a[:, :, None] * b[:, None, :]).reshape(z.size, -1))
+
+
+def surface(group: Group, coefficients: Any, z: Any, z2: Any) -> FloatArray:
+    """f(z, z2) of one component of a shape of two variables for its n n2 coefficients."""
+    return np.asarray(basis2(group, z, z2) @ np.asarray(coefficients, dtype=np.float64))
 
 
 def curve(group: Group, coefficients: Any, z: Any) -> FloatArray:
@@ -789,8 +901,12 @@ def difference_penalty(n: int, order: int = 2) -> FloatArray:
 
 def penalty(group: Group, order: int = 2) -> FloatArray:
     """(k, k) penalty of a group's k coefficients: :func:`difference_penalty` for each
-    component's shape, block-diagonal (components major, as the parameters)."""
+    component's shape, block-diagonal (components major, as the parameters); for a shape of two
+    variables the second differences along each of them (the tensor-product P-spline's)."""
     P = difference_penalty(group.n, order)
+    if group.tensor:  # the differences along each variable: P (x) I + I (x) P2
+        P2 = difference_penalty(group.n2, order)
+        P = np.kron(P, np.eye(group.n2)) + np.kron(np.eye(group.n), P2)
     return np.asarray(np.kron(np.eye(len(group.components)), P))
 
 
@@ -922,7 +1038,8 @@ def _clamped(g: int, group: Group) -> str:
 def numbers(groups: Sequence[Group]) -> list[tuple[str, float]]:
     """(field, value) of the numbers of ``groups`` that the code of their kernel reads from its
     parameters after the coefficients: a spline's knot range and knots per unit (``k<g>_lo``,
-    ``k<g>_hi``, ``k<g>_h`` = (n - 3) / (hi - lo)); a closed form's range, its numbers
+    ``k<g>_hi``, ``k<g>_h`` = (n - 3) / (hi - lo); a shape of two variables the same of the
+    second, ``k<g>_lo2``, ...); a closed form's range, its numbers
     (``k<g>_a0``, ...) and 1 / g_max (``k<g>_gs``); a memory's closed form its range's largest
     gap e_max (``k<g>_em``, :func:`memory_range`); nothing for a constant."""
     out: list[tuple[str, float]] = []
@@ -939,6 +1056,9 @@ def numbers(groups: Sequence[Group]) -> list[tuple[str, float]]:
             out.append((f"k{g}_gs", 1.0 / form_scale(group)))
         else:
             out.append((f"k{g}_h", 1.0 / ((group.hi - group.lo) / (group.n - 3))))
+        if group.tensor:
+            h2 = 1.0 / ((group.hi2 - group.lo2) / (group.n2 - 3))
+            out += [(f"k{g}_lo2", group.lo2), (f"k{g}_hi2", group.hi2), (f"k{g}_h2", h2)]
     return out
 
 
@@ -987,6 +1107,17 @@ def _group_lines(g: int, group: Group) -> list[str]:
         form = parse_form(group.form)
         args = [f"e.k{g}_a{i}" for i in range(len(form.args))]
         b = ["1.0", f"({form.code('z', args)}) * e.k{g}_gs"]
+    elif group.tensor:  # sum_ij c_ij B_i(z) B_j(z2), the second variable's basis bb<j>
+        lines += _basis_lines(g, group)
+        code2 = VARIABLES[group.variable2].code
+        lines.append(
+            f"    s = (min(max({code2}, e.k{g}_lo2), e.k{g}_hi2) - e.k{g}_lo2) * e.k{g}_h2"
+        )
+        lines += [
+            f"    bb{j} = _b3(s {'+' if j < 1 else '-'} {abs(float(j - 1))!r})"
+            for j in range(group.n2)
+        ]
+        b = [f"b{i} * bb{j}" for i in range(group.n) for j in range(group.n2)]
     else:
         lines += _basis_lines(g, group)
         b = [f"b{j}" for j in range(group.n)]
@@ -1124,7 +1255,7 @@ def _source(name: str, groups: Sequence[Group], key: str, probe: bool = False) -
                 lines += _group_lines(g, group)
             for c in group.components:
                 formula = group.formula(c, g)
-                fields += [f"    s{g}_{c}{j}: float  # {formula}" for j in range(group.n)]
+                fields += [f"    s{g}_{c}{j}: float  # {formula}" for j in range(group.size)]
         # the kernel's rows: the coefficients, then the groups' numbers (the same code for
         # every knot range and closed form's numbers)
         rows = [*fields, *(f"    {f}: float" for f, _ in numbers(groups))]
@@ -1220,7 +1351,7 @@ def _coefficients(groups: Sequence[Group]) -> list[EffectParam]:
         lower = 0.0 if g.control else -DEFAULT_BOUND
         for c in g.components:
             formula = g.formula(c, k)
-            for j in range(g.n):
+            for j in range(g.size):
                 if g.form and g.control:  # the memory's one coefficient, named in the formula
                     role = formula
                 elif g.form:
@@ -1313,6 +1444,8 @@ def probe_effect(groups: Sequence[Group] | str) -> Effect:
     gs = parse(groups) if isinstance(groups, str) else tuple(groups)
     if any(g.form for g in gs):
         raise ValueError("a closed form is fitted directly; only splines have a probe")
+    if any(g.tensor for g in gs):
+        raise ValueError("a shape of two variables is fitted directly; it has no probe")
     name = shape_name(gs) + PROBE_SUFFIX
     effect = _generated.get(name)
     if effect is None:
@@ -1453,6 +1586,7 @@ __all__ = [
     "Group",
     "ShapeEffect",
     "basis",
+    "basis2",
     "by_name",
     "cardinal_bspline",
     "curve",
@@ -1475,5 +1609,6 @@ __all__ = [
     "shape_kernel",
     "shape_name",
     "structure_text",
+    "surface",
     "variable_values",
 ]

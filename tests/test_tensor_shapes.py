@@ -1,0 +1,131 @@
+"""Shapes of two variables (an interaction): the tensor-product spline group of
+:mod:`mmg.shapes`, its name, basis, penalty and hook."""
+
+from __future__ import annotations
+
+import math
+import pickle
+
+import numpy as np
+import pytest
+
+from mmg import efd_parameters, get_effect
+from mmg.shapes import (
+    Group,
+    basis2,
+    difference_penalty,
+    groups_of,
+    numbers,
+    parse,
+    penalty,
+    probe_effect,
+    shape_effect,
+    surface,
+)
+from mmg.wind import apparent_wind
+
+#: a yaw moment in the surge velocity and the apparent-wind angle, with the wind's scaling
+SPEC = "shape:N~u&gammaA[-0.1:0.4&-3.1:3.1]/5x7@UA2"
+
+
+def test_a_shape_of_two_variables_round_trips_through_its_name() -> None:
+    (g,) = parse(SPEC)
+    assert (g.variable, g.variable2, g.n, g.n2, g.lo2, g.hi2) == ("u", "gammaA", 5, 7, -3.1, 3.1)
+    assert g.tensor and g.size == 35
+    assert "shape:" + g.text == SPEC
+    assert g.structure == "N~u&gammaA@UA2"
+    assert "f_N0(u, gamma_A)" in g.formula("N")
+    eff = shape_effect(SPEC)
+    assert len(eff.params) == 35 and eff.params[34].name == "s0_N34"
+    assert get_effect(SPEC) is eff
+    assert pickle.loads(pickle.dumps(eff)).name == SPEC
+    # its numbers: both knot ranges and knots per unit
+    assert [f for f, _ in numbers(groups_of(eff))] == [
+        "k0_lo",
+        "k0_hi",
+        "k0_h",
+        "k0_lo2",
+        "k0_hi2",
+        "k0_h2",
+    ]
+    # with a one-variable group beside it
+    two = parse("YN~beta[-0.5:0.5]/6+X~U&n[0:0.4&-10:10]/4x4*v")
+    assert [g.size for g in two] == [6, 16] and two[1].multiplier == "v"
+
+
+@pytest.mark.parametrize(
+    "spec, words",
+    [
+        ("N~u&u[0:1&0:1]/4x4", "needs two"),
+        ("N~u&ed[0:1&0:1]/4x4", "two force variables"),
+        ("N~u&gammaA[0:1&1:1]/4x4", "is empty"),
+        ("N~u&gammaA[0:1&-1:1]/4x3", "need 4 to 40"),
+        ("N~u&gammaA[0:1&-1:1]/20x20", "at most 100"),
+        ("N~u&gammaA[0:1]/4x4", "written"),
+        ("N~u[0:1]/4x4", "written"),
+        ("N~u&warp[0:1&0:1]/4x4", "unknown shape variable"),
+    ],
+)
+def test_malformed_shapes_of_two_variables_are_one_line_errors(spec: str, words: str) -> None:
+    with pytest.raises(ValueError, match=words):
+        parse(spec)
+
+
+def test_the_basis_of_two_variables_sums_to_one_and_is_held_outside_its_rectangle() -> None:
+    (g,) = parse(SPEC)
+    rng = np.random.default_rng(0)
+    z, z2 = rng.uniform(-0.5, 0.8, 200), rng.uniform(-4.0, 4.0, 200)
+    B = basis2(g, z, z2)
+    assert B.shape == (200, 35)
+    np.testing.assert_allclose(B.sum(axis=1), 1.0, rtol=1e-12)
+    np.testing.assert_allclose(basis2(g, [0.9], [5.0]), basis2(g, [0.4], [3.1]), rtol=1e-12)
+    # column i n2 + j is the product of the one-variable bases
+    one = Group("N", "u", g.lo, g.hi, g.n)
+    two = Group("N", "gammaA", g.lo2, g.hi2, g.n2)
+    from mmg.shapes import basis
+
+    want = basis(one, z)[:, 2] * basis(two, z2)[:, 4]
+    np.testing.assert_allclose(B[:, 2 * 7 + 4], want, rtol=1e-12)
+
+
+def test_the_penalty_of_two_variables_leaves_bilinear_surfaces_free() -> None:
+    (g,) = parse(SPEC)
+    P = penalty(g)
+    i, j = np.meshgrid(np.arange(5.0), np.arange(7.0), indexing="ij")
+    for c in (np.ones_like(i), i, j, i * j):
+        assert c.ravel() @ P @ c.ravel() == pytest.approx(0.0, abs=1e-9)
+    bent = (i * i).ravel()
+    assert bent @ P @ bent > 1.0
+    np.testing.assert_allclose(
+        P, np.kron(difference_penalty(5), np.eye(7)) + np.kron(np.eye(5), difference_penalty(7))
+    )
+
+
+def test_the_hook_adds_the_surface_times_its_scaling() -> None:
+    """The generated hook (called from Python) against numpy: the surface of the coefficients
+    times the wind's scaling in N, (rho_A A_L / rho L_pp d) U_A^2 with 0.5 rho L_pp^2 d."""
+    p = efd_parameters()
+    th, sh = p.theta, p.ship
+    eff = get_effect(SPEC)
+    (g,) = groups_of(eff)
+    assert eff.force_at is not None
+    rng = np.random.default_rng(1)
+    coef = rng.normal(size=35)
+    e = eff.param_type(**{f"s0_N{j}": float(c) for j, c in enumerate(coef)})
+    for u, v_m, psi, U_T, gamma_T in [(0.3, -0.05, 0.4, 2.0, 1.0), (-0.05, 0.1, -2.0, 5.0, 3.0)]:
+        args = (12.0, 1.0, 2.0, u, v_m, 0.01, psi, 0.1, 10.0, U_T, gamma_T, e, th, sh)
+        fx, fy, fn = eff.force_at(*args)
+        uA, vA = apparent_wind(
+            u, v_m, math.sin(psi), math.cos(psi), U_T, math.sin(gamma_T), math.cos(gamma_T)
+        )
+        gamma_A = math.atan2(vA, uA)
+        wL = sh.rho_A * sh.A_L / (sh.rho * sh.L_pp * sh.d)
+        scale = 0.5 * sh.rho * sh.L_pp**2 * sh.d * wL * (uA * uA + vA * vA)
+        want = scale * float(surface(g, coef, [u], [gamma_A])[0])
+        assert (fx, fy) == (0.0, 0.0)
+        assert fn == pytest.approx(want, rel=1e-9)
+
+
+def test_a_shape_of_two_variables_has_no_probe() -> None:
+    with pytest.raises(ValueError, match="no probe"):
+        probe_effect(SPEC)

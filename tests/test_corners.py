@@ -17,6 +17,8 @@ from sweep.diagnose.corners import fit_numbers, grid_step
 from sweep.identification.vector import effect_values, with_effects
 
 FINE = 40
+#: effective residuals of the refit's J (a small planted case's)
+N_EFF = 840.0
 
 
 def _refit_towards(corner: float, width: float | None, calls: list[str]) -> Any:
@@ -38,7 +40,7 @@ def test_a_steps_corner_and_width_move_to_where_the_refit_is_best() -> None:
     effect = shape_effect("S~alphaR[-3.35:3.1]:absstep(0.35,0.0621)*F_R")
     p0 = with_effects(efd_parameters(), (effect,), [0.01, -0.06])
     calls: list[str] = []
-    fitted = fit_numbers(effect, p0, _refit_towards(0.40, 0.03, calls), FINE)
+    fitted = fit_numbers(effect, p0, _refit_towards(0.40, 0.03, calls), FINE, N_EFF)
     assert fitted is not None
     corner, width = parse_form(groups_of(fitted.effect)[0].form).args
     step = grid_step(groups_of(effect)[0], FINE)
@@ -53,7 +55,7 @@ def test_a_steps_corner_and_width_move_to_where_the_refit_is_best() -> None:
 def test_a_hinges_corner_stays_inside_the_range_and_counts_one_number() -> None:
     effect = shape_effect("YN~beta[-1:1.2]:absup(0.5)")
     p0 = with_effects(efd_parameters(), (effect,), effect_values(efd_parameters(), (effect,)))
-    fitted = fit_numbers(effect, p0, _refit_towards(5.0, None, []), FINE)
+    fitted = fit_numbers(effect, p0, _refit_towards(5.0, None, []), FINE, N_EFF)
     assert fitted is not None
     (corner,) = parse_form(groups_of(fitted.effect)[0].form).args
     assert 0.5 < corner < 1.2  # moved towards the optimum, never past the range's larger side
@@ -63,4 +65,21 @@ def test_a_hinges_corner_stays_inside_the_range_and_counts_one_number() -> None:
 def test_forms_without_a_corner_are_left_alone() -> None:
     effect = shape_effect("X~U[0:0.4]:lin+N~beta[-1:1]:cos(2)")
     p0 = with_effects(efd_parameters(), (effect,), [0.0] * len(effect.params))
-    assert fit_numbers(effect, p0, _refit_towards(0.0, None, []), FINE) is None
+    assert fit_numbers(effect, p0, _refit_towards(0.0, None, []), FINE, N_EFF) is None
+
+
+def test_numbers_that_do_not_pay_for_themselves_in_bic_stay_as_named() -> None:
+    """A corner 0.05 away from the optimum lowers J by 0.25 %: less than the BIC's price of
+    two more parameters over 840 residuals; the named form is kept, nothing counted."""
+    effect = shape_effect("S~alphaR[-3.35:3.1]:absstep(0.35,0.0621)*F_R")
+    p0 = with_effects(efd_parameters(), (effect,), [0.01, -0.06])
+
+    def refit(e: Effect, p: Parameters) -> tuple[float, Parameters]:
+        c = parse_form(groups_of(e)[0].form).args[0]
+        return 1.0 + (c - 0.40) ** 2, with_effects(p, (e,), [0.2, 0.2])
+
+    fitted = fit_numbers(effect, p0, refit, FINE, N_EFF)
+    assert fitted is not None
+    assert fitted.effect.name == effect.name and fitted.count == 0
+    assert fitted.J_fitted == fitted.J_named
+    assert fitted.start == [0.2, 0.2]  # the named form's own fit

@@ -13,7 +13,8 @@ the base held at its values, the form's coefficients refitted (Levenberg-Marquar
 trial corner; the corner moves over the naming's grid spacing, two of them either way, and
 the search halves its step around the best corner :data:`ROUNDS` times; a step's width is
 then tried at shares of the named one (:data:`WIDTHS`), and the corner once more at the best
-width. A candidate with fitted numbers counts each of them as a parameter in its dBIC.
+width. Fitted numbers replace the named ones only when they lower the BIC (each a parameter),
+and a candidate with fitted numbers counts each of them as a parameter in its dBIC.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from dataclasses import dataclass, replace
 
 from mmg import Effect, Parameters
 from mmg.shapes import SHAPE_PREFIX, SYMMETRIC, Form, Group, groups_of, parse_form, shape_effect
+from sweep.diagnose.scoring import delta_bic
 from sweep.identification.vector import effect_values, with_effects
 
 #: closed forms whose first number is a corner (:data:`mmg.shapes.FORMS`)
@@ -73,16 +75,18 @@ Evaluate = Callable[[Sequence[Group], Parameters], tuple[float, Parameters]]
 
 
 def _fit_group(
-    evaluate: Evaluate, groups: Sequence[Group], i: int, at: Parameters, fine: int
+    evaluate: Evaluate, groups: Sequence[Group], i: int, at: Parameters, fine: int, n_eff: float
 ) -> tuple[Group, Parameters, int]:
     """Group ``i``'s corner (and a step's width) fitted, the other ``groups`` as they are,
     each trial started from the best one's fit (``at`` at first): (the group, the best trial's
-    fit, the numbers fitted)."""
+    fit, the numbers fitted). The named numbers stay unless the fitted ones pay for
+    themselves in BIC over ``n_eff`` residuals (each number a parameter)."""
     g = groups[i]
     form = parse_form(g.form)
     lo, hi = corner_range(g, form)
     best = list(form.args)
     best_J, at = evaluate(groups, at)
+    named_J, named_at = best_J, at
 
     def with_group(args: Sequence[float]) -> list[Group]:
         return [*groups[:i], _with_args(g, args), *groups[i + 1 :]]
@@ -105,7 +109,10 @@ def _fit_group(
             J, p = evaluate(with_group(args), start)
             if best_J > J:
                 best, best_J, at = list(args), J, p
-    return _with_args(g, best), at, 1 + (1 if widths else 0)
+    count = 1 + (1 if widths else 0)
+    if delta_bic(best_J, named_J, count, n_eff) >= 0.0:
+        return g, named_at, 0
+    return _with_args(g, best), at, count
 
 
 def _with_args(group: Group, args: Sequence[float]) -> Group:
@@ -118,13 +125,18 @@ def fit_numbers(
     start: Parameters,
     refit: Callable[[Effect, Parameters], tuple[float, Parameters]],
     fine: int,
+    n_eff: float,
     log: Callable[[str], None] | None = None,
 ) -> Fitted | None:
     """The closed-form shape ``effect`` with the corner of each of its hinges and steps, and
     each step's width, fitted by output error: ``refit(effect, p0)`` fits an effect's
     coefficients and the base from ``p0`` and returns (J, its parameters); ``start``: the base
     with ``effect``'s coefficients; ``fine``: the basis functions of the naming's grid (its
-    corner resolution). None when no group has a corner."""
+    corner resolution); ``n_eff``: the effective number of residuals of the refit's J. A
+    group's fitted numbers replace the named ones only when they lower the BIC, each counted
+    as a parameter: on a strong planted propeller in oblique inflow, a step at n_p = 0 moved
+    to -1.9 rev/s and half as wide lowered the training J by 0.2 % and raised the test J2 from
+    1.36 x to 1.95 x the true model's. None when no group has a corner."""
     groups = list(groups_of(effect))
     if not any(g.form and not g.control and parse_form(g.form).key in CORNERED for g in groups):
         return None
@@ -147,7 +159,7 @@ def fit_numbers(
     count = 0
     for i, g in enumerate(groups):
         if g.form and not g.control and parse_form(g.form).key in CORNERED:
-            groups[i], at, k = _fit_group(evaluate, groups, i, at, fine)
+            groups[i], at, k = _fit_group(evaluate, groups, i, at, fine, n_eff)
             count += k
     best = shape_effect(groups)
     J_fitted, at = evaluate(groups, at)

@@ -424,7 +424,7 @@ def fitted_numbers(
         return f.f, f.params
 
     p0 = with_effects(base.params, (effect,), start)
-    fitted = fit_numbers(effect, p0, refit, FINE_BASIS, ctx.log)
+    fitted = fit_numbers(effect, p0, refit, FINE_BASIS, ctx.n_eff, ctx.log)
     if fitted is None:
         return effect, list(start), list(named), None
     ctx.dof[fitted.effect.name] = float(len(fitted.effect.params) + fitted.count)

@@ -409,9 +409,10 @@ def fitted_numbers(
     by output error on the training windows (:func:`~sweep.diagnose.corners.fit_numbers`, each
     trial a short joint fit with the base from ``base``), its coefficients there, and the
     closed forms ``named`` (of the shapes of ``variables``, in order) with the fitted numbers;
-    unchanged when no group has a corner; and what was fitted (None then: the effects' names,
-    training J, trials and seconds, as ``report.json`` shows it). Each number fitted counts as
-    a parameter in the effect's dBIC."""
+    unchanged, coefficients included, when no group has a corner or no fitted number lowers
+    the BIC; and what was fitted (None when nothing could be: the effects' names, training J,
+    trials and seconds, as ``report.json`` shows it). Each number fitted counts as a parameter
+    in the effect's dBIC."""
     settings = replace(
         candidate_settings(ctx),
         budget=0,
@@ -427,6 +428,17 @@ def fitted_numbers(
     fitted = fit_numbers(effect, p0, refit, FINE_BASIS, ctx.n_eff, ctx.log)
     if fitted is None:
         return effect, list(start), list(named), None
+    record = {
+        "named": effect.name,
+        "fitted": fitted.effect.name,
+        "J_named": fitted.J_named,
+        "J_fitted": fitted.J_fitted,
+        "numbers": fitted.count,
+        "trials": [{"effect": name, "J": J} for name, J in fitted.trials],
+        "seconds": fitted.seconds,
+    }
+    if fitted.count == 0:  # no number paid for itself: the candidate as it was named
+        return effect, list(start), list(named), record
     ctx.dof[fitted.effect.name] = float(len(fitted.effect.params) + fitted.count)
     renamed = {
         (g.variable, g.form): h.form
@@ -441,15 +453,6 @@ def fitted_numbers(
             continue
         formula = parse_form(text).formula(SHAPE_VARIABLES[variable].symbol)
         out.append(replace(c, form=text, formula=formula))
-    record = {
-        "named": effect.name,
-        "fitted": fitted.effect.name,
-        "J_named": fitted.J_named,
-        "J_fitted": fitted.J_fitted,
-        "numbers": fitted.count,
-        "trials": [{"effect": name, "J": J} for name, J in fitted.trials],
-        "seconds": fitted.seconds,
-    }
     return fitted.effect, fitted.start, out, record
 
 

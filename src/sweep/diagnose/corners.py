@@ -164,10 +164,17 @@ def fit_numbers(
     best = shape_effect(groups)
     J_fitted, at = evaluate(groups, at)
     seconds = time.perf_counter() - t0
-    if log is not None:
+    if log is not None and count:
         log(
             f"closed form's numbers fitted by output error: {effect.name} -> {best.name}, "
             f"training J {J_named:.4g} -> {J_fitted:.4g} ({len(done)} trials, {seconds:.0f} s)"
+        )
+    elif log is not None:
+        lowest = min(J for J, _ in done.values())
+        log(
+            f"closed form's numbers kept as named: {effect.name} (training J {J_named:.4g}; the "
+            f"best of {len(done)} trials, {lowest:.4g}, does not pay for its numbers in BIC; "
+            f"{seconds:.0f} s)"
         )
     trials = [(name, J) for name, (J, _) in done.items()]
     return Fitted(best, effect_values(at, (best,)), J_named, J_fitted, count, trials, seconds)

@@ -814,9 +814,7 @@ def basis(group: Group, z: Any) -> FloatArray:
     if group.form:  # a + b g / g_max
         g = parse_form(group.form)(np.clip(z, group.lo, group.hi)) / form_scale(group)
         return np.column_stack([np.ones_like(z), g])
-    h = (group.hi - group.lo) / (group.n - 3)
-    s = (np.clip(z, group.lo, group.hi) - group.lo) / h
-    return cardinal_bspline(s[:, None] - (np.arange(group.n)[None, :] - 1.0))
+    return _spline_basis(group.lo, group.hi, group.n, z)
 
 
 def _spline_basis(lo: float, hi: float, n: int, z: FloatArray) -> FloatArray:

@@ -9,12 +9,15 @@ the coefficients only, cannot mend it: on a strong collapse planted at |alpha_R|
 form named at 20 deg reached a training J of 0.711, the same form at 23 deg 0.646.
 
 :func:`fit_numbers` fits them by output error on the training windows, one group at a time:
-the base held at its values, the form's coefficients refitted (Levenberg-Marquardt) at each
-trial corner; the corner moves over the naming's grid spacing, two of them either way, and
-the search halves its step around the best corner :data:`ROUNDS` times; a step's width is
-then tried at shares of the named one (:data:`WIDTHS`), and the corner once more at the best
-width. Fitted numbers replace the named ones only when they lower the BIC (each a parameter),
-and a candidate with fitted numbers counts each of them as a parameter in its dBIC.
+at each trial corner a short joint fit of the form's coefficients and the base
+(:data:`ITERATIONS` Levenberg-Marquardt iterations from the best trial so far; with the base
+held, the profile's minimum on that collapse was the named corner itself: the base had
+absorbed part of the force); the corner moves over the naming's grid spacing, two of them
+either way, and the search halves its step around the best corner :data:`ROUNDS` times; a
+step's width is then tried at shares of the named one (:data:`WIDTHS`), and the corner once
+more at the best width. Fitted numbers replace the named ones only when they lower the BIC
+(each a parameter), and a candidate with fitted numbers counts each of them as a parameter in
+its dBIC.
 """
 
 from __future__ import annotations
@@ -142,10 +145,10 @@ def fit_numbers(
         return None
     t0 = time.perf_counter()
     done: dict[str, tuple[float, Parameters]] = {}
-    source = effect
 
     def evaluate(gs: Sequence[Group], p0: Parameters) -> tuple[float, Parameters]:
-        """(J, parameters) of the shapes ``gs`` fitted from ``p0``."""
+        """(J, parameters) of the shapes ``gs`` fitted from ``p0``, whose last shape effect
+        (the trial it came from; the base's own effects come first) gives the coefficients."""
         trial = shape_effect(gs)
         if trial.name not in done:
             shapes = [vals for name, vals in p0.effects if name.startswith(SHAPE_PREFIX)]
@@ -155,7 +158,7 @@ def fit_numbers(
             done[trial.name] = refit(trial, with_effects(p0, (trial,), values))
         return done[trial.name]
 
-    J_named, at = evaluate(groups, with_effects(start, (source,), effect_values(start, (source,))))
+    J_named, at = evaluate(groups, start)
     count = 0
     for i, g in enumerate(groups):
         if g.form and not g.control and parse_form(g.form).key in CORNERED:

@@ -511,6 +511,8 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
         samples = sample_values(ctx.windows, params, selection.groups)
         named, form, start = named_form(columns, selection, r, samples)
         closest, closest_start = closest_form(selection, samples)
+        if closest is not None and form is not None and closest.name == form.name:
+            closest = None  # (before the numbers are fitted: one search for the two)
         if form is not None:
             variables_named = [g.variable for g in selection.groups]
             form, start, named, record = fitted_numbers(

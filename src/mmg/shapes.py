@@ -1033,6 +1033,13 @@ def _clamped(g: int, group: Group) -> str:
     return f"(min(max({code}, e.k{g}_lo), e.k{g}_hi) - e.k{g}_lo) * e.k{g}_h"
 
 
+def knots_per_unit(lo: float, hi: float, n: int) -> float:
+    """1 / h, h = (hi - lo) / (n - 3) the knot spacing of n basis functions over [lo, hi] [the
+    variable's unit], as the hook computes it (one expression, so that the hook, the probe
+    and numpy agree to the last bit)."""
+    return 1.0 / ((hi - lo) / (n - 3))
+
+
 def numbers(groups: Sequence[Group]) -> list[tuple[str, float]]:
     """(field, value) of the numbers of ``groups`` that the code of their kernel reads from its
     parameters after the coefficients: a spline's knot range and knots per unit (``k<g>_lo``,
@@ -1053,9 +1060,9 @@ def numbers(groups: Sequence[Group]) -> list[tuple[str, float]]:
             out += [(f"k{g}_a{i}", float(a)) for i, a in enumerate(args)]
             out.append((f"k{g}_gs", 1.0 / form_scale(group)))
         else:
-            out.append((f"k{g}_h", 1.0 / ((group.hi - group.lo) / (group.n - 3))))
+            out.append((f"k{g}_h", knots_per_unit(group.lo, group.hi, group.n)))
         if group.tensor:
-            h2 = 1.0 / ((group.hi2 - group.lo2) / (group.n2 - 3))
+            h2 = knots_per_unit(group.lo2, group.hi2, group.n2)
             out += [(f"k{g}_lo2", group.lo2), (f"k{g}_hi2", group.hi2), (f"k{g}_h2", h2)]
     return out
 
@@ -1108,13 +1115,8 @@ def _group_lines(g: int, group: Group) -> list[str]:
     elif group.tensor:  # sum_ij c_ij B_i(z) B_j(z2), the second variable's basis bb<j>
         lines += _basis_lines(g, group)
         code2 = VARIABLES[group.variable2].code
-        lines.append(
-            f"    s = (min(max({code2}, e.k{g}_lo2), e.k{g}_hi2) - e.k{g}_lo2) * e.k{g}_h2"
-        )
-        lines += [
-            f"    bb{j} = _b3(s {'+' if j < 1 else '-'} {abs(float(j - 1))!r})"
-            for j in range(group.n2)
-        ]
+        clamped2 = f"(min(max({code2}, e.k{g}_lo2), e.k{g}_hi2) - e.k{g}_lo2) * e.k{g}_h2"
+        lines += _spline_lines(clamped2, "bb", group.n2)
         b = [f"b{i} * bb{j}" for i in range(group.n) for j in range(group.n2)]
     else:
         lines += _basis_lines(g, group)
@@ -1132,12 +1134,18 @@ def _group_lines(g: int, group: Group) -> list[str]:
     return lines
 
 
+def _spline_lines(clamped: str, name: str, n: int) -> list[str]:
+    """``s`` = the clamped variable in knot intervals from lo, and its n basis functions
+    ``<name>0`` .. ``<name><n-1>``."""
+    lines = [f"    s = {clamped}"]
+    for j in range(n):
+        lines.append(f"    {name}{j} = _b3(s {'+' if j < 1 else '-'} {abs(float(j - 1))!r})")
+    return lines
+
+
 def _basis_lines(g: int, group: Group) -> list[str]:
     """Spline group ``g``'s clamped variable ``s`` and its basis functions ``b0`` .. ``b<n-1>``."""
-    lines = [f"    s = {_clamped(g, group)}"]
-    for j in range(group.n):
-        lines.append(f"    b{j} = _b3(s {'+' if j < 1 else '-'} {abs(float(j - 1))!r})")
-    return lines
+    return _spline_lines(_clamped(g, group), "b", group.n)
 
 
 def _gap_lines(group: Group) -> list[str]:
@@ -1486,7 +1494,7 @@ def probe_rows(effect: Effect, step: float, probe: Sequence[Group] | None = None
             raise ValueError(f"the probe has no group of the structure {group.structure}")
         knots = (0.0, 1.0, 1.0)  # a constant's lanes: the neutral knots
         if group.variable != "1":  # H as the shape effect's own code computes 1 / h
-            knots = (group.lo, group.hi, 1.0 / ((group.hi - group.lo) / (group.n - 3)))
+            knots = (group.lo, group.hi, knots_per_unit(group.lo, group.hi, group.n))
         for c in group.components:
             rows += [(g, COMPONENTS.index(c), j, step, *knots) for j in range(group.n)]
     return np.asarray(rows, dtype=np.float64)

@@ -570,7 +570,13 @@ class ShapeColumns:
         return [u for u in range(len(self.units)) if self.absorbed[u] < 1.0 - MIN_FREE]
 
     def _forward(
-        self, sides: _Sides, d: int, EEs: Sequence[FloatArray], n_eff: float, opts: _Options
+        self,
+        sides: _Sides,
+        d: int,
+        EEs: Sequence[FloatArray],
+        n_eff: float,
+        opts: _Options,
+        first: int | None = None,
     ) -> _Row:
         """:meth:`_entered` over the forces alone, and with a memory of the controls entering
         first and any unit after it: the path of the lower in-sample dBIC (ties: the forces);
@@ -580,9 +586,13 @@ class ShapeColumns:
         right and end the selection there (a steering gear's play: a yaw moment in delta led,
         56 % against 49 % of the held-out J, with an in-sample dBIC of -4 against -170; a
         drift-angle hinge: a memory led and nothing was chosen). The controls act upstream
-        of every force, so a memory goes first on its path."""
+        of every force, so a memory goes first on its path. ``first``: the unit that enters
+        first (on its kind's path alone)."""
         memory = {u for u, unit in enumerate(self.units) if unit.group.control}
         forces = set(range(len(self.units))) - memory
+        if first is not None:
+            kind = memory if first in memory else forces
+            return self._entered(sides, d, EEs, n_eff, opts, {first}, kind)
         rows = [self._entered(sides, d, EEs, n_eff, opts, forces, forces)]
         if memory & set(self._candidates()):
             rows.append(self._entered(sides, d, EEs, n_eff, opts, memory, None))
@@ -729,12 +739,34 @@ class ShapeColumns:
         max_groups: int = 5,
         min_gain: float = MIN_GAIN,
         kappas: Sequence[float] = KAPPAS,
+        first: Group | None = None,
     ) -> ShapeSelection:
         """The groups chosen for the base's residual vector ``r`` (S, M) (see the module
-        docstring), with their coefficients fitted (linearised, penalised) on all windows."""
+        docstring), with their coefficients fitted (linearised, penalised) on all windows.
+        ``first``: a group of one component (a unit's, :meth:`singles`) that enters first."""
         opts = _Options(max_groups, min_gain, tuple(kappas))
-        chosen, path, edf, dbic = self._statistic(r[..., None], n_eff, opts)[0]
+        if first is None:
+            chosen, path, edf, dbic = self._statistic(r[..., None], n_eff, opts)[0]
+        else:
+            u = next(u for u, unit in enumerate(self.units) if unit.group == first)
+            sides, _, _, EEs = self._one(r)
+            chosen, path, edf, dbic = self._forward(sides, 0, EEs, n_eff, opts, u)
         return self._selection(r, chosen, path, edf, dbic)
+
+    def singles(
+        self, r: FloatArray, kappas: Sequence[float] = KAPPAS
+    ) -> list[tuple[float, Group, float]]:
+        """Every candidate unit alone for the base's residual vector ``r`` (S, M): (held-out
+        gain as a share of the control fits' held-out J, the unit's group, kappa), the
+        smoothing the best of ``kappas``; the largest gain first."""
+        sides, cs, ehs, EEs = self._one(r)
+        Jho = max(float(sides.Jho[0]), 1e-300)
+        out = []
+        for u in self._candidates():
+            ks = kappas if self.units[u].group.n > 2 else kappas[:1]
+            g, k = max((self._heldout(cs, ehs, EEs, [(u, k)]), k) for k in ks)
+            out.append((g / Jho, self.units[u].group, float(k)))
+        return sorted(out, key=lambda row: -row[0])
 
     def restricted(
         self, r: FloatArray, n_eff: float, groups: Sequence[tuple[Group, float]]

@@ -50,7 +50,7 @@ from sweep.diagnose.naming import (
     form_transform,
     memory_forms,
 )
-from sweep.diagnose.pruning import Dropped, prune, register
+from sweep.diagnose.pruning import Dropped, Screened, lead_by_output_error, prune, register
 from sweep.diagnose.shapes import (
     SHIP_VARIABLES,
     VARIABLES,
@@ -99,6 +99,8 @@ class ShapeProposal:
     #: when that dropped groups (None: nothing dropped), and its steps
     chosen: ShapeSelection | None = None
     dropped: list[Dropped] = field(default_factory=list)
+    #: the single groups checked for the lead by output error (:mod:`sweep.diagnose.pruning`)
+    screened: list[Screened] = field(default_factory=list)
     #: the closed-form candidates whose corners or widths were fitted by output error
     #: (:func:`fitted_numbers`): the named effect, the fitted one, their training J, the trials
     numbers: list[dict[str, Any]] = field(default_factory=list)
@@ -138,6 +140,7 @@ class ShapeProposal:
             "before_backward_check": self.chosen.spec if self.chosen is not None else None,
             "numbers": self.numbers,
             "dropped": [d.as_dict() for d in self.dropped],
+            "screened": [x.as_dict() for x in self.screened],
         }
 
 
@@ -503,8 +506,10 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
     closest_start: list[float] = []
     chosen: ShapeSelection | None = None
     dropped: list[Dropped] = []
+    screened: list[Screened] = []
     numbers: list[dict[str, Any]] = []
     if proposed:
+        selection, screened = lead_by_output_error(ctx, base, columns, r, selection, threshold)
         full = selection
         selection, dropped = prune(ctx, base, columns, r, selection)
         chosen = full if dropped else None
@@ -558,6 +563,7 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
         samples,
         chosen,
         dropped,
+        screened,
         numbers,
     )
     if proposed:

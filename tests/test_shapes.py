@@ -529,6 +529,17 @@ def test_the_selection_finds_a_planted_shape_and_nothing_in_noise(small_case) ->
     assert again.heldout_gain == pytest.approx(sel.heldout_gain)
     assert again.dbic == pytest.approx(sel.dbic) and again.edf == pytest.approx(sel.edf)
     assert 1.0 < sel.edf[0] < 6.0
+    # every unit alone: the planted one leads, with the selection's first gain
+    singles = cols.singles(r)
+    assert singles[0][1] == sel.groups[0] and singles[0][0] == pytest.approx(sel.heldout_gain[0])
+    assert [s[0] for s in singles] == sorted((s[0] for s in singles), reverse=True)
+    # made to enter first: the planted one gives the same selection; another enters first
+    # only when it lowers the dBIC on its own (Y~rp, 16 % of the held-out J, does not)
+    same = cols.select(r, n_eff, first=sel.groups[0])
+    assert same.spec == sel.spec and same.heldout_gain == pytest.approx(sel.heldout_gain)
+    other = singles[1][1]
+    assert singles[1][0] > 0.1
+    assert cols.select(r, n_eff, first=other).groups[:1] in ([], [other])
     assert sel.spec.startswith("shape:N~beta[-2.4:0.35]/6")
     k = 6 * len(sel.groups)
     assert len(sel.values()) == k and sel.penalty().shape == (k, k)
@@ -707,3 +718,17 @@ def test_the_backward_check_drops_a_group_that_adds_less_than_its_share() -> Non
     assert group_to_drop(4.0, [5.0, 1.0]) == 0  # a group that makes the held-out runs worse
     assert group_to_drop(-1.0, [-3.0, -2.0]) is None  # nothing gains: left to the verdict
     assert group_to_drop(5.0, []) is None
+
+
+def test_the_lead_goes_to_a_single_group_that_gains_its_share_more_by_output_error() -> None:
+    """Another single group leads a shape only when it takes at least MIN_GAIN more off the
+    held-out runs' J by output error than the selection's own first group."""
+    from sweep.diagnose.pruning import lead_to_take
+    from sweep.diagnose.shapes import MIN_GAIN
+
+    assert lead_to_take([5.0, 9.0, 3.0], 1) is None  # the first is the best
+    assert lead_to_take([-9.2, 142.8, 3.0], 0) == 1  # linearised first, worse than none
+    assert lead_to_take([10.0, 10.0 * (1.0 + MIN_GAIN) - 1e-6], 0) is None
+    assert lead_to_take([10.0, 10.0 * (1.0 + MIN_GAIN) + 1e-6], 0) == 1
+    assert lead_to_take([-3.0, -1.0], 0) is None  # nothing gains: left to the candidates'
+    assert lead_to_take([-3.0, 0.5], 0) == 1

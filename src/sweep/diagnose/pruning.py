@@ -32,6 +32,7 @@ The procedure is described in the user guide (docs/guide/diagnosis.md).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -138,6 +139,17 @@ class _Gains:
         return [self.gains[s.spec] for s in sels]
 
 
+def lead_to_take(gains: Sequence[float], first: int) -> int | None:
+    """The index of the single group to lead a shape, by the held-out gains [J] by output error
+    ``gains`` of the single groups checked, ``first`` the selection's own first group: the best,
+    when it takes at least :data:`MIN_GAIN` more off the held-out runs' J than ``first`` (None:
+    the first stays)."""
+    best = int(np.argmax(gains))
+    if best == first or gains[best] <= (1.0 + MIN_GAIN) * max(gains[first], 0.0):
+        return None
+    return best
+
+
 def lead_by_output_error(
     ctx: Context,
     base: Fit,
@@ -167,8 +179,7 @@ def lead_by_output_error(
         Screened(g.text, float(share), float(gain))
         for (share, g, _), gain in zip(top, gains, strict=True)
     ]
-    i_first = next(i for i, (_, g, _) in enumerate(top) if g == first)
-    i_best = int(np.argmax(gains))
+    i_best = lead_to_take(gains, next(i for i, (_, g, _) in enumerate(top) if g == first))
     ctx.log(
         "lead of the shape by output error: "
         + ", ".join(
@@ -176,7 +187,7 @@ def lead_by_output_error(
             for x in screened
         )
     )
-    if i_best == i_first or gains[i_best] <= (1.0 + MIN_GAIN) * max(gains[i_first], 0.0):
+    if i_best is None:
         return selection, screened
     lead = top[i_best][1]
     again = columns.select(r, ctx.n_eff, first=lead)
@@ -232,6 +243,7 @@ __all__ = [
     "Screened",
     "group_to_drop",
     "lead_by_output_error",
+    "lead_to_take",
     "prune",
     "register",
 ]

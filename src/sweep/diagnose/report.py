@@ -20,6 +20,7 @@ from mmg.shapes import SHAPE_PREFIX, is_closed_form
 from sweep.data.recordings import Recording
 from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
+from sweep.diagnose.pruning import SCREEN_SHARE
 from sweep.diagnose.run import Diagnosis, round_dir
 from sweep.diagnose.scoring import CandidateScore, diverged_text, form_share, shape_and_form
 from sweep.diagnose.shapes import MIN_GAIN, PLACE_AND_TIME
@@ -1108,6 +1109,19 @@ def _shape_md(d: Diagnosis) -> list[str]:
         + ("proposed." if sp.proposed else "not proposed."),
         "",
     ]
+    if sp.screened:
+        md += [
+            "First group checked by output error among the single groups within "
+            f"{SCREEN_SHARE:.0%} of the best linearised one (each fitted alone with the 57 "
+            "parameters on one half of the runs and judged on the other; held-out gain [J], "
+            "the linearised share in brackets): "
+            + "; ".join(
+                f"`{x.group}` {x.heldout_gain:.4g} ({100 * x.linearised:.0f} %)"
+                for x in sp.screened
+            )
+            + ".",
+            "",
+        ]
     if sp.chosen is not None:
         md += [
             f"Chosen on the trajectory residuals: `{sp.chosen.spec}`. Backward check by output "

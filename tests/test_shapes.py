@@ -732,3 +732,5 @@ def test_the_lead_goes_to_a_single_group_that_gains_its_share_more_by_output_err
     assert lead_to_take([10.0, 10.0 * (1.0 + MIN_GAIN) + 1e-6], 0) == 1
     assert lead_to_take([-3.0, -1.0], 0) is None  # nothing gains: left to the candidates'
     assert lead_to_take([-3.0, 0.5], 0) == 1
+    assert lead_to_take([1.0, float("nan"), float("inf")], 0) is None  # failed fits never lead
+    assert lead_to_take([float("nan"), 2.0], 0) == 1

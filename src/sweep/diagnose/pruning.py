@@ -143,9 +143,12 @@ def lead_to_take(gains: Sequence[float], first: int) -> int | None:
     """The index of the single group to lead a shape, by the held-out gains [J] by output error
     ``gains`` of the single groups checked, ``first`` the selection's own first group: the best,
     when it takes at least :data:`MIN_GAIN` more off the held-out runs' J than ``first`` (None:
-    the first stays)."""
-    best = int(np.argmax(gains))
-    if best == first or gains[best] <= (1.0 + MIN_GAIN) * max(gains[first], 0.0):
+    the first stays). A gain that is not finite (a fit that failed) never leads."""
+    finite = np.where(np.isfinite(gains), np.asarray(gains, dtype=float), -np.inf)
+    best = int(np.argmax(finite))
+    if not np.isfinite(finite[best]):
+        return None
+    if best == first or finite[best] <= (1.0 + MIN_GAIN) * max(finite[first], 0.0):
         return None
     return best
 

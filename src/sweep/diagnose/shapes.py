@@ -565,6 +565,11 @@ class ShapeColumns:
                 i += Zu.shape[1]
         return a, idx, pens, dof
 
+    def _kappas(self, u: int, kappas: Sequence[float]) -> Sequence[float]:
+        """The smoothings tried for unit ``u``: all of ``kappas``, the first alone for a unit of
+        one or two coefficients (a constant, a closed form: nothing to smooth)."""
+        return kappas if self.units[u].group.n > 2 else kappas[:1]
+
     def _candidates(self) -> list[int]:
         """Units that can be chosen: columns not (nearly) all imitated by the base."""
         return [u for u in range(len(self.units)) if self.absorbed[u] < 1.0 - MIN_FREE]
@@ -631,7 +636,7 @@ class ShapeColumns:
                 (heldout([*chosen, (u, kap)]), u, kap)
                 for u in allowed
                 if u not in taken and (self.units[u].group.n > 1 or self.units[u].kind not in kinds)
-                for kap in (opts.kappas if self.units[u].group.n > 2 else opts.kappas[:1])
+                for kap in self._kappas(u, opts.kappas)
             ]
             if not trials:
                 break
@@ -763,8 +768,7 @@ class ShapeColumns:
         Jho = max(float(sides.Jho[0]), 1e-300)
         out = []
         for u in self._candidates():
-            ks = kappas if self.units[u].group.n > 2 else kappas[:1]
-            g, k = max((self._heldout(cs, ehs, EEs, [(u, k)]), k) for k in ks)
+            g, k = max((self._heldout(cs, ehs, EEs, [(u, k)]), k) for k in self._kappas(u, kappas))
             out.append((g / Jho, self.units[u].group, float(k)))
         return sorted(out, key=lambda row: -row[0])
 

@@ -19,6 +19,7 @@ from mmg.shapes import (
     parse,
     penalty,
     probe_effect,
+    probe_rows,
     shape_effect,
     surface,
 )
@@ -126,6 +127,30 @@ def test_the_hook_adds_the_surface_times_its_scaling() -> None:
         assert fn == pytest.approx(want, rel=1e-9)
 
 
-def test_a_shape_of_two_variables_has_no_probe() -> None:
-    with pytest.raises(ValueError, match="no probe"):
-        probe_effect(SPEC)
+def test_the_probe_of_a_shape_of_two_variables_gives_the_force_of_each_coefficient() -> None:
+    """A probe with a shape of two variables beside a shape of one: each lane's row (G, C, J,
+    A, L, U, H, J2, L2, U2, H2) gives exactly the force of the shape effect with that one
+    coefficient at A, B_i(z) B_j(z2) for the surface's coefficient i n2 + j; A = 0 gives
+    nothing."""
+    p = efd_parameters()
+    spec = SPEC + "+YN~beta[-0.6:0.6]/5"
+    eff = get_effect(spec)
+    probe = probe_effect(spec)
+    assert probe.param_names[-4:] == ("J2", "L2", "U2", "H2")
+    k = len(eff.params)
+    rows = probe_rows(eff, 0.7)
+    assert rows.shape == (k, 11)
+    g0 = parse(spec)[0]
+    assert rows[g0.n2 + 2].tolist()[7:10] == [2.0, g0.lo2, g0.hi2]  # i = 1, j = 2
+    assert rows[-1].tolist()[7:] == [0.0, 0.0, 1.0, 1.0]  # a one-variable group's lane
+    assert eff.force_at is not None and probe.force_at is not None
+    for u, v_m, psi in ((0.5, -0.08, 0.3), (-0.3, 0.05, 2.5), (0.2, 0.0, -1.0)):
+        args = (12.0, 1.0, 2.0, u, v_m, 0.02, psi, 0.1, 10.0, 1.0, 0.5)
+        for i, row in enumerate(rows):
+            values = np.zeros(k)
+            values[i] = 0.7
+            want = eff.force_at(*args, eff.param_type(*values), p.theta, p.ship)
+            got = probe.force_at(*args, probe.param_type(*row), p.theta, p.ship)
+            assert got == pytest.approx(want, rel=1e-12, abs=1e-300), (i, u)
+        off = probe.param_type(*rows[3][:3], 0.0, *rows[3][4:])
+        assert probe.force_at(*args, off, p.theta, p.ship) == (0.0, 0.0, 0.0)

@@ -1074,10 +1074,14 @@ def structure_text(group: Group) -> str:
     return re.sub(r":([a-z]+)\([^)]*\)", r":\1", text)
 
 
-def _lane_clamped(group: Group) -> str:
+def _lane_clamped(group: Group, second: bool = False) -> str:
     """Like :func:`_clamped`, with the knot range [L, U] and the knots per unit H = 1 / h of the
     probe's lane (its parameters) instead of constants: a probe's code is then the same for
-    every range and number of basis functions."""
+    every range and number of basis functions. ``second``: a shape of two variables' second
+    variable, in the lane's [L2, U2] and H2."""
+    if second:
+        code = VARIABLES[group.variable2].code
+        return f"(min(max({code}, e.L2), e.U2) - e.L2) * e.H2"
     code = VARIABLES[group.variable].code
     return f"(min(max({code}, e.L), e.U) - e.L) * e.H"
 
@@ -1194,7 +1198,10 @@ def _probe_memory_lines(groups: Sequence[Group]) -> list[str]:
 def _probe_lines(groups: Sequence[Group]) -> list[str]:
     """The probe's code: every group's clamped variable and factors weighted by [G == g], then
     one basis function (J) of one component (C) at amplitude A; no branch."""
+    pairs = any(g.tensor for g in groups)
     lines = ["    z = 0.0", "    spline = 0.0"]
+    if pairs:  # the second variable of a shape of two variables, in the lane's range
+        lines += ["    z2 = 0.0", "    pair = 0.0"]
     lines += [f"    f{c} = 0.0" for c in ("X", "Y", "N", "SX", "SY", "SN")]
     for g, group in enumerate(groups):
         if group.control:
@@ -1202,6 +1209,8 @@ def _probe_lines(groups: Sequence[Group]) -> list[str]:
         lines += [f"    # {group.structure}", f"    w = 1.0 if e.G == {float(g)!r} else 0.0"]
         if group.variable != "1":
             lines += [f"    z += w * ({_lane_clamped(group)})", "    spline += w"]
+        if group.tensor:
+            lines += [f"    z2 += w * ({_lane_clamped(group, True)})", "    pair += w"]
         setup, factor = _factors(group)
         lines += setup
         for c in group.components:
@@ -1211,8 +1220,12 @@ def _probe_lines(groups: Sequence[Group]) -> list[str]:
             else:
                 lines.append(f"    f{c} += w * ({factor[c]})")
     s = float(COMPONENTS.index("S"))
+    b = "    b = e.A * (spline * _b3(z - (e.J - 1.0)) + (1.0 - spline))"
+    if pairs:  # B_J(z) B_J2(z2) for a lane of a shape of two variables
+        lines.append("    b2 = pair * _b3(z2 - (e.J2 - 1.0)) + (1.0 - pair)")
+        b += " * b2"
     lines += [
-        "    b = e.A * (spline * _b3(z - (e.J - 1.0)) + (1.0 - spline))",
+        b,
         f"    share = 1.0 if e.C == {s!r} else 0.0",
         "    X = ((1.0 if e.C == 0.0 else 0.0) * fX + share * fSX) * b",
         "    Y = ((1.0 if e.C == 1.0 else 0.0) * fY + share * fSY) * b",
@@ -1252,6 +1265,13 @@ def _source(name: str, groups: Sequence[Group], key: str, probe: bool = False) -
             "    U: float",
             "    H: float  # its knots per unit of the variable, (n - 3) / (U - L)",
         ]
+        if any(g.tensor for g in groups):
+            fields += [
+                "    J2: float  # the second variable's basis function (0 .. n2 - 1)",
+                "    L2: float  # the second variable's knot range [L2, U2]",
+                "    U2: float",
+                "    H2: float  # its knots per unit, (n2 - 3) / (U2 - L2)",
+            ]
         name = "probe of " + "+".join(g.structure for g in groups)  # the same for any range
     else:
         for g, group in enumerate(groups):
@@ -1440,7 +1460,9 @@ def probe_effect(groups: Sequence[Group] | str) -> Effect:
     """The probe of ``groups``: the force of one coefficient of their shape effect at a time,
     chosen by its parameters (G: group, C: component 0/1/2/5 for X/Y/N/S, J: basis function,
     A: the coefficient's value, A = 0 is neutral; L, U: the group's knot range, H: its knots
-    per unit of the variable). Each lane of a batch sets its own, so one simulation batch gives
+    per unit of the variable; with a shape of two variables among ``groups`` also J2, L2, U2,
+    H2: the second variable's basis function, range and knots per unit, the lane's force
+    B_J(z) B_J2(z2)). Each lane of a batch sets its own, so one simulation batch gives
     the trajectory column of every coefficient at the cost of a single basis function per lane;
     the shape effect itself evaluates all of them in every lane (30 x the base model's time for
     460 coefficients).
@@ -1450,13 +1472,11 @@ def probe_effect(groups: Sequence[Group] | str) -> Effect:
     gs = parse(groups) if isinstance(groups, str) else tuple(groups)
     if any(g.form for g in gs):
         raise ValueError("a closed form is fitted directly; only splines have a probe")
-    if any(g.tensor for g in gs):
-        raise ValueError("a shape of two variables is fitted directly; it has no probe")
     name = shape_name(gs) + PROBE_SUFFIX
     effect = _generated.get(name)
     if effect is None:
         module, key = _module(name, gs, probe=True)
-        table = (
+        table: tuple[tuple[str, float, float, float, str], ...] = (
             ("G", 0.0, 0.0, len(gs) - 1, "group"),
             ("C", 0.0, 0.0, 5.0, "component (0: X, 1: Y, 2: N, 3: D, 4: P, 5: S)"),
             ("J", 0.0, 0.0, MAX_BASIS - 1, "basis function"),
@@ -1465,6 +1485,13 @@ def probe_effect(groups: Sequence[Group] | str) -> Effect:
             ("U", 1.0, -PROBE_RANGE, PROBE_RANGE, "upper end of the group's knot range"),
             ("H", 1.0, 0.0, PROBE_RANGE, "knots per unit of the variable, (n - 3) / (U - L)"),
         )
+        if any(g.tensor for g in gs):
+            table += (
+                ("J2", 0.0, 0.0, MAX_BASIS - 1, "the second variable's basis function"),
+                ("L2", 0.0, -PROBE_RANGE, PROBE_RANGE, "lower end of its knot range"),
+                ("U2", 1.0, -PROBE_RANGE, PROBE_RANGE, "upper end of its knot range"),
+                ("H2", 1.0, 0.0, PROBE_RANGE, "its knots per unit, (n2 - 3) / (U2 - L2)"),
+            )
         effect = ShapeEffect(
             name=name,
             description="one coefficient at a time of " + shape_name(gs),
@@ -1481,13 +1508,16 @@ def probe_effect(groups: Sequence[Group] | str) -> Effect:
 
 def probe_rows(effect: Effect, step: float, probe: Sequence[Group] | None = None) -> FloatArray:
     """(k, 7) parameter rows of a probe for ``effect`` (a shape effect with k coefficients):
-    row i sets the shape effect's coefficient i to ``step`` (G, C, J, A, L, U, H). ``probe``: the
+    row i sets the shape effect's coefficient i to ``step`` (G, C, J, A, L, U, H; a probe with a
+    shape of two variables has 11 columns, the second variable's J2, L2, U2, H2 after them,
+    neutral for a group of one variable). ``probe``: the
     groups the probe was made for (default: the effect's own); each of the effect's groups is
     the probe's first group that serves it (:func:`serves`), at its own range. Raises
     ValueError for a group whose structure the probe lacks."""
     groups = groups_of(effect)
     within = groups if probe is None else probe
-    rows = []
+    pairs = any(h.tensor for h in within)
+    rows: list[tuple[float, ...]] = []
     for group in groups:
         g = next((k for k, h in enumerate(within) if serves(h, group)), None)
         if g is None:
@@ -1495,8 +1525,16 @@ def probe_rows(effect: Effect, step: float, probe: Sequence[Group] | None = None
         knots = (0.0, 1.0, 1.0)  # a constant's lanes: the neutral knots
         if group.variable != "1":  # H as the shape effect's own code computes 1 / h
             knots = (group.lo, group.hi, knots_per_unit(group.lo, group.hi, group.n))
+        second = [(0.0, 0.0, 1.0, 1.0)]  # no second variable: its neutral lane values
+        if group.tensor:  # coefficient i n2 + j: B_i(z) B_j(z2)
+            h2 = knots_per_unit(group.lo2, group.hi2, group.n2)
+            second = [(float(j2), group.lo2, group.hi2, h2) for j2 in range(group.n2)]
         for c in group.components:
-            rows += [(g, COMPONENTS.index(c), j, step, *knots) for j in range(group.n)]
+            rows += [
+                (g, COMPONENTS.index(c), j, step, *knots, *(more if pairs else ()))
+                for j in range(group.n)
+                for more in second
+            ]
     return np.asarray(rows, dtype=np.float64)
 
 

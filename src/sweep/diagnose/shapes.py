@@ -34,7 +34,7 @@ from mmg.effect import Effect
 from mmg.shapes import (
     COMPONENTS,
     Group,
-    difference_penalty,
+    penalty,
     probe_effect,
     probe_rows,
     serves,
@@ -252,7 +252,10 @@ def probe_groups(groups: Sequence[Group]) -> list[Group]:
     out = _groups(unit, VARIABLES, PRODUCTS, SHARE_PRODUCTS, QUADRANTS, N_BASIS)
     for g in groups:
         if not any(serves(h, g) for h in out):
-            out.append(replace(g, lo=0.0, hi=1.0) if g.variable != "1" else g)
+            if g.tensor:
+                out.append(replace(g, lo=0.0, hi=1.0, lo2=0.0, hi2=1.0))
+            else:
+                out.append(replace(g, lo=0.0, hi=1.0) if g.variable != "1" else g)
     return out
 
 
@@ -433,9 +436,9 @@ class ShapeColumns:
         k = 0
         for g in self.groups:
             for c in g.components:
-                one = Group(c, g.variable, g.lo, g.hi, g.n, g.multiplier, g.scale)
-                self.units.append(Unit(one, tuple(range(k, k + g.n))))
-                k += g.n
+                one = replace(g, components=c)
+                self.units.append(Unit(one, tuple(range(k, k + g.size))))
+                k += g.size
         self.lib = self._columns(step, dtype)
         self.simulation_seconds = time.perf_counter() - t0
         # per-window Gram matrices, then each fold's (fit fold 0, fit fold 1, all windows)
@@ -543,7 +546,7 @@ class ShapeColumns:
                 reduced.append(np.zeros((Z.shape[1], Z.shape[1])))
                 continue
             scale = max(float(np.mean(diag[list(unit.columns)])), 0.0)
-            P = kappa * scale * difference_penalty(n)
+            P = kappa * scale * penalty(unit.group)  # a surface's along both variables
             Z = _centred(n) if unit.kind in seen else np.eye(n)
             seen.add(unit.kind)
             reduced.append(Z.T @ P @ Z)

@@ -125,6 +125,11 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         help="do not learn the shape of the missing force as a candidate",
     )
     ap.add_argument(
+        "--no-shape-pairs",
+        action="store_true",
+        help="no shapes of two variables (interactions) among the learned shapes' candidates",
+    )
+    ap.add_argument(
         "--rounds",
         type=int,
         default=d.rounds,
@@ -241,6 +246,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
         min_improvement=args.min_improvement,
         outside=args.outside,
         shapes=not args.no_shapes,
+        shape_pairs=not args.no_shape_pairs,
         rounds=args.rounds,
         shape_variables=_shape_variables(args.shape_variables),
         max_delta_bic=args.max_delta_bic,

@@ -177,8 +177,11 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
     groups = []
     for g, group in enumerate(groups_of(eff)):
         for comp in group.components:
-            names = [f"s{g}_{comp}{j}" for j in range(group.n)]
+            names = [f"s{g}_{comp}{j}" for j in range(group.size)]
             coef = [values.get(n, 0.0) for n in names]
+            if group.tensor:
+                groups.append(_surface_entry(group, comp, g, coef))
+                continue
             if group.form and group.control:
                 formula = f"{group.memory_closed(coef[0], dt)}: {group.formula(comp, g)}"
             elif group.form:
@@ -223,6 +226,38 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
         "closed_form": is_closed_form(d.verdict_effect),
         "kept": form_share(d.candidates),
         "groups": groups,
+    }
+
+
+def _surface_entry(group: Any, comp: str, g: int, coef: list[float]) -> dict[str, Any]:
+    """A shape of two variables: f on a grid of 9 values of the first variable over its range
+    and 5 of the second (``surface``, rows the first)."""
+    from mmg.shapes import VARIABLES, surface
+
+    var, var2 = VARIABLES[group.variable], VARIABLES[group.variable2]
+    z = np.linspace(group.lo, group.hi, 9)
+    z2 = np.linspace(group.lo2, group.hi2, 5)
+    Z, Z2 = np.meshgrid(z, z2, indexing="ij")
+    f = surface(group, coef, Z.ravel(), Z2.ravel()).reshape(Z.shape)
+    return {
+        "group": group.text,
+        "component": comp,
+        "formula": group.formula(comp, g),
+        "variable": group.variable,
+        "variable2": group.variable2,
+        "coefficients": coef,
+        "closed_form": False,
+        "range": [group.lo, group.hi],
+        "range2": [group.lo2, group.hi2],
+        "unit": var.unit,
+        "unit2": var2.unit,
+        "meaning": var.meaning,
+        "meaning2": var2.meaning,
+        "z": [float(v) for v in z],
+        "z2": [float(v) for v in z2],
+        "surface": [[float(v) for v in row] for row in f],
+        "closest": [],
+        "named": False,
     }
 
 
@@ -299,6 +334,14 @@ def _shape_text(d: Diagnosis) -> str:
             parts.append(f"{g['formula']} = {g['coefficients'][0]:.3g}")
             continue
         lo, hi = g["range"]
+        if "surface" in g:
+            lo2, hi2 = g["range2"]
+            parts.append(
+                f"{g['formula']}, a smooth function of the {g['meaning']} and the "
+                f"{g['meaning2']} learnt over [{lo:.3g}, {hi:.3g}] {g['unit']} x "
+                f"[{lo2:.3g}, {hi2:.3g}] {g['unit2']} (held at its edges beyond)"
+            )
+            continue
         if g["closed_form"]:
             parts.append(
                 f"{g['formula']}, with the {g['meaning']} held within [{lo:.3g}, {hi:.3g}] "
@@ -1023,6 +1066,9 @@ def plot_shapes(d: Diagnosis, path: Path) -> None:
         pad = 0.15 * (hi - lo)
         z = np.linspace(lo - pad, hi + pad, 300)
         group = groups[g["group"]]
+        if group.tensor:
+            _plot_surface(ax, group, g, z)
+            continue
         f = curve(group, g["coefficients"], z)
         ax.plot(z, f, "C0")
         names = [f"s{list(groups).index(g['group'])}_{g['component']}{j}" for j in range(group.n)]
@@ -1051,6 +1097,21 @@ def plot_shapes(d: Diagnosis, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _plot_surface(ax: Any, group: Any, g: dict[str, Any], z: Any) -> None:
+    """A shape of two variables as curves f(z) at five values of the second variable."""
+    from mmg.shapes import surface
+
+    for k, z2 in enumerate(g["z2"]):
+        f = surface(group, g["coefficients"], z, np.full_like(z, z2))
+        ax.plot(z, f, f"C{k}", label=f"{g['variable2']} = {z2:.3g} {g['unit2']}")
+    ax.axvspan(*g["range"], color="C0", alpha=0.08)
+    ax.axhline(0.0, color="k", lw=0.5)
+    ax.set_xlabel(f"{g['variable']} [{g['unit']}]")
+    ax.set_ylabel(f"f_{g['component']} [-]")
+    ax.set_title(f"a shape of {g['variable']} and {g['variable2']}", fontsize=8)
+    ax.legend(fontsize=6)
 
 
 def _learned_curve(d: Diagnosis, form: Any, component: str, z: Any) -> Any:
@@ -1109,6 +1170,20 @@ def _shape_md(d: Diagnosis) -> list[str]:
         + ("proposed." if sp.proposed else "not proposed."),
         "",
     ]
+    if sp.pairs is not None:
+        pr = sp.pairs
+        verdict = "taken" if pr["taken"] else "not taken"
+        against = (
+            f" against its null's quantile {pr['threshold']:.1f}"
+            if pr.get("threshold") is not None
+            else " (no surface among its groups)"
+        )
+        md += [
+            f"Shapes of two variables: {len(pr['pairs'])} interactions of the first group's "
+            f"variable among the candidates; chosen `{pr['selection'] or 'none'}`, linearised "
+            f"dBIC {pr['dbic']:.1f}{against}: {verdict}.",
+            "",
+        ]
     if sp.screened:
         md += [
             "First group checked by output error among the single groups within "
@@ -1144,6 +1219,9 @@ def _shape_md(d: Diagnosis) -> list[str]:
             continue
         if "memory" in g:
             md += _memory_md(g["memory"])
+        if "surface" in g:
+            md += _surface_md(g)
+            continue
         band = g.get("band") or [float("nan")] * len(g["z"])
         md += [f"| {g['variable']} [{g['unit']}] | f | +- (band) |", "|---:|---:|---:|"]
         md += [
@@ -1166,6 +1244,20 @@ def _shape_md(d: Diagnosis) -> list[str]:
     if entry:
         md += ["![learned shape](shapes.png)", ""]
     return md
+
+
+def _surface_md(g: dict[str, Any]) -> list[str]:
+    """A shape of two variables as a table: f at the first variable's values (rows) and the
+    second's (columns)."""
+    head = f"| {g['variable']} [{g['unit']}] \\ {g['variable2']} [{g['unit2']}] | " + " | ".join(
+        f"{v:.3g}" for v in g["z2"]
+    )
+    md = [head + " |", "|---:|" + "---:|" * len(g["z2"])]
+    md += [
+        f"| {z:.3g} | " + " | ".join(f"{v:.4g}" for v in row) + " |"
+        for z, row in zip(g["z"], g["surface"], strict=True)
+    ]
+    return [*md, ""]
 
 
 def _memory_md(m: dict[str, Any]) -> list[str]:

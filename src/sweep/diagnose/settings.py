@@ -105,6 +105,9 @@ class DiagnoseSettings:
     rounds: int = 1
     #: noise-only copies of the shape selection's null
     shape_null_draws: int = 40
+    #: shapes of two variables among the candidates: interactions of the first chosen group's
+    #: variable with each other variable (:func:`sweep.diagnose.shaping.paired`)
+    shape_pairs: bool = True
     #: the variables shapes may depend on (empty: all of them when the training runs come from
     #: several sessions, else the ship's state and controls alone,
     #: :func:`sweep.diagnose.shaping.default_variables`)
@@ -146,6 +149,7 @@ class DiagnoseSettings:
             "rounds",  # (a further round stores its stages in a directory of its own)
             "shape_null_draws",
             "shape_variables",
+            "shape_pairs",
         )
         data = {k: v for k, v in asdict(self).items() if k not in skip}
         data["procedure"] = PROCEDURE_VERSION  # stages of an older procedure are not reused

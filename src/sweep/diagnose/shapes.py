@@ -113,6 +113,8 @@ QUADRANTS = ("ast", "rev")
 MIN_GAIN = 0.15
 #: basis functions per shape (at least)
 N_BASIS = 8
+#: basis functions of each variable of a shape of two variables (:func:`pair_groups`)
+PAIR_BASIS = 6
 #: an angle's knots are at most this far apart [rad] (up to :data:`MAX_ANGLE_BASIS` basis
 #: functions): a flow angle recorded going ahead and astern spans most of a turn (alpha_R over
 #: [-3.3, 2.6] rad, beta over [-3.0, 2.8]), where eight basis functions put a knot every 0.8-1.2
@@ -229,6 +231,44 @@ def _groups(
     groups += [spline("S", v, m) for v, m in shares if v in ranges]
     groups += [Group("XYN", "1", multiplier=q) for q in quadrants]
     return groups
+
+
+def pair_groups(
+    ranges: Mapping[str, tuple[float, float]], first: Group, variables: Sequence[str]
+) -> list[Group]:
+    """Shapes of two variables, interactions of the chosen ``first`` group's variable z with
+    each other variable z2 of ``variables`` that has a knot range in ``ranges`` (no gap of a
+    control): in ``first``'s components, times its multiplier, :data:`PAIR_BASIS` basis
+    functions each way. With z's scaling (z & z2) and, where z2's own scaling differs and the
+    group is not a share of a force, with z2's (z2 & z, the same surface scaled otherwise: a yaw
+    moment in the ship's speed and the apparent-wind angle scales with the wind). None for a
+    constant, a memory or a shape of two variables."""
+    if first.variable == "1" or first.control or first.tensor or first.form:
+        return []
+    out: list[Group] = []
+    lo, hi = first.lo, first.hi
+    for z2 in variables:
+        if z2 == first.variable or z2 not in ranges or SHAPE_VARIABLES[z2].control:
+            continue
+        lo2, hi2 = ranges[z2]
+        out.append(replace(first, n=PAIR_BASIS, variable2=z2, lo2=lo2, hi2=hi2, n2=PAIR_BASIS))
+        scaled = first.scale_name
+        if scaled and SHAPE_VARIABLES[z2].scale != scaled:
+            out.append(
+                Group(
+                    first.components,
+                    z2,
+                    lo2,
+                    hi2,
+                    PAIR_BASIS,
+                    first.multiplier,
+                    variable2=first.variable,
+                    lo2=lo,
+                    hi2=hi,
+                    n2=PAIR_BASIS,
+                )
+            )
+    return out
 
 
 def basis_count(variable: str, lo: float, hi: float, n: int = N_BASIS) -> int:

@@ -57,7 +57,9 @@ from sweep.diagnose.shapes import (
     ShapeColumns,
     ShapeSelection,
     candidate_groups,
+    pair_groups,
     sampled,
+    variable_ranges,
 )
 from sweep.diagnose.threshold import CEILING
 from sweep.identification.polish import PolishSettings
@@ -104,6 +106,9 @@ class ShapeProposal:
     #: the closed-form candidates whose corners or widths were fitted by output error
     #: (:func:`fitted_numbers`): the named effect, the fitted one, their training J, the trials
     numbers: list[dict[str, Any]] = field(default_factory=list)
+    #: the shapes of two variables tried (:func:`paired`): the pairs, the selection with them,
+    #: its dBIC and its null's threshold, whether it was taken (None: not tried)
+    pairs: dict[str, Any] | None = None
 
     @property
     def flexible(self) -> ShapeSelection:
@@ -141,6 +146,7 @@ class ShapeProposal:
             "numbers": self.numbers,
             "dropped": [d.as_dict() for d in self.dropped],
             "screened": [x.as_dict() for x in self.screened],
+            "pairs": self.pairs,
         }
 
 
@@ -157,7 +163,7 @@ def _fine_structures(
     extra: list[Group] = []
     fine: dict[int, list[tuple[Group, int]]] = {}
     for i, g in enumerate(groups):
-        if g.variable == "1" or g.control:
+        if g.variable == "1" or g.control or g.tensor:  # (a surface has no closed form yet)
             continue
         fs = [replace(g, n=FINE_BASIS)] + [
             Group(g.components, h.variable, g.lo, g.hi, FINE_BASIS, h.multiplier, h.scale)
@@ -325,6 +331,8 @@ def closest_form(
                 groups.append(replace(group, n=1, form=memory[0].form))
                 start.append(memory[0].a)
             continue
+        if group.tensor:  # a surface has no closed form yet
+            continue
         at = None if samples is None else samples.get(group.variable)
         best = closest_forms(group, coef, top=1, at=at, fine=False)
         if best:
@@ -459,6 +467,75 @@ def fitted_numbers(
     return fitted.effect, fitted.start, out, record
 
 
+@dataclass
+class Paired:
+    """The selection made again with shapes of two variables among the candidates
+    (:func:`paired`): its columns, the selection, its null and threshold, whether it is taken
+    in place of the first, and the record ``report.json`` shows (``shapes.pairs``)."""
+
+    columns: ShapeColumns
+    selection: ShapeSelection
+    null: list[float]
+    threshold: float
+    taken: bool
+    record: dict[str, Any]
+
+
+def paired(
+    ctx: Context,
+    base: Fit,
+    cal: Calibration,
+    columns: ShapeColumns,
+    selection: ShapeSelection,
+    r: FloatArray,
+    R: FloatArray,
+    variables: Sequence[str],
+) -> Paired | None:
+    """The selection with the interactions of its first group's variable among the candidates
+    (:func:`~sweep.diagnose.shapes.pair_groups`: a surface of that variable and each other
+    one, in the group's components and multiplier), on the columns of both kinds; its null the
+    same selection on the noise-only residual vectors ``R`` (S, M, D) (more candidates, a
+    higher null). Taken in place of ``selection`` when it chose a surface, passes its own
+    null's threshold and has a lower in-sample dBIC; logged. None when the first group has no
+    pairs (a constant, a memory)."""
+    s = ctx.settings
+    first = selection.groups[0]
+    ranges = variable_ranges(ctx.windows, base.params, variables)
+    groups = pair_groups(ranges, first, variables)
+    if not groups:
+        return None
+    t0 = time.perf_counter()
+    both = ShapeColumns(cal.lin, [*columns.groups, *groups])
+    again = both.select(r, ctx.n_eff)
+    record: dict[str, Any] = {
+        "pairs": [g.text for g in groups],
+        "selection": again.spec,
+        "dbic": again.dbic,
+        "threshold": None,
+        "taken": False,
+    }
+    null: list[float] = []
+    threshold = CEILING
+    if any(g.tensor for g in again.groups):
+        null = [float(v) for v in both.null_dbic(R, ctx.n_eff)]
+        threshold = min(float(np.quantile(null, s.alpha)), CEILING)
+        record["threshold"] = threshold
+        record["taken"] = again.dbic <= threshold and again.dbic < selection.dbic
+    record["seconds"] = time.perf_counter() - t0
+    ctx.log(
+        f"shapes of two variables: {len(groups)} interactions of {first.variable} -> "
+        f"{again.spec or 'no group'} (linearised dBIC {again.dbic:.1f}"
+        + (
+            f" against its null's {s.alpha:.0%} quantile {threshold:.1f} and the first "
+            f"selection's {selection.dbic:.1f}"
+            if record["threshold"] is not None
+            else ", no surface among its groups"
+        )
+        + f") -> {'taken' if record['taken'] else 'not taken'} ({record['seconds']:.0f} s)"
+    )
+    return Paired(both, again, null, threshold, bool(record["taken"]), record)
+
+
 def default_variables(ctx: Context) -> tuple[str, ...]:
     """The variables the shapes may depend on: ``--shape-variables`` when given; else every
     variable when the training runs come from several sessions (a shape in heading, position
@@ -484,6 +561,7 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
     selection = columns.select(r, ctx.n_eff)
     null: list[float] = []
     threshold = CEILING
+    R: FloatArray | None = None
     if selection.groups:
         rng = np.random.default_rng(s.seed + 19)
         copies = null_sets(params, ctx.windows, cal.noise, rng, s.shape_null_draws)
@@ -508,6 +586,18 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
     dropped: list[Dropped] = []
     screened: list[Screened] = []
     numbers: list[dict[str, Any]] = []
+    pairs: dict[str, Any] | None = None
+    if proposed and s.shape_pairs and R is not None:
+        pair = paired(ctx, base, cal, columns, selection, r, R, variables)
+        if pair is not None:
+            pairs = pair.record
+            if pair.taken:
+                columns, selection, null, threshold = (
+                    pair.columns,
+                    pair.selection,
+                    pair.null,
+                    pair.threshold,
+                )
     if proposed:
         selection, screened = lead_by_output_error(ctx, base, columns, r, selection, threshold)
         full = selection
@@ -565,6 +655,7 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
         dropped,
         screened,
         numbers,
+        pairs,
     )
     if proposed:
         register(ctx, selection)

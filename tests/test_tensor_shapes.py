@@ -154,3 +154,49 @@ def test_the_probe_of_a_shape_of_two_variables_gives_the_force_of_each_coefficie
             assert got == pytest.approx(want, rel=1e-12, abs=1e-300), (i, u)
         off = probe.param_type(*rows[3][:3], 0.0, *rows[3][4:])
         assert probe.force_at(*args, off, p.theta, p.ship) == (0.0, 0.0, 0.0)
+
+
+def test_the_pairs_of_a_chosen_group_are_its_variable_with_each_other_both_scalings() -> None:
+    """The interactions of a chosen group's variable with each other variable (no gap of a
+    control), in its components and multiplier, with its scaling and, where the other
+    variable's own scaling differs (and no force multiplies), with the other's."""
+    from sweep.diagnose.shapes import PAIR_BASIS, pair_groups
+
+    ranges = {"u": (-0.1, 0.4), "gammaA": (-3.0, 3.0), "beta": (-0.5, 0.5), "ed": (-4.0, 4.0)}
+    variables = ("u", "gammaA", "beta", "ed", "psi")  # psi has no range here
+    first = Group("N", "u", -0.1, 0.4, 8)
+    got = [g.text for g in pair_groups(ranges, first, variables)]
+    n = f"{PAIR_BASIS}x{PAIR_BASIS}"
+    assert got == [
+        f"N~u&gammaA[-0.1:0.4&-3:3]/{n}",
+        f"N~gammaA&u[-3:3&-0.1:0.4]/{n}",  # the wind's scaling U_A^2
+        f"N~u&beta[-0.1:0.4&-0.5:0.5]/{n}",  # beta's scaling is u's, U^2: one surface
+    ]
+    share = Group("X", "beta", -0.5, 0.5, 8, "X_P")
+    assert [g.text for g in pair_groups(ranges, share, variables)] == [
+        f"X~beta&u[-0.5:0.5&-0.1:0.4]/{n}*X_P",
+        f"X~beta&gammaA[-0.5:0.5&-3:3]/{n}*X_P",
+    ]
+    assert pair_groups(ranges, Group("X", "1", multiplier="ast"), variables) == []
+    assert pair_groups(ranges, Group("D", "ed", -4.0, 4.0, 16), variables) == []
+    assert pair_groups(ranges, parse(SPEC)[0], variables) == []
+
+
+def test_the_report_states_a_surface_as_a_table_of_both_variables() -> None:
+    """A learned surface f = c B_i(u) B_j(gamma_A) summed to a plane in u: the report's entry
+    gives f on a 9 x 5 grid of both ranges, and its table one row per value of u."""
+    from sweep.diagnose.report import _surface_entry, _surface_md
+
+    group = parse(SPEC)[0]
+    # coefficients of f = u: the B-spline coefficients of a straight line are its values at
+    # the knots' centres, whatever the second variable
+    centres = group.lo + (np.arange(group.n) - 1.0) * (group.hi - group.lo) / (group.n - 3)
+    coef = [float(c) for c in np.repeat(centres, group.n2)]
+    entry = _surface_entry(group, "N", 0, coef)
+    assert entry["variable2"] == "gammaA" and len(entry["z2"]) == 5
+    f = np.asarray(entry["surface"])
+    assert f.shape == (9, 5)
+    np.testing.assert_allclose(f, np.repeat(np.asarray(entry["z"])[:, None], 5, axis=1), atol=1e-12)
+    md = _surface_md(entry)
+    assert md[0].startswith("| u [m/s] \\ gammaA [rad] | -3.1 |") and len(md) == 2 + 9 + 1
+    assert md[2].startswith("| -0.1 | -0.1 |")

@@ -587,19 +587,19 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
     screened: list[Screened] = []
     numbers: list[dict[str, Any]] = []
     pairs: dict[str, Any] | None = None
-    if proposed and s.shape_pairs and R is not None:
-        pair = paired(ctx, base, cal, columns, selection, r, R, variables)
-        if pair is not None:
-            pairs = pair.record
-            if pair.taken:
-                columns, selection, null, threshold = (
-                    pair.columns,
-                    pair.selection,
-                    pair.null,
-                    pair.threshold,
-                )
     if proposed:
         selection, screened = lead_by_output_error(ctx, base, columns, r, selection, threshold)
+        if s.shape_pairs and R is not None:
+            pair = paired(ctx, base, cal, columns, selection, r, R, variables)
+            if pair is not None:
+                pairs = pair.record
+                if pair.taken:
+                    columns, selection, null, threshold = (
+                        pair.columns,
+                        pair.selection,
+                        pair.null,
+                        pair.threshold,
+                    )
         full = selection
         selection, dropped = prune(ctx, base, columns, r, selection)
         chosen = full if dropped else None

@@ -739,6 +739,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="diagnoses in all per case (a further round when a finding leaves the training "
         "windows above the floor; the case's model after is the last round's with a finding)",
     )
+    ap.add_argument(
+        "--shape-pairs",
+        action="store_true",
+        help="shapes of two variables among the learned shapes' candidates (the diagnosis' "
+        "--shape-pairs)",
+    )
     ap.add_argument("--out", default="benchmarks/out/diagnose")
     ap.add_argument(
         "--results",
@@ -847,6 +853,7 @@ def main(argv: list[str] | None = None) -> int:
         final_budget=args.final_budget,
         base_retry_agreement=args.base_retry_agreement,
         rounds=args.rounds,
+        shape_pairs=args.shape_pairs,
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

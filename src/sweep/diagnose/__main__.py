@@ -125,9 +125,11 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         help="do not learn the shape of the missing force as a candidate",
     )
     ap.add_argument(
-        "--no-shape-pairs",
+        "--shape-pairs",
         action="store_true",
-        help="no shapes of two variables (interactions) among the learned shapes' candidates",
+        help="shapes of two variables (interactions of the first chosen group's variable with "
+        "each other one) among the learned shapes' candidates; off by default: a surface "
+        "learnt where the training runs went can make other manoeuvres far worse",
     )
     ap.add_argument(
         "--rounds",
@@ -246,7 +248,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
         min_improvement=args.min_improvement,
         outside=args.outside,
         shapes=not args.no_shapes,
-        shape_pairs=not args.no_shape_pairs,
+        shape_pairs=args.shape_pairs,
         rounds=args.rounds,
         shape_variables=_shape_variables(args.shape_variables),
         max_delta_bic=args.max_delta_bic,

@@ -142,7 +142,7 @@ CENTRE_WEIGHT = 1e3
 #: scale: the range of a pair of variables is a rectangle, and the runs visit only part of
 #: it; where none went, a surface fitted elsewhere predicts nothing (on the strong planted
 #: weather helm a 6 x 6 surface of u and the apparent-wind angle made 12 of 12 held-out
-#: training runs better and the test recordings' J2 300 x worse)
+#: training runs better and the test recordings' J2 300 x worse; held at 0 there, 28 x)
 SUPPORT_MIN = 5e-3
 SUPPORT_WEIGHT = 1e3
 #: the coefficient at which a memory's columns are taken (a secant, not a derivative): at a

@@ -250,8 +250,8 @@ def pair_groups(
     control): in ``first``'s components, times its multiplier, :data:`PAIR_BASIS` basis
     functions each way. With z's scaling (z & z2) and, where z2's own scaling differs and the
     group is not a share of a force, with z2's (z2 & z, the same surface scaled otherwise: a yaw
-    moment in the ship's speed and the apparent-wind angle scales with the wind). None for a
-    constant, a memory or a shape of two variables."""
+    moment in the ship's speed and the apparent-wind angle scales with the wind). No pairs for
+    a constant, a memory, a closed form or a shape of two variables."""
     if first.variable == "1" or first.control or first.tensor or first.form:
         return []
     out: list[Group] = []

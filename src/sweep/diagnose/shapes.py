@@ -670,12 +670,12 @@ class ShapeColumns:
         56 % against 49 % of the held-out J, with an in-sample dBIC of -4 against -170; a
         drift-angle hinge: a memory led and nothing was chosen). The controls act upstream
         of every force, so a memory goes first on its path. ``first``: the unit that enters
-        first (on its kind's path alone)."""
+        first, on its kind's path (a force: forces after it; a memory: any unit)."""
         memory = {u for u, unit in enumerate(self.units) if unit.group.control}
         forces = set(range(len(self.units))) - memory
         if first is not None:
-            kind = memory if first in memory else forces
-            return self._entered(sides, d, EEs, n_eff, opts, {first}, kind)
+            after = None if first in memory else forces
+            return self._entered(sides, d, EEs, n_eff, opts, {first}, after)
         rows = [self._entered(sides, d, EEs, n_eff, opts, forces, forces)]
         if memory & set(self._candidates()):
             rows.append(self._entered(sides, d, EEs, n_eff, opts, memory, None))

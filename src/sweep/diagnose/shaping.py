@@ -59,7 +59,6 @@ from sweep.diagnose.shapes import (
     candidate_groups,
     pair_groups,
     sampled,
-    variable_ranges,
 )
 from sweep.diagnose.threshold import CEILING
 from sweep.identification.polish import PolishSettings
@@ -483,7 +482,6 @@ class Paired:
 
 def paired(
     ctx: Context,
-    base: Fit,
     cal: Calibration,
     columns: ShapeColumns,
     selection: ShapeSelection,
@@ -500,7 +498,8 @@ def paired(
     pairs (a constant, a memory)."""
     s = ctx.settings
     first = selection.groups[0]
-    ranges = variable_ranges(ctx.windows, base.params, variables)
+    # each variable's knot range as its candidate groups have it (the training windows' range)
+    ranges = {g.variable: (g.lo, g.hi) for g in columns.groups if g.variable != "1"}
     groups = pair_groups(ranges, first, variables)
     if not groups:
         return None
@@ -590,7 +589,7 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
     if proposed:
         selection, screened = lead_by_output_error(ctx, base, columns, r, selection, threshold)
         if s.shape_pairs and R is not None:
-            pair = paired(ctx, base, cal, columns, selection, r, R, variables)
+            pair = paired(ctx, cal, columns, selection, r, R, variables)
             if pair is not None:
                 pairs = pair.record
                 if pair.taken:

@@ -14,6 +14,7 @@ from mmg.shapes import (
     Group,
     basis2,
     difference_penalty,
+    form_scale,
     groups_of,
     numbers,
     parse,
@@ -24,6 +25,7 @@ from mmg.shapes import (
     surface,
 )
 from mmg.wind import apparent_wind
+from sweep.diagnose.naming import closest_products, form_group
 
 #: a yaw moment in the surge velocity and the apparent-wind angle, with the wind's scaling
 SPEC = "shape:N~u&gammaA[-0.1:0.4&-3.1:3.1]/5x7@UA2"
@@ -125,6 +127,80 @@ def test_the_hook_adds_the_surface_times_its_scaling() -> None:
         want = scale * float(surface(g, coef, [u], [gamma_A])[0])
         assert (fx, fy) == (0.0, 0.0)
         assert fn == pytest.approx(want, rel=1e-9)
+
+
+#: the same yaw moment named: u|u| times sin(gamma_A), with the wind's scaling
+PRODUCT = "shape:N~u&gammaA[-0.1:0.4&-3.1:3.1]:odd&sin(1)@UA2"
+
+
+def test_a_product_of_closed_forms_round_trips_and_its_hook_matches_numpy() -> None:
+    """A surface named afterwards: a + b g1(u) g2(gamma_A) / g_max, both held in their ranges;
+    the hook (called from Python) against numpy's :func:`surface`."""
+    (g,) = parse(PRODUCT)
+    assert g.tensor and g.form == "odd&sin(1)" and (g.n, g.n2, g.size) == (2, 1, 2)
+    assert "shape:" + g.text == PRODUCT
+    # g_max: the largest |u|u|| on [-0.1, 0.4] times the largest |sin| on [-3.1, 3.1]
+    assert form_scale(g) == pytest.approx(0.16 * 1.0, rel=1e-4)
+    assert [f for f, _ in numbers([g])] == ["k0_lo", "k0_hi", "k0_a0", "k0_gs", "k0_lo2", "k0_hi2"]
+    closed = g.closed("N", 0.1, 0.5)
+    assert "u|u| sin(1 gamma_A)" in closed and "U_A^2" in closed
+    # held at the edges of its rectangle
+    inside = surface(g, [0.1, 0.5], [0.4, 0.4], [1.0, 1.0])
+    outside = surface(g, [0.1, 0.5], [0.9, 0.4], [1.0, 1.0])
+    assert inside[0] == pytest.approx(0.1 + 0.5 * 0.16 * math.sin(1.0) / form_scale(g))
+    assert outside[0] == inside[0]
+    p = efd_parameters()
+    th, sh = p.theta, p.ship
+    eff = get_effect(PRODUCT)
+    assert eff.force_at is not None and [q.name for q in eff.params] == ["s0_N0", "s0_N1"]
+    e = eff.param_type(s0_N0=0.02, s0_N1=-0.7)
+    for u, v_m, psi, U_T, gamma_T in [(0.3, -0.05, 0.4, 2.0, 1.0), (-0.2, 0.1, -2.0, 5.0, 3.0)]:
+        args = (12.0, 1.0, 2.0, u, v_m, 0.01, psi, 0.1, 10.0, U_T, gamma_T, e, th, sh)
+        fx, fy, fn = eff.force_at(*args)
+        uA, vA = apparent_wind(
+            u, v_m, math.sin(psi), math.cos(psi), U_T, math.sin(gamma_T), math.cos(gamma_T)
+        )
+        wL = sh.rho_A * sh.A_L / (sh.rho * sh.L_pp * sh.d)
+        scale = 0.5 * sh.rho * sh.L_pp**2 * sh.d * wL * (uA * uA + vA * vA)
+        want = scale * float(surface(g, [0.02, -0.7], [u], [math.atan2(vA, uA)])[0])
+        assert (fx, fy) == (0.0, 0.0)
+        assert fn == pytest.approx(want, rel=1e-9)
+
+
+def test_a_surface_is_named_by_the_product_of_closed_forms_closest_to_it() -> None:
+    """A surface fitted to u|u| sin(gamma_A) at samples where the runs went (u ahead mostly,
+    the wind from every side) is named odd square times harmonic, and the named group takes
+    the coefficients that reproduce it."""
+    (g,) = parse(SPEC)
+    rng = np.random.default_rng(3)
+    z, z2 = rng.uniform(-0.05, 0.4, 3000), rng.uniform(-3.1, 3.1, 3000)
+    truth = 0.3 - 2.0 * z * np.abs(z) * np.sin(z2)
+    coef, *_ = np.linalg.lstsq(basis2(g, z, z2), truth, rcond=None)
+    best = closest_products(g, coef, z, z2, top=3)
+    assert best[0].form == "odd&sin(1)" and best[0].r2 > 0.98
+    assert best[0].family == "odd square x harmonic"
+    assert best[0].r2 >= best[1].r2 >= best[2].r2
+    named, ab = form_group(g, "N", best[0])
+    assert named.text == "N~u&gammaA[-0.1:0.4&-3.1:3.1]:odd&sin(1)@UA2"
+    np.testing.assert_allclose(surface(named, ab, z, z2), truth, atol=0.02)
+    # a flat surface, or a shape of one variable, names nothing
+    assert closest_products(g, np.full(35, 0.2), z, z2) == []
+    (one,) = parse("N~u[-0.1:0.4]/6")
+    assert closest_products(one, np.zeros(6), z, z2) == []
+
+
+@pytest.mark.parametrize(
+    "spec, words",
+    [
+        ("N~u&gammaA[0:1&-1:1]:odd", "is a product"),
+        ("N~u[0:1]:odd&sin(1)", "one variable is one form"),
+        ("N~u&gammaA[0:1&-1:1]:odd&up(5)", "is 0 over"),
+        ("N~u&gammaA[0:1&-1:1]:odd&warp", "unknown closed form"),
+    ],
+)
+def test_malformed_products_of_closed_forms_are_one_line_errors(spec: str, words: str) -> None:
+    with pytest.raises(ValueError, match=words):
+        parse(spec)
 
 
 def test_the_probe_of_a_shape_of_two_variables_gives_the_force_of_each_coefficient() -> None:

@@ -438,7 +438,8 @@ _FORM = re.compile(r"^(?P<k>[a-z]+)(?:\((?P<a>[^)]*)\))?$")
 
 
 def parse_form(text: str) -> Form:
-    """The closed form of a spec's ``key`` or ``key(a,b)``; ValueError when malformed."""
+    """The closed form of a spec's ``key`` or ``key(a,b)``; ValueError when malformed (a
+    product of two, ``odd&sin(1)``, is :func:`parse_forms`')."""
     m = _FORM.match(text.strip())
     if m is None:
         raise ValueError(f"closed form {text!r}: expected e.g. 'odd', 'up(0.3)', 'step(0.2,0.05)'")
@@ -449,12 +450,27 @@ def parse_form(text: str) -> Form:
     return Form(m["k"], args)
 
 
+def parse_forms(text: str) -> tuple[Form, ...]:
+    """The closed forms of a spec's form: one (``odd``), or the two factors of a product over a
+    shape of two variables (``odd&sin(1)``: g(z, z2) = g1(z) g2(z2)); ValueError when
+    malformed."""
+    parts = text.split("&")
+    if len(parts) > 2:
+        raise ValueError(f"closed form {text!r}: a product has two factors, 'odd&sin(1)'")
+    return tuple(parse_form(p) for p in parts)
+
+
 def form_scale(group: Group) -> float:
-    """g_max of a closed-form group: the largest |g| over its range (0 for a spline group)."""
+    """g_max of a closed-form group: the largest |g| over its range (0 for a spline group); of
+    a product g1(z) g2(z2), the product of each factor's largest |g| over its range."""
     if not group.form or group.control:
         return 0.0
-    g = parse_form(group.form)(np.linspace(group.lo, group.hi, FORM_GRID))
-    return float(np.max(np.abs(g)))
+    forms = parse_forms(group.form)
+    ranges = [(group.lo, group.hi), (group.lo2, group.hi2)][: len(forms)]
+    out = 1.0
+    for form, (lo, hi) in zip(forms, ranges, strict=True):
+        out *= float(np.max(np.abs(form(np.linspace(lo, hi, FORM_GRID)))))
+    return out
 
 
 @dataclass(frozen=True)
@@ -470,9 +486,11 @@ class Group:
 
     A *tensor* group (``variable2`` given) is a shape of two variables, an interaction:
     f_C(z, z2) = sum_ij c_C,ij B_i(z) B_j(z2), ``n`` x ``n2`` cubic B-splines over [lo, hi] x
-    [lo2, hi2] (both clamped), coefficient i n2 + j of each component; a spline of two force
-    variables (no closed form, no memory), with the scaling of the first unless ``scale``
-    says otherwise."""
+    [lo2, hi2] (both clamped), coefficient i n2 + j of each component, of two force variables
+    (no memory), with the scaling of the first unless ``scale`` says otherwise. Its closed
+    form is a product of one closed form of each variable (``form`` "g1&g2", ``n`` = 2,
+    ``n2`` = 1): f = a + b g1(z) g2(z2) / (g1_max g2_max), each variable held within its
+    range, a surface named afterwards."""
 
     components: str
     variable: str
@@ -536,10 +554,22 @@ class Group:
                 if self.n != 1:
                     raise ValueError(f"{self.variable}: a memory's closed form has 1 coefficient")
             elif self.form:
-                object.__setattr__(self, "form", parse_form(self.form).text)
+                forms = parse_forms(self.form)
+                if len(forms) != (2 if self.variable2 else 1):
+                    raise ValueError(
+                        f"{self.variable}: the closed form {self.form!r} of a shape of "
+                        + (
+                            "two variables is a product, e.g. 'odd&sin(1)'"
+                            if self.variable2
+                            else "one variable is one form, e.g. 'odd'"
+                        )
+                    )
+                object.__setattr__(self, "form", "&".join(f.text for f in forms))
                 if self.n != 2:
                     raise ValueError(f"{self.variable}: a closed form has 2 coefficients (a, b)")
-                if form_scale(self) <= 0.0:
+                if self.variable2:
+                    pass  # its range and g_max: _check_tensor
+                elif form_scale(self) <= 0.0:
                     raise ValueError(
                         f"{self.variable}: the closed form {self.form} is 0 over "
                         f"[{self.lo}, {self.hi}]"
@@ -572,12 +602,22 @@ class Group:
             )
         if self.variable2 == self.variable:
             raise ValueError(f"a shape of two variables needs two: {self.variable} twice")
-        if self.form:
-            raise ValueError("a shape of two variables is a spline (no closed form)")
         object.__setattr__(self, "lo2", float(_num(self.lo2)))
         object.__setattr__(self, "hi2", float(_num(self.hi2)))
         if not (math.isfinite(self.lo2) and math.isfinite(self.hi2) and self.lo2 < self.hi2):
             raise ValueError(f"{self.variable2}: knot range [{self.lo2}, {self.hi2}] is empty")
+        if self.form:  # a product of two closed forms: (a, b), no basis of the second
+            if self.n2 != 1:
+                raise ValueError(
+                    f"{self.variable}&{self.variable2}: a product of closed forms has no basis "
+                    "functions of its second variable"
+                )
+            if form_scale(self) <= 0.0:
+                raise ValueError(
+                    f"{self.variable}&{self.variable2}: the closed form {self.form} is 0 over "
+                    f"[{self.lo}, {self.hi}] x [{self.lo2}, {self.hi2}]"
+                )
+            return
         if not MIN_BASIS <= self.n2 <= MAX_BASIS:
             raise ValueError(f"{self.variable2}: {self.n2} basis functions, need 4 to 40")
         if self.n * self.n2 > MAX_TENSOR:
@@ -593,7 +633,8 @@ class Group:
 
     @property
     def size(self) -> int:
-        """Coefficients per component: n, or n n2 for a shape of two variables."""
+        """Coefficients per component: n, or n n2 for a shape of two variables (2 for a product
+        of closed forms)."""
         return self.n * self.n2 if self.tensor else self.n
 
     @property
@@ -604,7 +645,8 @@ class Group:
         elif self.tensor:
             out = (
                 f"{self.components}~{self.variable}&{self.variable2}[{_num(self.lo)}:"
-                f"{_num(self.hi)}&{_num(self.lo2)}:{_num(self.hi2)}]/{self.n}x{self.n2}"
+                f"{_num(self.hi)}&{_num(self.lo2)}:{_num(self.hi2)}]"
+                + (f":{self.form}" if self.form else f"/{self.n}x{self.n2}")
             )
         elif self.form:
             out = f"{self.components}~{self.variable}[{_num(self.lo)}:{_num(self.hi)}]:{self.form}"
@@ -711,18 +753,22 @@ class Group:
         if self.control:
             raise ValueError(f"{self.text} is a memory: its closed form is memory_closed's")
         z = VARIABLES[self.variable].symbol
-        f = f"{z}"
-        form = parse_form(self.form).formula(f)
+        forms = parse_forms(self.form)
+        form = forms[0].formula(z)
+        arg = f"({z})"
+        if self.tensor:
+            z2 = VARIABLES[self.variable2].symbol
+            form = f"{form} {forms[1].formula(z2)}"
+            arg = f"({z}, {z2})"
         k = b / form_scale(self)
         body = f"({a:.4g} {'-' if k < 0 else '+'} {abs(k):.4g} {form})"
-        arg = f"({z})"
         return self.formula(component, g).replace(f"f_{component}{g}{arg}", body, 1)
 
 
 _GROUP = re.compile(
     r"^(?P<c>[XYNDPS]+)~(?:(?P<one>1)|(?P<v>\w+)(?:&(?P<v2>\w+))?"
     r"\[(?P<lo>[^:\]]+):(?P<hi>[^\]&]+)(?:&(?P<lo2>[^:\]]+):(?P<hi2>[^\]]+))?\]"
-    r"(?:/(?P<n>\d+)(?:x(?P<n2>\d+))?|:(?P<f>[a-z]+(?:\([^)]*\))?)))"
+    r"(?:/(?P<n>\d+)(?:x(?P<n2>\d+))?|:(?P<f>[a-z]+(?:\([^)]*\))?(?:&[a-z]+(?:\([^)]*\))?)?)))"
     r"(?:\*(?P<m>\w+))?(?:@(?P<s>\w+))?$"
 )
 
@@ -744,10 +790,13 @@ def parse(spec: str) -> tuple[Group, ...]:
             raise ValueError(f"shape group {part!r}: the knot range is not two numbers") from None
         var = VARIABLES.get(m["v"] or "")
         n = (1 if var is not None and var.control else 2) if m["f"] else int(m["n"] or 1)
-        if bool(m["v2"]) != bool(m["lo2"]) or bool(m["v2"]) != bool(m["n2"]):
+        # two variables take two ranges and, unless named, n x n2 basis functions
+        basis_of_two = bool(m["n2"]) if m["f"] is None else bool(m["v2"])
+        if bool(m["v2"]) != bool(m["lo2"]) or bool(m["v2"]) != basis_of_two:
             raise ValueError(
                 f"shape group {part!r}: a shape of two variables is written "
-                "'N~u&gammaA[lo:hi&lo2:hi2]/n x n2' (e.g. 'N~u&gammaA[0:0.4&-3.1:3.1]/5x8')"
+                "'N~u&gammaA[lo:hi&lo2:hi2]/n x n2' (e.g. 'N~u&gammaA[0:0.4&-3.1:3.1]/5x8'), "
+                "named 'N~u&gammaA[0:0.4&-3.1:3.1]:odd&sin(1)'"
             )
         second: dict[str, Any] = {}
         if m["v2"]:
@@ -756,7 +805,7 @@ def parse(spec: str) -> tuple[Group, ...]:
                     "variable2": m["v2"],
                     "lo2": float(m["lo2"]),
                     "hi2": float(m["hi2"]),
-                    "n2": int(m["n2"]),
+                    "n2": int(m["n2"] or 1),
                 }
             except ValueError:
                 raise ValueError(f"shape group {part!r}: the knot range is not numbers") from None
@@ -828,19 +877,30 @@ def _spline_basis(lo: float, hi: float, n: int, z: FloatArray) -> FloatArray:
 def basis2(group: Group, z: Any, z2: Any) -> FloatArray:
     """(N, n n2) basis functions of a shape of two variables at N pairs (z, z2) (their units):
     B_i(z) B_j(z2) in column i n2 + j, each variable clamped to its range (the products sum to
-    1 over the rectangle)."""
+    1 over the rectangle); of a product of closed forms (N, 2): 1 and g1(z) g2(z2) / g_max."""
     if not group.tensor:
         raise ValueError(f"{group.text} is a shape of one variable: its basis is basis's")
     z = np.atleast_1d(np.asarray(z, dtype=np.float64))
     z2 = np.atleast_1d(np.asarray(z2, dtype=np.float64))
+    if group.form:  # a product of closed forms: a + b g1 g2 / g_max
+        g1, g2 = parse_forms(group.form)
+        g = g1(np.clip(z, group.lo, group.hi)) * g2(np.clip(z2, group.lo2, group.hi2))
+        return np.column_stack([np.ones_like(g), g / form_scale(group)])
     a = _spline_basis(group.lo, group.hi, group.n, z)
     b = _spline_basis(group.lo2, group.hi2, group.n2, z2)
     return np.asarray((a[:, :, None] * b[:, None, :]).reshape(z.size, -1))
 
 
 def surface(group: Group, coefficients: Any, z: Any, z2: Any) -> FloatArray:
-    """f(z, z2) of one component of a shape of two variables for its n n2 coefficients."""
-    return np.asarray(basis2(group, z, z2) @ np.asarray(coefficients, dtype=np.float64))
+    """f(z, z2) of one component of a shape of two variables for its n n2 coefficients (of a
+    product of closed forms its (a, b))."""
+    c = np.asarray(coefficients, dtype=np.float64)
+    if group.tensor and group.form:
+        g1, g2 = parse_forms(group.form)
+        z = np.clip(np.asarray(z, dtype=np.float64), group.lo, group.hi)
+        z2 = np.clip(np.asarray(z2, dtype=np.float64), group.lo2, group.hi2)
+        return np.asarray(c[0] + c[1] * g1(z) * g2(z2) / form_scale(group), dtype=np.float64)
+    return np.asarray(basis2(group, z, z2) @ c)
 
 
 def curve(group: Group, coefficients: Any, z: Any) -> FloatArray:
@@ -1056,9 +1116,12 @@ def numbers(groups: Sequence[Group]) -> list[tuple[str, float]]:
             continue
         out += [(f"k{g}_lo", float(group.lo)), (f"k{g}_hi", float(group.hi))]
         if group.form:
-            args = parse_form(group.form).args
+            args = [a for form in parse_forms(group.form) for a in form.args]
             out += [(f"k{g}_a{i}", float(a)) for i, a in enumerate(args)]
             out.append((f"k{g}_gs", 1.0 / form_scale(group)))
+            if group.tensor:
+                out += [(f"k{g}_lo2", group.lo2), (f"k{g}_hi2", group.hi2)]
+            continue
         else:
             out.append((f"k{g}_h", knots_per_unit(group.lo, group.hi, group.n)))
         if group.tensor:
@@ -1071,7 +1134,7 @@ def structure_text(group: Group) -> str:
     """The group as a spec writes it without its knot range and its closed form's numbers
     (``N~beta/23*Y_H``, ``YN~beta:oddup*Y_H``): what the code of its kernel depends on."""
     text = re.sub(r"\[[^\]]*\]", "", group.text)
-    return re.sub(r":([a-z]+)\([^)]*\)", r":\1", text)
+    return re.sub(r"([a-z]+)\([^)]*\)", r"\1", text)  # (only a form's numbers are in brackets)
 
 
 def _lane_clamped(group: Group, second: bool = False) -> str:
@@ -1113,9 +1176,14 @@ def _group_lines(g: int, group: Group) -> list[str]:
     elif group.form:  # f = a + b g(z) / g_max, z held at the ends of its range
         code = VARIABLES[group.variable].code
         lines.append(f"    z = min(max({code}, e.k{g}_lo), e.k{g}_hi)")
-        form = parse_form(group.form)
-        args = [f"e.k{g}_a{i}" for i in range(len(form.args))]
-        b = ["1.0", f"({form.code('z', args)}) * e.k{g}_gs"]
+        forms = parse_forms(group.form)
+        args = [f"e.k{g}_a{i}" for i in range(sum(len(f.args) for f in forms))]
+        g1 = forms[0].code("z", args[: len(forms[0].args)])
+        if group.tensor:  # a product g1(z) g2(z2), z2 held at the ends of its range too
+            code2 = VARIABLES[group.variable2].code
+            lines.append(f"    z2 = min(max({code2}, e.k{g}_lo2), e.k{g}_hi2)")
+            g1 = f"({g1}) * ({forms[1].code('z2', args[len(forms[0].args) :])})"
+        b = ["1.0", f"({g1}) * e.k{g}_gs"]
     elif group.tensor:  # sum_ij c_ij B_i(z) B_j(z2), the second variable's basis bb<j>
         lines += _basis_lines(g, group)
         code2 = VARIABLES[group.variable2].code

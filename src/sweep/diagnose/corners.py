@@ -118,6 +118,17 @@ def _fit_group(
     return _with_args(g, best), at, count
 
 
+def _cornered(group: Group) -> bool:
+    """Whether ``group`` is a closed form of one variable with a corner (a product of two
+    closed forms keeps the numbers it was named with)."""
+    return (
+        bool(group.form)
+        and not group.control
+        and not group.tensor
+        and parse_form(group.form).key in CORNERED
+    )
+
+
 def _with_args(group: Group, args: Sequence[float]) -> Group:
     """``group`` with its closed form's numbers ``args`` (rounded as a spec writes them)."""
     return replace(group, form=Form(parse_form(group.form).key, tuple(args)).text)
@@ -141,7 +152,7 @@ def fit_numbers(
     to -1.9 rev/s and half as wide lowered the training J by 0.2 % and raised the test J2 from
     1.36 x to 1.95 x the true model's. None when no group has a corner."""
     groups = list(groups_of(effect))
-    if not any(g.form and not g.control and parse_form(g.form).key in CORNERED for g in groups):
+    if not any(_cornered(g) for g in groups):
         return None
     t0 = time.perf_counter()
     done: dict[str, tuple[float, Parameters]] = {}
@@ -161,7 +172,7 @@ def fit_numbers(
     J_named, at = evaluate(groups, start)
     count = 0
     for i, g in enumerate(groups):
-        if g.form and not g.control and parse_form(g.form).key in CORNERED:
+        if _cornered(g):
             groups[i], at, k = _fit_group(evaluate, groups, i, at, fine, n_eff)
             count += k
     best = shape_effect(groups)

@@ -37,6 +37,7 @@ from mmg.shapes import (
     curve,
     form_scale,
     memory_steps,
+    surface,
 )
 
 FloatArray = NDArray[np.float64]
@@ -219,6 +220,65 @@ def closest_forms(
     return out[:top]
 
 
+def closest_products(
+    group: Group,
+    coefficients: Sequence[float],
+    z: FloatArray,
+    z2: FloatArray,
+    top: int = 3,
+) -> list[ClosedForm]:
+    """The ``top`` products of closed forms g1(z) g2(z2) closest to one component's surface of
+    a shape of two variables ``group`` (its n n2 ``coefficients``), best first: every pair of
+    the coarse families of each variable (:func:`families`, ``fine`` off: corners at shares of
+    its range) fitted as a + b g1(z) g2(z2) by least squares to the surface at the pairs
+    (z, z2) the training runs took (held within the rectangle, as the surface holds them), and
+    ranked by the share of the surface's variance there that they keep (R^2; ``form`` is
+    ``g1&g2``, ``b`` the coefficient of g1 g2 itself). None for a surface that is flat there
+    or a spline of one variable. A product is the simplest name of an interaction, a force
+    that one variable scales and another shapes (a yaw moment in u|u| times a function of
+    the wind's angle), and, unlike the surface, it says what happens where the training runs
+    did not go."""
+    if not group.tensor or group.form or len(coefficients) != group.size:
+        return []
+    z = np.clip(np.asarray(z, dtype=np.float64), group.lo, group.hi)
+    z2 = np.clip(np.asarray(z2, dtype=np.float64), group.lo2, group.hi2)
+    f = surface(group, coefficients, z, z2)
+    fc = f - f.mean()
+    total = float((fc * fc).sum())
+    if z.size < 3 or float(np.ptp(f)) <= 1e-12 * max(1.0, float(np.max(np.abs(f)))):
+        return []  # flat where the runs went
+    first = families(group.lo, group.hi, VARIABLES[group.variable].unit == "rad", fine=False)
+    second = families(group.lo2, group.hi2, VARIABLES[group.variable2].unit == "rad", fine=False)
+    G1 = np.column_stack([form(z) for form in first])
+    G2 = np.column_stack([form(z2) for form in second])
+    G = G1[:, :, None] * G2[:, None, :]  # (K, m1, m2): every product at every sample
+    Gc = G - G.mean(axis=0)
+    var = (Gc * Gc).sum(axis=0)
+    cov = np.einsum("k,kij->ij", fc, Gc)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r2 = np.where(var > 1e-12 * total, cov * cov / (var * total), 0.0)
+        b = np.where(var > 1e-12 * total, cov / var, 0.0)
+    a = f.mean() - b * G.mean(axis=0)
+    s1, s2 = VARIABLES[group.variable].symbol, VARIABLES[group.variable2].symbol
+    out: list[ClosedForm] = []
+    for k in np.argsort(-r2, axis=None)[: max(top, 0)]:
+        i, j = np.unravel_index(k, r2.shape)
+        if r2[i, j] <= 0.0:
+            break
+        g1, g2 = first[i], second[j]
+        out.append(
+            ClosedForm(
+                f"{FAMILY[g1.key]} x {FAMILY[g2.key]}",
+                f"{g1.formula(s1)} {g2.formula(s2)}",
+                float(a[i, j]),
+                float(b[i, j]),
+                float(r2[i, j]),
+                f"{g1.text}&{g2.text}",
+            )
+        )
+    return out
+
+
 #: values of a memory's coefficient tried when a closed form is fitted to a memory's spline
 MEMORY_GRID = 1001
 
@@ -273,8 +333,9 @@ def form_transform(
 
 
 def form_group(group: Group, component: str, closed: ClosedForm) -> tuple[Group, list[float]]:
-    """The closed-form group of one component of a spline ``group`` named by ``closed``, and
-    its coefficients (a, b) as the effect takes them (b times g_max: :func:`form_scale`)."""
+    """The closed-form group of one component of a spline ``group`` named by ``closed`` (of a
+    surface, a product of two closed forms: :func:`closest_products`), and its coefficients
+    (a, b) as the effect takes them (b times g_max: :func:`form_scale`)."""
     named = Group(
         component,
         group.variable,
@@ -284,6 +345,11 @@ def form_group(group: Group, component: str, closed: ClosedForm) -> tuple[Group,
         group.multiplier,
         group.scale,
         closed.form,
+        # a product of closed forms: the second variable's range, no basis
+        group.variable2,
+        group.lo2,
+        group.hi2,
+        1,
     )
     return named, [closed.a, closed.b * form_scale(named)]
 
@@ -293,6 +359,7 @@ __all__ = [
     "FAMILY",
     "ClosedForm",
     "closest_forms",
+    "closest_products",
     "families",
     "fitted_form",
     "form_group",

@@ -230,8 +230,9 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
 
 
 def _surface_entry(group: Any, comp: str, g: int, coef: list[float]) -> dict[str, Any]:
-    """A shape of two variables: f on a grid of 9 values of the first variable over its range
-    and 5 of the second (``surface``, rows the first)."""
+    """A shape of two variables (or the product of closed forms it was named by): f on a grid
+    of 9 values of the first variable over its range and 5 of the second (``surface``, rows
+    the first)."""
     from mmg.shapes import VARIABLES, surface
 
     var, var2 = VARIABLES[group.variable], VARIABLES[group.variable2]
@@ -239,14 +240,15 @@ def _surface_entry(group: Any, comp: str, g: int, coef: list[float]) -> dict[str
     z2 = np.linspace(group.lo2, group.hi2, 5)
     Z, Z2 = np.meshgrid(z, z2, indexing="ij")
     f = surface(group, coef, Z.ravel(), Z2.ravel()).reshape(Z.shape)
+    named = bool(group.form)  # a product of closed forms
     return {
         "group": group.text,
         "component": comp,
-        "formula": group.formula(comp, g),
+        "formula": group.closed(comp, coef[0], coef[1], g) if named else group.formula(comp, g),
         "variable": group.variable,
         "variable2": group.variable2,
         "coefficients": coef,
-        "closed_form": False,
+        "closed_form": named,
         "range": [group.lo, group.hi],
         "range2": [group.lo2, group.hi2],
         "unit": var.unit,
@@ -257,7 +259,7 @@ def _surface_entry(group: Any, comp: str, g: int, coef: list[float]) -> dict[str
         "z2": [float(v) for v in z2],
         "surface": [[float(v) for v in row] for row in f],
         "closest": [],
-        "named": False,
+        "named": named,
     }
 
 
@@ -1110,7 +1112,10 @@ def _plot_surface(ax: Any, group: Any, g: dict[str, Any], z: Any) -> None:
     ax.axhline(0.0, color="k", lw=0.5)
     ax.set_xlabel(f"{g['variable']} [{g['unit']}]")
     ax.set_ylabel(f"f_{g['component']} [-]")
-    ax.set_title(f"a shape of {g['variable']} and {g['variable2']}", fontsize=8)
+    title = f"a shape of {g['variable']} and {g['variable2']}"
+    ax.set_title(
+        g["formula"] if g.get("closed_form") else title, fontsize=7 if g.get("closed_form") else 8
+    )
     ax.legend(fontsize=6)
 
 

@@ -196,6 +196,30 @@ def sampled(
     return out
 
 
+#: at most this many samples, evenly spaced, of a pair of variables (:func:`jointly_sampled`)
+JOINT_MOST = 4000
+
+
+def jointly_sampled(
+    windows: Sequence[Recording], params: Parameters, first: str, second: str
+) -> tuple[FloatArray, FloatArray]:
+    """(z, z2) of the variables ``first`` and ``second`` on the same recorded samples of
+    ``windows`` (as :func:`sampled`, a sample left out where either is not finite or beyond
+    :data:`GUARD`), at most :data:`JOINT_MOST` of them evenly spaced: where the training runs
+    went in the plane of the two, where a surface is compared with closed forms."""
+    th, sh = params.theta, params.ship
+    pairs = [
+        np.stack([variable_values(v, w.t, w.x, w.u, w.w, th, sh) for v in (first, second)])
+        for w in windows
+    ]
+    zz = np.concatenate(pairs, axis=1) if pairs else np.zeros((2, 0))
+    keep = np.all(np.isfinite(zz) & (np.abs(zz) < GUARD), axis=0)
+    zz = zz[:, keep]
+    if zz.shape[1] > JOINT_MOST:
+        zz = zz[:, np.linspace(0, zz.shape[1] - 1, JOINT_MOST).astype(int)]
+    return zz[0], zz[1]
+
+
 def candidate_groups(
     windows: Sequence[Recording],
     params: Parameters,

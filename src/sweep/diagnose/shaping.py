@@ -43,6 +43,7 @@ from sweep.diagnose.naming import (
     GRID,
     ClosedForm,
     closest_forms,
+    closest_products,
     families,
     fit_points,
     fitted_form,
@@ -57,6 +58,7 @@ from sweep.diagnose.shapes import (
     ShapeColumns,
     ShapeSelection,
     candidate_groups,
+    jointly_sampled,
     pair_groups,
     sampled,
 )
@@ -307,7 +309,9 @@ def _named_forms(
 
 
 def closest_form(
-    selection: ShapeSelection, samples: Mapping[str, Sequence[float]] | None = None
+    selection: ShapeSelection,
+    samples: Mapping[str, Sequence[float]] | None = None,
+    joint: Mapping[tuple[str, str], tuple[FloatArray, FloatArray]] | None = None,
 ) -> tuple[Effect | None, list[float]]:
     """The effect of each chosen group's closed form closest to its spline (R^2 at the training
     samples ``samples``, :func:`sweep.diagnose.naming.closest_forms`, of the coarse families:
@@ -316,7 +320,11 @@ def closest_form(
     :func:`named_form`'s: fitted to the penalised spline, it sees no kink the spline rounds
     off, but no fold's noise either, which a form chosen among hundreds by its held-out gain on
     the linearised columns can follow (a drift hinge, weak: the trajectories chose a hinge
-    where 5 % of the samples lie, dBIC -79, the spline's closest form a harmonic, -192)."""
+    where 5 % of the samples lie, dBIC -79, the spline's closest form a harmonic, -192). A
+    surface (a shape of two variables) is named by the product of closed forms closest to it
+    where the training runs went (``joint``: {(variable, variable2): (z, z2)} of the training
+    samples, :func:`~sweep.diagnose.shapes.jointly_sampled`;
+    :func:`~sweep.diagnose.naming.closest_products`); without its samples it is left out."""
     groups: list[Group] = []
     start: list[float] = []
     for group, coef in zip(selection.groups, selection.coefficients, strict=True):
@@ -330,7 +338,14 @@ def closest_form(
                 groups.append(replace(group, n=1, form=memory[0].form))
                 start.append(memory[0].a)
             continue
-        if group.tensor:  # a surface has no closed form yet
+        if group.tensor:  # a surface: the product of closed forms closest to it
+            at2 = None if joint is None else joint.get((group.variable, group.variable2))
+            product = closest_products(group, coef, *at2, top=1) if at2 is not None else []
+            if product:
+                g, ab = form_group(group, group.components, product[0])
+                if g.text not in {h.text for h in groups}:
+                    groups.append(g)
+                    start += ab
             continue
         at = None if samples is None else samples.get(group.variable)
         best = closest_forms(group, coef, top=1, at=at, fine=False)
@@ -604,7 +619,12 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
         chosen = full if dropped else None
         samples = sample_values(ctx.windows, params, selection.groups)
         named, form, start = named_form(columns, selection, r, samples)
-        closest, closest_start = closest_form(selection, samples)
+        joint = {
+            (g.variable, g.variable2): jointly_sampled(ctx.windows, params, g.variable, g.variable2)
+            for g in selection.groups
+            if g.tensor
+        }
+        closest, closest_start = closest_form(selection, samples, joint)
         if closest is not None and form is not None and closest.name == form.name:
             closest = None  # (before the numbers are fitted: one search for the two)
         if form is not None:

@@ -222,7 +222,7 @@ def closest_forms(
 
 def closest_products(
     group: Group,
-    coefficients: Sequence[float],
+    coefficients: Sequence[float] | FloatArray,
     z: FloatArray,
     z2: FloatArray,
     top: int = 3,

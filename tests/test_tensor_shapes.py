@@ -175,7 +175,7 @@ def test_a_surface_is_named_by_the_product_of_closed_forms_closest_to_it() -> No
     rng = np.random.default_rng(3)
     z, z2 = rng.uniform(-0.05, 0.4, 3000), rng.uniform(-3.1, 3.1, 3000)
     truth = 0.3 - 2.0 * z * np.abs(z) * np.sin(z2)
-    coef, *_ = np.linalg.lstsq(basis2(g, z, z2), truth, rcond=None)
+    coef = np.linalg.lstsq(basis2(g, z, z2), truth, rcond=None)[0].astype(np.float64)
     best = closest_products(g, coef, z, z2, top=3)
     assert best[0].form == "odd&sin(1)" and best[0].r2 > 0.98
     assert best[0].family == "odd square x harmonic"

@@ -34,6 +34,7 @@ from mmg.shapes import (
     Form,
     Group,
     basis,
+    basis2,
     curve,
     form_scale,
     memory_steps,
@@ -279,6 +280,66 @@ def closest_products(
     return out
 
 
+@dataclass(frozen=True)
+class Product:
+    """A product of two closed forms g1(z) g2(z2), the name of a surface (a shape of two
+    variables): as a spec writes it, ``g1&g2``."""
+
+    first: Form
+    second: Form
+
+    @property
+    def text(self) -> str:
+        """As a spec writes it: ``odd&sin(1)``."""
+        return f"{self.first.text}&{self.second.text}"
+
+    @property
+    def family(self) -> str:
+        """The families of its factors: ``odd square x harmonic``."""
+        return f"{FAMILY[self.first.key]} x {FAMILY[self.second.key]}"
+
+    def formula(self, z: str, z2: str) -> str:
+        """g1 g2 in the variables' symbols."""
+        return f"{self.first.formula(z)} {self.second.formula(z2)}"
+
+
+#: points along each variable of the grid over a surface's rectangle on which a product of
+#: closed forms is drawn in the surface's basis (:func:`product_transform`)
+PRODUCT_GRID = 41
+
+
+def products(group: Group) -> list[Product]:
+    """Every product of the coarse families (:func:`families`, ``fine`` off) of a surface's two
+    variables over their ranges."""
+    first = families(group.lo, group.hi, VARIABLES[group.variable].unit == "rad", fine=False)
+    second = families(group.lo2, group.hi2, VARIABLES[group.variable2].unit == "rad", fine=False)
+    return [Product(a, b) for a in first for b in second]
+
+
+def product_transform(
+    group: Group, product: Product, z: FloatArray, z2: FloatArray
+) -> FloatArray | None:
+    """(n n2, 2) the constant and g1(z) g2(z2) / g_max of ``product`` in the basis of the
+    surface ``group`` (as :func:`form_transform` for one variable): g projected by least
+    squares at the training samples' pairs (z, z2) and at an even grid over the rectangle, so
+    that every basis function is held. None where the product is flat."""
+    grid = np.linspace(0.0, 1.0, PRODUCT_GRID)
+    G1, G2 = np.meshgrid(
+        group.lo + grid * (group.hi - group.lo), group.lo2 + grid * (group.hi2 - group.lo2)
+    )
+    x = np.concatenate([G1.ravel(), np.clip(z, group.lo, group.hi)])
+    x2 = np.concatenate([G2.ravel(), np.clip(z2, group.lo2, group.hi2)])
+    g = product.first(x) * product.second(x2)
+    g_max = float(
+        np.max(np.abs(product.first(np.linspace(group.lo, group.hi, FORM_GRID))))
+        * np.max(np.abs(product.second(np.linspace(group.lo2, group.hi2, FORM_GRID))))
+    )  # (as mmg.shapes.form_scale takes it)
+    if g_max <= 0.0 or float(np.ptp(g)) <= 0.0:
+        return None
+    d, *_ = np.linalg.lstsq(basis2(group, x, x2), g / g_max, rcond=None)
+    return np.column_stack([np.ones(group.size), d])
+
+
 #: values of a memory's coefficient tried when a closed form is fitted to a memory's spline
 MEMORY_GRID = 1001
 
@@ -358,6 +419,7 @@ __all__ = [
     "CLOSE",
     "FAMILY",
     "ClosedForm",
+    "Product",
     "closest_forms",
     "closest_products",
     "families",
@@ -365,4 +427,6 @@ __all__ = [
     "form_group",
     "form_transform",
     "memory_forms",
+    "product_transform",
+    "products",
 ]

@@ -42,6 +42,7 @@ from sweep.diagnose.naming import (
     FAMILY,
     GRID,
     ClosedForm,
+    Product,
     closest_forms,
     closest_products,
     families,
@@ -50,6 +51,8 @@ from sweep.diagnose.naming import (
     form_group,
     form_transform,
     memory_forms,
+    product_transform,
+    products,
 )
 from sweep.diagnose.pruning import Dropped, Screened, lead_by_output_error, prune, register
 from sweep.diagnose.shapes import (
@@ -186,6 +189,7 @@ def named_form(
     selection: ShapeSelection,
     r: FloatArray,
     samples: Mapping[str, Sequence[float]] | None = None,
+    joint: Mapping[tuple[str, str], tuple[FloatArray, FloatArray]] | None = None,
 ) -> tuple[list[ClosedForm | None], Effect | None, list[float]]:
     """Each chosen group's closed form, compared on the trajectories, and the effect of those
     forms (constant groups kept as they are) with its coefficients fitted on them (None if
@@ -204,10 +208,23 @@ def named_form(
     force in beta competes with a force in beta times U^2). The form of the largest gain is
     the group's name; a simpler family within :data:`FORM_TIE` of the spline's gain of it
     wins. A group no form gains on is left out. The coefficients: all named forms fitted
-    together on all windows (linearised)."""
+    together on all windows (linearised).
+
+    A surface (a shape of two variables) is named the same way by a product of closed forms
+    g1(z) g2(z2) (:func:`~sweep.diagnose.naming.products`, drawn in the surface's own basis
+    at the training samples' pairs ``joint`` {(variable, variable2): (z, z2)},
+    :func:`~sweep.diagnose.naming.product_transform`): on the trajectories, where the base's
+    parameters move with it, not by its likeness to the fitted surface, which holds only
+    what the base could not absorb (on a planted yaw moment in u|u| times the wind's angle the
+    surface fell with u, the trajectories' part the base left)."""
     groups = selection.groups
     extra, fine_units = _fine_structures(groups, columns.groups)
-    if not fine_units:
+    surfaces = {
+        i: at2
+        for i, g in enumerate(groups)
+        if g.tensor and joint is not None and (at2 := joint.get((g.variable, g.variable2)))
+    }
+    if not fine_units and not surfaces:
         return _named_forms(selection, {}, {})
     cols = ShapeColumns(columns.lin, [*groups, *extra])
     chosen = list(enumerate(selection.kappas))
@@ -215,7 +232,7 @@ def named_form(
     # chosen group and fine structure each form in the group's place
     trials: list[tuple[list[tuple[int, float]], dict[int, FloatArray]]] = [(chosen, {})]
     # per (chosen group, fine unit): its forms, their transforms and their trials' places
-    tried: dict[tuple[int, int], list[tuple[Form, FloatArray, int]]] = {}
+    tried: dict[tuple[int, int], list[tuple[Form | Product, FloatArray, int]]] = {}
     for i, fus in fine_units.items():
         g = groups[i]
         at = None if samples is None else samples.get(g.variable)
@@ -227,12 +244,19 @@ def named_form(
                 if W is not None:
                     tried.setdefault((i, fu), []).append((form, W, len(trials)))
                     trials.append((trial, {fu: W}))
+    for i, (z, z2) in surfaces.items():  # a surface's unit is its own: i
+        trial = [(i, 0.0) if k == i else (u, kap) for k, (u, kap) in enumerate(chosen)]
+        for product in products(groups[i]):
+            W = product_transform(groups[i], product, z, z2)
+            if W is not None:
+                tried.setdefault((i, i), []).append((product, W, len(trials)))
+                trials.append((trial, {i: W}))
     gains = cols.form_gains(r, trials)
     spline = float(gains[0])
     # per chosen group and fine structure the form of the largest gain (a simpler one within
     # FORM_TIE of the spline's gain of it); then, largest gain first, each group takes its
     # structure whose form gains most among the units no other group has taken
-    options: list[tuple[float, int, Form, int, FloatArray]] = []
+    options: list[tuple[float, int, Form | Product, int, FloatArray]] = []
     for (i, fu), mine in tried.items():
         values = [float(gains[k]) for _, _, k in mine]
         top = max(values)
@@ -240,11 +264,12 @@ def named_form(
         if top > 0.0:
             options.append((values[m], i, mine[m][0], fu, mine[m][1]))
     fine = {fu: fg for fus in fine_units.values() for fg, fu in fus}  # unit -> its fine group
-    picks: dict[int, tuple[Group, Form, int, FloatArray, float]] = {}
+    fine.update({i: groups[i] for i in surfaces})
+    picks: dict[int, tuple[Group, Form | Product, int, FloatArray, float]] = {}
     taken: set[int] = set()
-    for v, i, form, fu, W in sorted(options, key=lambda o: -o[0]):
+    for v, i, name, fu, W in sorted(options, key=lambda o: -o[0]):
         if i not in picks and fu not in taken:
-            picks[i] = (fine[fu], form, fu, W, v)
+            picks[i] = (fine[fu], name, fu, W, v)
             taken.add(fu)
     if not picks:
         return _named_forms(selection, {}, {})
@@ -258,7 +283,7 @@ def named_form(
 
 def _named_forms(
     selection: ShapeSelection,
-    forms: Mapping[int, tuple[Group, Form, float, list[float]]],
+    forms: Mapping[int, tuple[Group, Form | Product, float, list[float]]],
     coefficients: Mapping[int, list[float]],
     spline: float = 0.0,
     samples: Mapping[str, Sequence[float]] | None = None,
@@ -289,18 +314,32 @@ def _named_forms(
             named.append(None)
             continue
         fg, form, gain, (a, b) = forms[i]
-        at = None if samples is None else samples.get(g.variable)
-        close = fitted_form(g, selection.coefficients[i], form, fit_points(g, at))
-        named_group = replace(fg, n=2, form=form.text)
-        closed = ClosedForm(
-            FAMILY[form.key],
-            form.formula(SHAPE_VARIABLES[g.variable].symbol),
-            a,
-            b / form_scale(named_group),
-            close.r2 if close is not None and fg.structure == g.structure else 0.0,
-            form.text,
-            gain / spline if spline > 0.0 else None,
-        )
+        if isinstance(form, Product):  # a surface's product of closed forms
+            named_group = replace(fg, n=2, n2=1, form=form.text)
+            closed = ClosedForm(
+                form.family,
+                form.formula(
+                    SHAPE_VARIABLES[g.variable].symbol, SHAPE_VARIABLES[g.variable2].symbol
+                ),
+                a,
+                b / form_scale(named_group),
+                0.0,
+                form.text,
+                gain / spline if spline > 0.0 else None,
+            )
+        else:
+            at = None if samples is None else samples.get(g.variable)
+            close = fitted_form(g, selection.coefficients[i], form, fit_points(g, at))
+            named_group = replace(fg, n=2, form=form.text)
+            closed = ClosedForm(
+                FAMILY[form.key],
+                form.formula(SHAPE_VARIABLES[g.variable].symbol),
+                a,
+                b / form_scale(named_group),
+                close.r2 if close is not None and fg.structure == g.structure else 0.0,
+                form.text,
+                gain / spline if spline > 0.0 else None,
+            )
         named.append(closed)
         if named_group.text not in {h.text for h in out}:
             out.append(named_group)
@@ -618,12 +657,12 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
         selection, dropped = prune(ctx, base, columns, r, selection)
         chosen = full if dropped else None
         samples = sample_values(ctx.windows, params, selection.groups)
-        named, form, start = named_form(columns, selection, r, samples)
         joint = {
             (g.variable, g.variable2): jointly_sampled(ctx.windows, params, g.variable, g.variable2)
             for g in selection.groups
             if g.tensor
         }
+        named, form, start = named_form(columns, selection, r, samples, joint)
         closest, closest_start = closest_form(selection, samples, joint)
         if closest is not None and form is not None and closest.name == form.name:
             closest = None  # (before the numbers are fitted: one search for the two)

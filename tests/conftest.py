@@ -200,3 +200,25 @@ def checkpoint_writes(monkeypatch: pytest.MonkeyPatch) -> list[int]:
 
     monkeypatch.setattr(cmaes, "save_checkpoint", counting_save)
     return writes
+
+
+@pytest.fixture(scope="module")
+def small_case(data_dir: Path):
+    """Four 100-s windows (two random runs, a turn, a zigzag) of a perturbed ship without noise,
+    and the noise of the recordings: (ship, windows, noise model)."""
+    import numpy as np
+    from benchmarks.planted import PlantedSpec, generate, noise_levels, perturbed_ship, pick_windows
+
+    from sweep.data.recordings import read_recordings
+    from sweep.diagnose.floor import NoiseModel
+    from sweep.diagnose.windows import cut_windows
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        runs = {k: read_recordings(data_dir / "data" / k) for k in ("random", "turning", "zigzag")}
+    rng = np.random.default_rng(3)
+    ship = perturbed_ship(rng, 0.15)
+    wins = pick_windows(runs, {"random": 2, "turning": 1, "zigzag": 1}, rng)
+    levels = noise_levels([r for v in runs.values() for r in v])
+    clean, _ = generate(wins, ship, PlantedSpec("none"), dict.fromkeys(levels, 0.0), rng)
+    return ship, cut_windows(clean), NoiseModel(levels, dict.fromkeys(levels, 0.0))

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mmg.shapes import SYMMETRIC, Group, basis, curve
+from mmg.shapes import FORMS, SYMMETRIC, Form, Group, basis, curve
 from sweep.diagnose.naming import CLOSE, closest_forms, families, form_group
 
 
@@ -124,18 +124,27 @@ def test_corners_lie_at_the_samples_quantiles_too():
 
 
 def test_forms_with_fewer_constants_chosen_from_the_data_come_first():
-    """Within the naming's tie the first form in the families' order wins: powers, then (for
-    an angle) harmonics, then hinges (a corner), then steps (a corner and a width), whatever
-    the corner, in both the fine and the coarse families."""
+    """The families in order of how many numbers they take from the data (the naming's tie
+    prefers fewer, then the larger gain): powers, then (for an angle) harmonics and their odd
+    squares, then hinges (a corner), then steps (a corner and a width), whatever the corner,
+    in both the fine and the coarse families; a product's count is the sum of its factors'."""
+    from sweep.diagnose.naming import Product, complexity
+
     samples = np.random.default_rng(5).normal(0.0, 0.3, 2000)
     rank = {"lin": 0, "sq": 0, "odd": 0, "cube": 0, "abs": 0, "sin": 1, "cos": 1}
+    rank |= {"sinodd": 1, "cosodd": 1}
     rank |= {"up": 2, "down": 2, "absup": 2, "oddup": 2, "step": 3, "absstep": 3}
     for fine in (True, False):
         forms = families(-3.0, 3.0, angle=True, at=samples, fine=fine)
         order = [rank[f.key] for f in forms]
         assert order == sorted(order)
         assert set(order) == {0, 1, 2, 3}
+        assert [complexity(f) for f in forms] == sorted(complexity(f) for f in forms)
+        assert {f.text for f in forms} >= {"sin(1)", "sinodd(1)", "cosodd(1)"}
     assert 1 not in {rank[f.key] for f in families(-3.0, 3.0, angle=False)}
+    assert complexity(Form("sin", (3.0,))) == complexity(Form("odd")) == 0
+    assert complexity(Form("up", (0.2,))) == 1 and complexity(Form("step", (0.1, 0.05))) == 2
+    assert complexity(Product(Form("up", (0.2,)), Form("step", (0.1, 0.05)))) == 3
 
 
 @pytest.mark.parametrize("form", ["lin", "sq", "up(0.3)", "absstep(0.5,0.05)", "sin(2)"])
@@ -176,3 +185,16 @@ def test_the_spline_s_closest_form_is_a_candidate_of_the_coarse_families():
     effect, start = closest_form(selection)
     assert effect is not None and effect.name == "shape:YN~beta[-1:1.4]:up(0.2)"
     np.testing.assert_allclose(start, [0.0, 0.0, 0.01, 0.02 * 1.2], atol=1e-4)
+
+
+@pytest.mark.parametrize("key", sorted(FORMS))
+def test_every_closed_form_computes_the_same_in_numpy_and_in_the_hook_code(key: str) -> None:
+    """Each closed form's numpy value (:meth:`Form.__call__`) and its hook code (evaluated as
+    Python, as the kernel compiles it) agree over a range that crosses 0."""
+    import math
+
+    args = {0: (), 1: (0.3,), 2: (0.2, 0.1)}[FORMS[key][0]]
+    form = Form(key, args)
+    for z in np.linspace(-2.5, 2.5, 41):
+        got = eval(form.code("z"), {"math": math, "z": float(z)})  # the generated code itself
+        assert got == pytest.approx(float(form(z)), rel=1e-12, abs=1e-15), (key, z)

@@ -276,3 +276,49 @@ def test_the_report_states_a_surface_as_a_table_of_both_variables() -> None:
     md = _surface_md(entry)
     assert md[0].startswith("| u [m/s] \\ gammaA [rad] | -3.1 |") and len(md) == 2 + 9 + 1
     assert md[2].startswith("| -0.1 | -0.1 |")
+
+
+#: a planted interaction: a yaw moment in u^2 times sin(gamma_A), with the wind's scaling
+PLANTED_PRODUCT = "shape:N~u&gammaA[0:0.5&-3.1:3.1]:sq&sin(1)@UA2"
+
+
+@pytest.mark.slow  # compiles a probe of the candidates with a surface among them (2-3 min)
+@pytest.mark.integration
+def test_a_planted_interaction_is_named_by_a_product_on_the_trajectories(small_case) -> None:
+    """A yaw moment in u^2 sin(gamma_A) planted in noisy windows: the surface chosen on the
+    linearised columns is named, on the trajectories, by a product of closed forms that keeps
+    its held-out gain and follows the planted force where the runs went (four windows of
+    100 s with u in 0-0.28 m/s do not tell u^2 sin(gamma_A) from u gamma_A: both are kept
+    as well)."""
+    from sweep.data.recordings import Recording
+    from sweep.diagnose.floor import simulate_windows
+    from sweep.diagnose.linearised import Linearised
+    from sweep.diagnose.scoring import n_effective
+    from sweep.diagnose.shapes import ShapeColumns, jointly_sampled
+    from sweep.diagnose.shaping import named_form
+    from sweep.identification.vector import with_effects
+
+    ship, windows, noise = small_case
+    truth = with_effects(ship, (get_effect(PLANTED_PRODUCT),), [0.0, 0.15])
+    rng = np.random.default_rng(8)
+    data = [
+        Recording(w.name, None, w.t, x + noise.draw(rng, x.shape[0]), w.u, w.w)
+        for w, x in zip(windows, simulate_windows(truth, windows), strict=True)
+    ]
+    lin = Linearised(ship, data, ([0, 2], [1, 3]), ())
+    (g,) = parse("N~u&gammaA[0:0.5&-3.1:3.1]/6x6@UA2")
+    cols = ShapeColumns(lin, [g])
+    r = lin.residuals(data)
+    sel = cols.select(r, n_effective(data, "J2"))
+    assert [h.text for h in sel.groups] == [g.text]
+    z, z2 = jointly_sampled(data, ship, "u", "gammaA")
+    named, form, start = named_form(cols, sel, r, None, {("u", "gammaA"): (z, z2)})
+    product = named[0]
+    assert product is not None and "&" in product.form and " x " in product.family
+    assert product.share is not None and product.share > 0.9
+    assert form is not None and form.name.startswith("shape:YN~u&gammaA[0:0.5&-3.1:3.1]:")
+    assert len(start) == len(form.params) == 4
+    (planted,) = parse(PLANTED_PRODUCT)
+    (got,) = parse(form.name)
+    f_planted = surface(planted, [0.0, 1.0], z, z2)
+    assert np.corrcoef(surface(got, [0.0, 1.0], z, z2), f_planted)[0, 1] > 0.9

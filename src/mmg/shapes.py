@@ -393,14 +393,18 @@ class Form:
             "absstep": lambda: np.tanh((np.abs(x) - a[0]) / a[1]),
             "sin": lambda: np.sin(a[0] * x),
             "cos": lambda: np.cos(a[0] * x),
+            "sinodd": lambda: np.sin(a[0] * x) * np.abs(np.sin(a[0] * x)),
+            "cosodd": lambda: np.cos(a[0] * x) * np.abs(np.cos(a[0] * x)),
         }
         return np.asarray(values[self.key](), dtype=np.float64)
 
 
 #: closed forms g(z): key -> (how many numbers, formula, code); {z} the variable, {a[i]} its
 #: numbers. A naval architect's families: powers and their abs forms, hinges (a threshold),
-#: a smooth step (a saturation), harmonics (of an angle). A threshold in a variable that changes
-#: sign with the side of the ship (drift angle, sway, yaw rate, rudder angle) is reached on
+#: a smooth step (a saturation), harmonics (of an angle) and their odd squares (a cross-flow,
+#: v_m|v_m| = U^2 sin(beta)|sin(beta)|; a wind force's coefficient in gamma_A). A threshold
+#: in a variable that changes sign with the side of the ship (drift angle, sway, yaw rate,
+#: rudder angle) is reached on
 #: both sides at once: the symmetric hinges ``absup`` (even, e.g. a share of a force beyond
 #: |beta| = c) and ``oddup`` (odd, e.g. a side force beyond it, on the side it comes from), and
 #: the symmetric step ``absstep`` (even, e.g. a share of a force lost beyond |alpha_R| = c).
@@ -426,6 +430,16 @@ FORMS: dict[str, tuple[int, str, str]] = {
     ),
     "sin": (1, "sin({a[0]} {z})", "math.sin({a[0]} * {z})"),
     "cos": (1, "cos({a[0]} {z})", "math.cos({a[0]} * {z})"),
+    "sinodd": (
+        1,
+        "sin({a[0]} {z})|sin({a[0]} {z})|",
+        "math.sin({a[0]} * {z}) * abs(math.sin({a[0]} * {z}))",
+    ),
+    "cosodd": (
+        1,
+        "cos({a[0]} {z})|cos({a[0]} {z})|",
+        "math.cos({a[0]} * {z}) * abs(math.cos({a[0]} * {z}))",
+    ),
 }
 #: the symmetric hinges: their corner is a size |z| (not negative)
 SYMMETRIC = ("absup", "oddup")

@@ -81,7 +81,22 @@ FAMILY = {
     "absstep": "symmetric step",
     "sin": "harmonic",
     "cos": "harmonic",
+    "sinodd": "odd square of a harmonic",
+    "cosodd": "odd square of a harmonic",
 }
+
+#: closed forms whose numbers are fixed multiples, not taken from the data (a harmonic's k)
+FIXED_NUMBERS = ("sin", "cos", "sinodd", "cosodd")
+
+
+def complexity(form: Form | Product) -> int:
+    """How many of a closed form's numbers are taken from the data: 0 for powers, abs forms and
+    harmonics (k a fixed multiple), 1 for a hinge (its corner), 2 for a step (a corner and a
+    width); a product's the sum of its factors'. Among forms that gain as much, the one of
+    fewer such numbers is the name, then the one that gains most."""
+    if isinstance(form, Product):
+        return complexity(form.first) + complexity(form.second)
+    return 0 if form.key in FIXED_NUMBERS else len(form.args)
 
 
 def _round(x: float) -> float:
@@ -130,11 +145,14 @@ def families(
     hinge); then steps, a corner and a width. ``fine`` adds corners at the training samples'
     :data:`SAMPLE_CORNERS` quantiles (given their values ``at``; of their sizes |z| for the
     symmetric forms), the narrower steps of :data:`STEP_WIDTHS` and the symmetric steps;
+    an angle's harmonics come with the odd squares of the first, sin(z)|sin(z)| and
+    cos(z)|cos(z)| (a cross-flow force in the drift angle, a wind force in its angle);
     without it, steps are 10 % of the range wide (the forms fitted to a spline,
     :func:`sweep.diagnose.shaping.closest_form`)."""
     out = [Form(k) for k in ("lin", "sq", "odd", "cube", "abs")]
     if angle:
         out += [Form(k, (float(m),)) for m in (1, 2, 3) for k in ("sin", "cos")]
+        out += [Form(k, (1.0,)) for k in ("sinodd", "cosodd")]
     width = hi - lo
     side = min(-lo, hi)
     hinges: list[Form] = []

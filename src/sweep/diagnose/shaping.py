@@ -45,6 +45,7 @@ from sweep.diagnose.naming import (
     Product,
     closest_forms,
     closest_products,
+    complexity,
     families,
     fit_points,
     fitted_form,
@@ -73,7 +74,9 @@ FloatArray = NDArray[np.float64]
 
 #: basis functions over a chosen group's range on which its closed forms are compared
 FINE_BASIS = MAX_BASIS
-#: a simpler closed form within this share of the spline's held-out gain of the best is chosen
+#: a simpler closed form (fewer numbers taken from the data,
+#: :func:`~sweep.diagnose.naming.complexity`) within this share of the spline's held-out gain
+#: of the best is chosen
 FORM_TIE = 0.01
 
 
@@ -206,9 +209,12 @@ def named_form(
     tried in the group's own structure and in the other candidate structures of its variable
     (the plain shape with the variable's scaling, its products: a share of the hull's sway
     force in beta competes with a force in beta times U^2). The form of the largest gain is
-    the group's name; a simpler family within :data:`FORM_TIE` of the spline's gain of it
-    wins. A group no form gains on is left out. The coefficients: all named forms fitted
-    together on all windows (linearised).
+    the group's name; a simpler one within :data:`FORM_TIE` of the spline's gain of it wins
+    (fewer numbers taken from the data: a power before a hinge before a step), and among the
+    equally simple the one of the largest gain (u^2 and u|u| are alike where u is rarely
+    negative: the trajectories choose, not the order of the list). A group no form gains on
+    is left out. The coefficients: all named forms fitted together on all windows
+    (linearised).
 
     A surface (a shape of two variables) is named the same way by a product of closed forms
     g1(z) g2(z2) (:func:`~sweep.diagnose.naming.products`, drawn in the surface's own basis
@@ -254,13 +260,16 @@ def named_form(
     gains = cols.form_gains(r, trials)
     spline = float(gains[0])
     # per chosen group and fine structure the form of the largest gain (a simpler one within
-    # FORM_TIE of the spline's gain of it); then, largest gain first, each group takes its
-    # structure whose form gains most among the units no other group has taken
+    # FORM_TIE of the spline's gain of it, the largest gain among the equally simple); then,
+    # largest gain first, each group takes its structure whose form gains most among the
+    # units no other group has taken
     options: list[tuple[float, int, Form | Product, int, FloatArray]] = []
     for (i, fu), mine in tried.items():
         values = [float(gains[k]) for _, _, k in mine]
         top = max(values)
-        m = next(m for m, v in enumerate(values) if v >= top - FORM_TIE * abs(spline))
+        near = [m for m, v in enumerate(values) if v >= top - FORM_TIE * abs(spline)]
+        least = min(complexity(mine[m][0]) for m in near)
+        m = max((m for m in near if complexity(mine[m][0]) == least), key=lambda m: values[m])
         if top > 0.0:
             options.append((values[m], i, mine[m][0], fu, mine[m][1]))
     fine = {fu: fg for fus in fine_units.values() for fg, fu in fus}  # unit -> its fine group

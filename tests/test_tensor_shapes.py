@@ -18,6 +18,7 @@ from mmg.shapes import (
     groups_of,
     numbers,
     parse,
+    parse_form,
     penalty,
     probe_effect,
     probe_rows,
@@ -25,7 +26,7 @@ from mmg.shapes import (
     surface,
 )
 from mmg.wind import apparent_wind
-from sweep.diagnose.naming import closest_products, form_group
+from sweep.diagnose.naming import Product, closest_products, form_group, product_r2
 
 #: a yaw moment in the surge velocity and the apparent-wind angle, with the wind's scaling
 SPEC = "shape:N~u&gammaA[-0.1:0.4&-3.1:3.1]/5x7@UA2"
@@ -180,6 +181,9 @@ def test_a_surface_is_named_by_the_product_of_closed_forms_closest_to_it() -> No
     assert best[0].form == "odd&sin(1)" and best[0].r2 > 0.98
     assert best[0].family == "odd square x harmonic"
     assert best[0].r2 >= best[1].r2 >= best[2].r2
+    # one product's share, as the naming on the trajectories states it
+    top = Product(parse_form("odd"), parse_form("sin(1)"))
+    assert product_r2(g, coef, top, z, z2) == pytest.approx(best[0].r2, rel=1e-9)
     named, ab = form_group(g, "N", best[0])
     assert named.text == "N~u&gammaA[-0.1:0.4&-3.1:3.1]:odd&sin(1)@UA2"
     np.testing.assert_allclose(surface(named, ab, z, z2), truth, atol=0.02)

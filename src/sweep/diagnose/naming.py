@@ -334,6 +334,28 @@ def products(group: Group) -> list[Product]:
     return [Product(a, b) for a in first for b in second]
 
 
+def product_r2(
+    group: Group,
+    coefficients: Sequence[float] | FloatArray,
+    product: Product,
+    z: FloatArray,
+    z2: FloatArray,
+) -> float:
+    """The share of the surface ``group``'s variance (its ``coefficients``) at the training
+    samples' pairs (z, z2) that ``product``, fitted as a + b g1 g2 by least squares, keeps
+    (R^2; 0 where the surface or the product is flat there)."""
+    z = np.clip(np.asarray(z, dtype=np.float64), group.lo, group.hi)
+    z2 = np.clip(np.asarray(z2, dtype=np.float64), group.lo2, group.hi2)
+    f = surface(group, coefficients, z, z2)
+    g = product.first(z) * product.second(z2)
+    total = float(((f - f.mean()) ** 2).sum())
+    if z.size < 3 or total <= 0.0 or float(np.ptp(g)) <= 0.0:
+        return 0.0
+    G = np.column_stack([np.ones_like(g), g])
+    coef, *_ = np.linalg.lstsq(G, f, rcond=None)
+    return 1.0 - float(((f - G @ coef) ** 2).sum()) / total
+
+
 def product_transform(
     group: Group, product: Product, z: FloatArray, z2: FloatArray
 ) -> FloatArray | None:
@@ -445,6 +467,7 @@ __all__ = [
     "form_group",
     "form_transform",
     "memory_forms",
+    "product_r2",
     "product_transform",
     "products",
 ]

@@ -52,6 +52,7 @@ from sweep.diagnose.naming import (
     form_group,
     form_transform,
     memory_forms,
+    product_r2,
     product_transform,
     products,
 )
@@ -287,7 +288,7 @@ def named_form(
     coefficients = cols.form_fit(r, together, transforms)
     named = {i: (fg, form, gain, coefficients[i]) for i, (fg, form, _, _, gain) in picks.items()}
     levels = {i: coefficients[i] for i, g in enumerate(groups) if g.variable == "1"}
-    return _named_forms(selection, named, levels, spline, samples)
+    return _named_forms(selection, named, levels, spline, samples, joint)
 
 
 def _named_forms(
@@ -296,12 +297,14 @@ def _named_forms(
     coefficients: Mapping[int, list[float]],
     spline: float = 0.0,
     samples: Mapping[str, Sequence[float]] | None = None,
+    joint: Mapping[tuple[str, str], tuple[FloatArray, FloatArray]] | None = None,
 ) -> tuple[list[ClosedForm | None], Effect | None, list[float]]:
     """:func:`named_form`'s result from its picks: per chosen force group its form ``forms``
     {group: (fine group, form, held-out gain, coefficients (a, b))}, constant groups with their
     ``coefficients`` (else the selection's), and each memory of a control as its closest closed form
     (:func:`~sweep.diagnose.naming.memory_forms`: a lag, a rate limit, play), started at the
-    coefficient fitted to its spline. ``spline``: the shape's own linearised held-out gain."""
+    coefficient fitted to its spline. ``spline``: the shape's own linearised held-out gain;
+    ``samples`` and ``joint``: where a form's likeness to its shape (R^2) is taken."""
     groups = selection.groups
     named: list[ClosedForm | None] = []
     out: list[Group] = []
@@ -325,6 +328,7 @@ def _named_forms(
         fg, form, gain, (a, b) = forms[i]
         if isinstance(form, Product):  # a surface's product of closed forms
             named_group = replace(fg, n=2, n2=1, form=form.text)
+            pairs = None if joint is None else joint.get((g.variable, g.variable2))
             closed = ClosedForm(
                 form.family,
                 form.formula(
@@ -332,7 +336,7 @@ def _named_forms(
                 ),
                 a,
                 b / form_scale(named_group),
-                0.0,
+                0.0 if pairs is None else product_r2(g, selection.coefficients[i], form, *pairs),
                 form.text,
                 gain / spline if spline > 0.0 else None,
             )

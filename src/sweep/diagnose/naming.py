@@ -15,6 +15,11 @@ keep (R^2): the report's "closest forms". The diagnosis names a shape on the tra
 instead (:func:`sweep.diagnose.shaping.named_form`): :func:`form_transform` draws each form on
 a fine spline basis, so that its trajectory columns are those of the basis functions combined,
 and the forms are ranked by their held-out gain.
+
+A surface (a shape of two variables) is named by a product of one closed form of each
+variable, g1(z) g2(z2) (:class:`Product`, :func:`products`): on the trajectories, drawn in the
+surface's basis (:func:`product_transform`), and by its likeness to the fitted surface where
+the training runs went (:func:`closest_products`, :func:`product_r2`).
 """
 
 from __future__ import annotations

@@ -6,7 +6,8 @@ z^3 and their abs forms z|z|, |z|; hinges max(z - c, 0) and max(c - z, 0) and st
 tanh((z - c) / w) at interior corners c (shares of the range and quantiles of the training
 samples); for a variable that takes both signs, the symmetric hinges max(|z| - c, 0) and
 sign(z) max(|z| - c, 0) and the symmetric step tanh((|z| - c) / w) (a threshold reached on
-both sides of the ship at once); and, for an angle, sin(k z) and cos(k z), k = 1, 2, 3.
+both sides of the ship at once); and, for an angle, sin(k z) and cos(k z), k = 1, 2, 3, and
+the odd squares sin(z)|sin(z)| and cos(z)|cos(z)| (a cross-flow in the drift angle).
 
 Two comparisons use them. :func:`closest_forms` fits each family as a + b g(z) by least
 squares to the shape at the values z took on the training samples (an even grid of z over the

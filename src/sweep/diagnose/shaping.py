@@ -474,6 +474,19 @@ def sample_values(
     }
 
 
+def pair_samples(
+    windows: Sequence[Recording], params: Parameters, groups: Sequence[Group]
+) -> dict[tuple[str, str], tuple[FloatArray, FloatArray]]:
+    """{(variable, variable2): (z, z2)} of the surfaces among ``groups``: both variables on the
+    same recorded samples of ``windows`` (:func:`~sweep.diagnose.shapes.jointly_sampled`),
+    where a surface's products of closed forms are drawn and compared."""
+    return {
+        (g.variable, g.variable2): jointly_sampled(windows, params, g.variable, g.variable2)
+        for g in groups
+        if g.tensor
+    }
+
+
 def fitted_numbers(
     ctx: Context,
     base: Fit,
@@ -670,11 +683,7 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
         selection, dropped = prune(ctx, base, columns, r, selection)
         chosen = full if dropped else None
         samples = sample_values(ctx.windows, params, selection.groups)
-        joint = {
-            (g.variable, g.variable2): jointly_sampled(ctx.windows, params, g.variable, g.variable2)
-            for g in selection.groups
-            if g.tensor
-        }
+        joint = pair_samples(ctx.windows, params, selection.groups)
         named, form, start = named_form(columns, selection, r, samples, joint)
         closest, closest_start = closest_form(selection, samples, joint)
         if closest is not None and form is not None and closest.name == form.name:
@@ -744,6 +753,7 @@ __all__ = [
     "fitted_numbers",
     "form_effect",
     "named_form",
+    "pair_samples",
     "propose_shape",
     "sample_values",
     "with_sibling",

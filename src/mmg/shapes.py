@@ -404,10 +404,10 @@ class Form:
 #: a smooth step (a saturation), harmonics (of an angle) and their odd squares (a cross-flow,
 #: v_m|v_m| = U^2 sin(beta)|sin(beta)|; a wind force's coefficient in gamma_A). A threshold
 #: in a variable that changes sign with the side of the ship (drift angle, sway, yaw rate,
-#: rudder angle) is reached on
-#: both sides at once: the symmetric hinges ``absup`` (even, e.g. a share of a force beyond
-#: |beta| = c) and ``oddup`` (odd, e.g. a side force beyond it, on the side it comes from), and
-#: the symmetric step ``absstep`` (even, e.g. a share of a force lost beyond |alpha_R| = c).
+#: rudder angle) is reached on both sides at once: the symmetric hinges ``absup`` (even, e.g. a
+#: share of a force beyond |beta| = c) and ``oddup`` (odd, e.g. a side force beyond it, on the
+#: side it comes from), and the symmetric step ``absstep`` (even, e.g. a share of a force lost
+#: beyond |alpha_R| = c).
 FORMS: dict[str, tuple[int, str, str]] = {
     "lin": (0, "{z}", "{z}"),
     "sq": (0, "{z}^2", "{z} * {z}"),
@@ -581,9 +581,8 @@ class Group:
                 object.__setattr__(self, "form", "&".join(f.text for f in forms))
                 if self.n != 2:
                     raise ValueError(f"{self.variable}: a closed form has 2 coefficients (a, b)")
-                if self.variable2:
-                    pass  # its range and g_max: _check_tensor
-                elif form_scale(self) <= 0.0:
+                # (a product's g_max needs its second range: _check_tensor)
+                if not self.variable2 and form_scale(self) <= 0.0:
                     raise ValueError(
                         f"{self.variable}: the closed form {self.form} is 0 over "
                         f"[{self.lo}, {self.hi}]"
@@ -908,13 +907,7 @@ def basis2(group: Group, z: Any, z2: Any) -> FloatArray:
 def surface(group: Group, coefficients: Any, z: Any, z2: Any) -> FloatArray:
     """f(z, z2) of one component of a shape of two variables for its n n2 coefficients (of a
     product of closed forms its (a, b))."""
-    c = np.asarray(coefficients, dtype=np.float64)
-    if group.tensor and group.form:
-        g1, g2 = parse_forms(group.form)
-        z = np.clip(np.asarray(z, dtype=np.float64), group.lo, group.hi)
-        z2 = np.clip(np.asarray(z2, dtype=np.float64), group.lo2, group.hi2)
-        return np.asarray(c[0] + c[1] * g1(z) * g2(z2) / form_scale(group), dtype=np.float64)
-    return np.asarray(basis2(group, z, z2) @ c)
+    return np.asarray(basis2(group, z, z2) @ np.asarray(coefficients, dtype=np.float64))
 
 
 def curve(group: Group, coefficients: Any, z: Any) -> FloatArray:

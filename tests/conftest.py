@@ -222,3 +222,19 @@ def small_case(data_dir: Path):
     levels = noise_levels([r for v in runs.values() for r in v])
     clean, _ = generate(wins, ship, PlantedSpec("none"), dict.fromkeys(levels, 0.0), rng)
     return ship, cut_windows(clean), NoiseModel(levels, dict.fromkeys(levels, 0.0))
+
+
+def noisy_windows(params, windows, noise, seed: int):
+    """``windows`` simulated with ``params`` (a :class:`mmg.Parameters`, effects included) from
+    their own first states, controls and wind, plus noise drawn from ``noise`` (a
+    :class:`sweep.diagnose.floor.NoiseModel`) with the generator of ``seed``: planted data."""
+    import numpy as np
+
+    from sweep.data.recordings import Recording
+    from sweep.diagnose.floor import simulate_windows
+
+    rng = np.random.default_rng(seed)
+    return [
+        Recording(w.name, None, w.t, x + noise.draw(rng, x.shape[0]), w.u, w.w)
+        for w, x in zip(windows, simulate_windows(params, windows), strict=True)
+    ]

@@ -42,7 +42,7 @@ from mmg.shapes import (
     variable_values,
 )
 from sweep.data.recordings import Recording, read_recordings
-from tests.conftest import kernels, probe_kernels
+from tests.conftest import kernels, noisy_windows, probe_kernels
 
 #: the effect of the hook tests: a shape in beta (Y and N), a share of the hull's sway force
 #: in N, a surge force astern, a shape in U times v_m'
@@ -474,7 +474,6 @@ def test_the_selection_finds_a_planted_shape_and_nothing_in_noise(small_case) ->
     below the null of the same statistic on noise-only copies; on the noise-only windows it
     picks nothing."""
     from sweep.diagnose.discover import null_sets
-    from sweep.diagnose.floor import simulate_windows
     from sweep.diagnose.linearised import Linearised
     from sweep.diagnose.scoring import n_effective
     from sweep.diagnose.shapes import ShapeColumns
@@ -488,12 +487,7 @@ def test_the_selection_finds_a_planted_shape_and_nothing_in_noise(small_case) ->
     values = np.zeros(len(eff.params))
     values[[eff.param_names.index(f"s0_N{j}") for j in range(6)]] = -0.01 * np.sin(3 * centres)
     truth = with_effects(ship, (eff,), [float(v) for v in values])
-    rng = np.random.default_rng(8)
-    sims = simulate_windows(truth, windows)
-    data = [
-        Recording(w.name, None, w.t, x + noise.draw(rng, x.shape[0]), w.u, w.w)
-        for w, x in zip(windows, sims, strict=True)
-    ]
+    data = noisy_windows(truth, windows, noise, 8)
     folds = ([0, 2], [1, 3])
     n_eff = n_effective(data, "J2")
     lin = Linearised(ship, data, folds, ())
@@ -558,7 +552,6 @@ def test_a_kink_between_knots_is_named_by_its_hinge_on_the_trajectories(small_ca
     selection's spline (0.92 rad wide): the spline rounds the kink off, the closed forms are
     compared on the trajectory columns of 40 basis functions, and the hinge at a corner near
     0.12 keeps (nearly) all of the spline's held-out gain."""
-    from sweep.diagnose.floor import simulate_windows
     from sweep.diagnose.linearised import Linearised
     from sweep.diagnose.scoring import n_effective
     from sweep.diagnose.shapes import ShapeColumns, ShapeSelection
@@ -567,11 +560,7 @@ def test_a_kink_between_knots_is_named_by_its_hinge_on_the_trajectories(small_ca
 
     ship, windows, noise = small_case
     truth = with_effects(ship, (get_effect(HINGE_SPEC),), [0.0, 0.01])
-    rng = np.random.default_rng(8)
-    data = [
-        Recording(w.name, None, w.t, x + noise.draw(rng, x.shape[0]), w.u, w.w)
-        for w, x in zip(windows, simulate_windows(truth, windows), strict=True)
-    ]
+    data = noisy_windows(truth, windows, noise, 8)
     lin = Linearised(ship, data, ([0, 2], [1, 3]), ())
     cols = ShapeColumns(lin, parse(SELECT_SPEC))
     r = lin.residuals(data)

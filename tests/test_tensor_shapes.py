@@ -27,6 +27,7 @@ from mmg.shapes import (
 )
 from mmg.wind import apparent_wind
 from sweep.diagnose.naming import Product, closest_products, form_group, product_r2
+from tests.conftest import noisy_windows
 
 #: a yaw moment in the surge velocity and the apparent-wind angle, with the wind's scaling
 SPEC = "shape:N~u&gammaA[-0.1:0.4&-3.1:3.1]/5x7@UA2"
@@ -294,8 +295,6 @@ def test_a_planted_interaction_is_named_by_a_product_on_the_trajectories(small_c
     its held-out gain and follows the planted force where the runs went (four windows of
     100 s with u in 0-0.28 m/s do not tell u^2 sin(gamma_A) from u gamma_A: both are kept
     as well)."""
-    from sweep.data.recordings import Recording
-    from sweep.diagnose.floor import simulate_windows
     from sweep.diagnose.linearised import Linearised
     from sweep.diagnose.scoring import n_effective
     from sweep.diagnose.shapes import ShapeColumns, jointly_sampled
@@ -304,11 +303,7 @@ def test_a_planted_interaction_is_named_by_a_product_on_the_trajectories(small_c
 
     ship, windows, noise = small_case
     truth = with_effects(ship, (get_effect(PLANTED_PRODUCT),), [0.0, 0.15])
-    rng = np.random.default_rng(8)
-    data = [
-        Recording(w.name, None, w.t, x + noise.draw(rng, x.shape[0]), w.u, w.w)
-        for w, x in zip(windows, simulate_windows(truth, windows), strict=True)
-    ]
+    data = noisy_windows(truth, windows, noise, 8)
     lin = Linearised(ship, data, ([0, 2], [1, 3]), ())
     (g,) = parse("N~u&gammaA[0:0.5&-3.1:3.1]/6x6@UA2")
     cols = ShapeColumns(lin, [g])

@@ -2,26 +2,20 @@
 
 from __future__ import annotations
 
-import warnings
-from pathlib import Path
-
 import numpy as np
 import pytest
-from benchmarks.planted import PlantedSpec, generate, noise_levels, perturbed_ship, pick_windows
 
 from mmg import get_effect
 from mmg.discovered import with_bounds
 from mmg.params import N_THETA
-from sweep.data.recordings import Recording, read_recordings
+from sweep.data.recordings import Recording
 from sweep.diagnose.fit import FitSettings, fit
-from sweep.diagnose.floor import NoiseModel, simulate_windows
 from sweep.diagnose.linearised import Linearised
 from sweep.diagnose.scoring import delta_bic, n_effective
 from sweep.diagnose.threshold import CEILING, acceptance_null, heldout_parts
-from sweep.diagnose.windows import cut_windows
 from sweep.identification.polish import PolishSettings
 from sweep.identification.vector import with_effects
-from tests.conftest import kernels
+from tests.conftest import kernels, noisy_windows
 
 pytestmark = [
     pytest.mark.integration,  # planted cases; the library's kernels
@@ -34,17 +28,9 @@ KINDS = ("random", "turning", "zigzag")
 
 
 @pytest.fixture(scope="module")
-def case(data_dir: Path):
+def case(small_case):
     """Four 100-s windows of a perturbed ship (no noise yet) and the noise levels."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        runs = {k: read_recordings(data_dir / "data" / k) for k in KINDS}
-    rng = np.random.default_rng(3)
-    ship = perturbed_ship(rng, 0.15)
-    wins = pick_windows(runs, {"random": 2, "turning": 1, "zigzag": 1}, rng)
-    levels = noise_levels([r for v in runs.values() for r in v])
-    clean, _ = generate(wins, ship, PlantedSpec("none"), dict.fromkeys(levels, 0.0), rng)
-    return ship, cut_windows(clean), NoiseModel(levels, dict.fromkeys(levels, 0.0))
+    return small_case
 
 
 def _planted(case, value: float, seed: int = 8):
@@ -52,13 +38,7 @@ def _planted(case, value: float, seed: int = 8):
     ship, windows, noise = case
     eff = with_bounds(get_effect("discovered:Y_one"), [2e-3])
     truth = with_effects(ship, (eff,), [value])
-    rng = np.random.default_rng(seed)
-    sims = simulate_windows(truth, windows)
-    data = [
-        Recording(w.name, None, w.t, x + noise.draw(rng, x.shape[0]), w.u, w.w)
-        for w, x in zip(windows, sims, strict=True)
-    ]
-    return ship, eff, data
+    return ship, eff, noisy_windows(truth, windows, noise, seed)
 
 
 def test_trajectory_discovery_finds_the_planted_term(case):

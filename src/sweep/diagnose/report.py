@@ -1112,10 +1112,10 @@ def _plot_surface(ax: Any, group: Any, g: dict[str, Any], z: Any) -> None:
     ax.axhline(0.0, color="k", lw=0.5)
     ax.set_xlabel(f"{g['variable']} [{g['unit']}]")
     ax.set_ylabel(f"f_{g['component']} [-]")
-    title = f"a shape of {g['variable']} and {g['variable2']}"
-    ax.set_title(
-        g["formula"] if g.get("closed_form") else title, fontsize=7 if g.get("closed_form") else 8
-    )
+    if g.get("closed_form"):  # a product of closed forms: its formula
+        ax.set_title(g["formula"], fontsize=7)
+    else:
+        ax.set_title(f"a shape of {g['variable']} and {g['variable2']}", fontsize=8)
     ax.legend(fontsize=6)
 
 

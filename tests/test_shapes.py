@@ -30,6 +30,7 @@ from mmg.shapes import (
     form_scale,
     groups_of,
     is_closed_form,
+    on_circle,
     parse,
     parse_form,
     penalty,
@@ -207,6 +208,68 @@ def test_the_hook_multiplies_the_thrust_the_normal_force_and_the_propeller_loadi
     got = force({f"s2_N{j}": 1.0 for j in range(4)})
     want = q * sh.L_pp * (n_p * sh.D_p) ** 2 * v_m / Ue
     np.testing.assert_allclose(got, [0.0, 0.0, want], rtol=1e-12, atol=1e-9)
+
+
+def test_a_share_of_the_thrust_in_one_quadrant_acts_in_that_branch_alone() -> None:
+    """``X_P*pos``: a shape times the thrust of Eq. (5), where n_p >= 0; with the propeller
+    reversed (Eq. (11)) it adds nothing. Named as such, and a force times anything but a
+    quadrant indicator is a clear error."""
+    from mmg.model import hydrodynamic_forces
+
+    spec = "shape:X~beta[-0.5:0.5]/4*X_P*pos"
+    group = parse(spec)[0]
+    assert shape_name([group]) == spec
+    assert (group.force, group.quadrant, group.scale_name) == ("X_P", "pos", "")
+    assert group.formula("X") == "X += f_X0(beta) X_P [n_p >= 0]  [N]"
+    eff = get_effect(spec)
+    assert eff.force_at is not None
+    p = efd_parameters()
+    th, sh = p.theta, p.ship
+    e = eff.param_type(*([0.3] * 4))
+    u, v_m, r, delta = 0.4, -0.06, 0.01, 0.1
+    for n_p in (10.0, -10.0):
+        X, Y, N = eff.force_at(12.0, 1.0, 2.0, u, v_m, r, 0.3, delta, n_p, 1.0, 0.5, e, th, sh)
+        s, c = math.sin(delta), math.cos(delta)
+        X_P = hydrodynamic_forces(u, v_m, r, s, c, n_p, th, sh)[3]
+        assert X_P != 0.0
+        assert (Y, N) == (0.0, 0.0)
+        assert pytest.approx(0.3 * X_P if n_p > 0 else 0.0, rel=1e-12, abs=1e-12) == X
+    for bad, why in (
+        ("shape:X~beta[0:1]/6*X_P*v", "times a quadrant indicator"),
+        ("shape:X~beta[0:1]/6*ast*pos", "times a quadrant indicator"),
+        ("shape:X~beta[0:1]/6*X_P*pos@U2", "takes no scale"),
+    ):
+        with pytest.raises(KeyError, match=why):
+            get_effect(bad)
+
+
+def test_a_harmonic_of_an_angle_acts_on_the_whole_circle() -> None:
+    """A harmonic closed form of an angle (and its odd square) is not held at the ends of its
+    range: a function on the circle, in numpy and in the hook, its g_max still over the range;
+    a harmonic of no angle, and any other form of an angle, are held there."""
+    spec = "shape:X~beta[-0.5:0.5]:cos(2)+Y~beta[-0.5:0.5]:sq"
+    circle, held = parse(spec)
+    assert on_circle("beta", Form("cos", (2.0,))) and on_circle("gammaA", Form("sinodd", (1.0,)))
+    assert not on_circle("beta", Form("sq")) and not on_circle("u", Form("sin", (1.0,)))
+    g_max = form_scale(circle)
+    assert g_max == pytest.approx(1.0)
+    z = np.array([-3.0, -1.0, 0.0, 0.4, 2.5])
+    np.testing.assert_allclose(curve(circle, [0.1, 0.5], z), 0.1 + 0.5 * np.cos(2 * z))
+    np.testing.assert_allclose(
+        curve(held, [0.0, 1.0], z), np.clip(z, -0.5, 0.5) ** 2 / form_scale(held)
+    )
+    eff = get_effect(spec)
+    assert eff.force_at is not None
+    p = efd_parameters()
+    th, sh = p.theta, p.ship
+    q = 0.5 * sh.rho * sh.L_pp * sh.d
+    e = eff.param_type(0.1, 0.5, 0.0, 1.0)
+    u, v_m, r = -0.3, 0.1, 0.0  # going astern: beta = atan2(-0.1, -0.3), beyond the range
+    X, Y, _ = eff.force_at(12.0, 1.0, 2.0, u, v_m, r, 0.3, 0.0, 10.0, 1.0, 0.5, e, th, sh)
+    beta = math.atan2(-v_m, u)
+    U2 = u * u + v_m * v_m
+    assert pytest.approx(q * U2 * (0.1 + 0.5 * math.cos(2 * beta)), rel=1e-12) == X
+    assert pytest.approx(q * U2 * 0.25 / form_scale(held), rel=1e-12) == Y
 
 
 def test_a_share_scales_a_sub_models_three_components_alike() -> None:

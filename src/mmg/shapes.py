@@ -9,7 +9,8 @@ function f of one variable z, times the variable's MMG scaling and an optional m
 with S [m^2/s^2] the scaling (U^2, the rudder inflow U_R^2, (n_p D_p)^2, the apparent wind or
 U_ref^2: :data:`SCALES`), m a dimensionless multiplier (another variable, a quadrant indicator,
 or 1) and B_j cubic B-splines on a uniform knot grid over [lo, hi]. z is clamped to [lo, hi]
-before the basis is evaluated, so a shape is held constant outside the range it was learnt on.
+before the basis is evaluated, so a shape is held constant outside the range it was learnt on
+(all but a harmonic closed form of an angle, a function on the circle: :func:`on_circle`).
 
 A *memory* group (``D~ed[lo:hi]/n``, ``P~en[lo:hi]/n``: :data:`CONTROLS`) changes a control
 instead of a force, in the effect's ``inputs`` hook: the acting rudder angle is
@@ -37,6 +38,8 @@ The effect's name is its spec (:func:`parse`, :func:`shape_name`), e.g.
               rudder's gap ed, P with the propeller's gap en (a memory, below); S with a
               sub-model's force as the multiplier (a share of it, above)
     form   := a closed form g of :data:`FORMS`, e.g. ``up(0.3)``, ``odd``, ``sin(2)``
+    mult   := a variable, a quadrant indicator, a force of the model (:data:`FORCES`), or a
+              force in one quadrant (``X_P*pos``: the branch n_p >= 0 of the thrust)
 
 A group with a closed form (``N~beta[-0.6:0.6]:up(0.3)``) is f_C(z) = a_C + b_C g(z) / g_max:
 the name a learned shape is given afterwards (:mod:`sweep.diagnose.naming`), fitted as an
@@ -474,6 +477,20 @@ def parse_forms(text: str) -> tuple[Form, ...]:
     return tuple(parse_form(p) for p in parts)
 
 
+#: closed forms periodic in their variable: harmonics and their odd squares
+HARMONICS = ("sin", "cos", "sinodd", "cosodd")
+
+
+def on_circle(variable: str, form: Form) -> bool:
+    """Whether the closed form ``form`` of ``variable`` acts at every value of it, not held at
+    the ends of its range: a harmonic of an angle (or its odd square) is a function on the
+    circle, bounded by its amplitude, as an angle's force coefficients are (a wind force's in
+    gamma_A, a cross-flow's in beta); its g_max is still taken over the range it was learnt on.
+    Every other closed form, and every spline, is held constant beyond that range."""
+    var = VARIABLES.get(variable)
+    return form.key in HARMONICS and var is not None and var.unit == "rad" and not var.control
+
+
 def form_scale(group: Group) -> float:
     """g_max of a closed-form group: the largest |g| over its range (0 for a spline group); of
     a product g1(z) g2(z2), the product of each factor's largest |g| over its range."""
@@ -493,7 +510,9 @@ class Group:
 
     ``variable`` is a key of :data:`VARIABLES` or ``"1"`` (a constant, ``n`` = 1);
     ``lo``, ``hi`` the knot range in the variable's unit, ``n`` the number of basis functions;
-    ``multiplier`` "" or a key of :data:`VARIABLES`, :data:`INDICATORS` or :data:`FORCES`
+    ``multiplier`` "" or a key of :data:`VARIABLES`, :data:`INDICATORS` or :data:`FORCES`,
+    or a force in one quadrant (``X_P*pos``: the thrust where n_p >= 0, one branch of its
+    sub-model: Eq. (5) and not the reversed propeller's Eq. (11));
     (a key of :data:`SHARES` with the component S alone);
     ``scale`` "" (the variable's default) or a key of :data:`SCALES`; ``form`` "" (a spline)
     or a closed form (:func:`parse_form`, ``n`` = 2: a + b g / g_max).
@@ -593,11 +612,18 @@ class Group:
             self._check_tensor()
         m = self.multiplier
         known = [k for k, v in VARIABLES.items() if v.factor] + [*INDICATORS, *FORCES, *SHARES]
-        if m and m not in known:
+        if "*" in m:
+            force, indicator = m.split("*", 1)
+            if force not in FORCES or indicator not in INDICATORS:
+                raise ValueError(
+                    f"multiplier {m!r}: a force of the model times a quadrant indicator, e.g. "
+                    f"'X_P*pos' (forces {', '.join(FORCES)}; indicators {', '.join(INDICATORS)})"
+                )
+        elif m and m not in known:
             raise ValueError(f"unknown multiplier {m!r}; known: {', '.join(known)}")
         if self.scale and self.scale not in SCALES:
             raise ValueError(f"unknown scale {self.scale!r}; known: {', '.join(SCALES)}")
-        if self.scale and m in FORCES:
+        if self.scale and self.force:
             raise ValueError(f"a shape times the force {m} takes no scale")
         default = VARIABLES[self.variable].scale if self.variable != "1" else "U2"
         if self.scale == default:  # one spelling of each group: the default scale is implied
@@ -683,10 +709,22 @@ class Group:
         return VARIABLES[self.variable].control if self.variable != "1" else ""
 
     @property
+    def force(self) -> str:
+        """The force of the model this group multiplies (a key of :data:`FORCES`), "" if none."""
+        force = self.multiplier.split("*", 1)[0]
+        return force if force in FORCES else ""
+
+    @property
+    def quadrant(self) -> str:
+        """The quadrant indicator the group's force is restricted to (a key of
+        :data:`INDICATORS`, ``X_P*pos``: the thrust where n_p >= 0), "" if none."""
+        return self.multiplier.split("*", 1)[1] if "*" in self.multiplier else ""
+
+    @property
     def scale_name(self) -> str:
         """The scaling used: "" (times a force, or a memory), the given one, or the variable's
         default."""
-        if self.multiplier in FORCES or self.multiplier in SHARES or self.control:
+        if self.force or self.multiplier in SHARES or self.control:
             return ""
         if self.scale:
             return self.scale
@@ -716,13 +754,15 @@ class Group:
         if m in SHARES:
             xyn = ", ".join(SHARES[m][1:])
             return f"(X, Y, N) += {f} ({xyn})  [N, N, N m]"
-        if m in FORCES:
+        if self.force:
+            force = self.force
             lever = ""
-            if component == "N" and not FORCES[m][1]:
+            if component == "N" and not FORCES[force][1]:
                 lever = " L_pp"
-            elif component != "N" and FORCES[m][1]:
+            elif component != "N" and FORCES[force][1]:
                 lever = " / L_pp"
-            return f"{component} += {f} {m}{lever}  [{unit}]"
+            where = f" {INDICATORS[self.quadrant][0]}" if self.quadrant else ""
+            return f"{component} += {f} {force}{where}{lever}  [{unit}]"
         q = "0.5 rho L_pp^2 d" if component == "N" else "0.5 rho L_pp d"
         mult = ""
         if m in INDICATORS:
@@ -782,7 +822,7 @@ _GROUP = re.compile(
     r"^(?P<c>[XYNDPS]+)~(?:(?P<one>1)|(?P<v>\w+)(?:&(?P<v2>\w+))?"
     r"\[(?P<lo>[^:\]]+):(?P<hi>[^\]&]+)(?:&(?P<lo2>[^:\]]+):(?P<hi2>[^\]]+))?\]"
     r"(?:/(?P<n>\d+)(?:x(?P<n2>\d+))?|:(?P<f>[a-z]+(?:\([^)]*\))?(?:&[a-z]+(?:\([^)]*\))?)?)))"
-    r"(?:\*(?P<m>\w+))?(?:@(?P<s>\w+))?$"
+    r"(?:\*(?P<m>\w+(?:\*\w+)?))?(?:@(?P<s>\w+))?$"
 )
 
 
@@ -874,7 +914,9 @@ def basis(group: Group, z: Any) -> FloatArray:
     if group.control and group.form:
         raise ValueError(f"{group.text}: a memory's closed form is no sum of basis functions")
     if group.form:  # a + b g / g_max
-        g = parse_form(group.form)(np.clip(z, group.lo, group.hi)) / form_scale(group)
+        form = parse_form(group.form)
+        at = z if on_circle(group.variable, form) else np.clip(z, group.lo, group.hi)
+        g = form(at) / form_scale(group)
         return np.column_stack([np.ones_like(z), g])
     return _spline_basis(group.lo, group.hi, group.n, z)
 
@@ -897,7 +939,9 @@ def basis2(group: Group, z: Any, z2: Any) -> FloatArray:
     z2 = np.atleast_1d(np.asarray(z2, dtype=np.float64))
     if group.form:  # a product of closed forms: a + b g1 g2 / g_max
         g1, g2 = parse_forms(group.form)
-        g = g1(np.clip(z, group.lo, group.hi)) * g2(np.clip(z2, group.lo2, group.hi2))
+        at = z if on_circle(group.variable, g1) else np.clip(z, group.lo, group.hi)
+        at2 = z2 if on_circle(group.variable2, g2) else np.clip(z2, group.lo2, group.hi2)
+        g = g1(at) * g2(at2)
         return np.column_stack([np.ones_like(g), g / form_scale(group)])
     a = _spline_basis(group.lo, group.hi, group.n, z)
     b = _spline_basis(group.lo2, group.hi2, group.n2, z2)
@@ -1162,10 +1206,15 @@ def _factors(group: Group) -> tuple[list[str], dict[str, str]]:
     m = group.multiplier
     if m in SHARES:
         return [], {"S": m}
-    if m in FORCES:
-        if FORCES[m][1]:
-            return [], {"X": f"{m} / Lp", "Y": f"{m} / Lp", "N": m}
-        return [], {"X": m, "Y": m, "N": f"{m} * Lp"}
+    if group.force:
+        force = group.force
+        setup = []
+        if group.quadrant:  # the force in one quadrant: a branch of its sub-model
+            setup = [f"    ind = {INDICATORS[group.quadrant][1]}"]
+            force = f"{force} * ind"
+        if FORCES[group.force][1]:
+            return setup, {"X": f"{force} / Lp", "Y": f"{force} / Lp", "N": force}
+        return setup, {"X": force, "Y": force, "N": f"{force} * Lp"}
     mult = INDICATORS[m][1] if m in INDICATORS else (VARIABLES[m].factor if m else "1.0")
     _, _, sx, syn = SCALES[group.scale_name]
     return [f"    mult = {mult}"], {
@@ -1180,15 +1229,21 @@ def _group_lines(g: int, group: Group) -> list[str]:
     lines = [f"    # {structure_text(group)}"]
     if group.variable == "1":
         b = ["1.0"]
-    elif group.form:  # f = a + b g(z) / g_max, z held at the ends of its range
+    elif group.form:  # f = a + b g(z) / g_max, z held at the ends of its range (not on a circle)
         code = VARIABLES[group.variable].code
-        lines.append(f"    z = min(max({code}, e.k{g}_lo), e.k{g}_hi)")
         forms = parse_forms(group.form)
+        if on_circle(group.variable, forms[0]):
+            lines.append(f"    z = {code}")
+        else:
+            lines.append(f"    z = min(max({code}, e.k{g}_lo), e.k{g}_hi)")
         args = [f"e.k{g}_a{i}" for i in range(sum(len(f.args) for f in forms))]
         g1 = forms[0].code("z", args[: len(forms[0].args)])
         if group.tensor:  # a product g1(z) g2(z2), z2 held at the ends of its range too
             code2 = VARIABLES[group.variable2].code
-            lines.append(f"    z2 = min(max({code2}, e.k{g}_lo2), e.k{g}_hi2)")
+            if on_circle(group.variable2, forms[1]):
+                lines.append(f"    z2 = {code2}")
+            else:
+                lines.append(f"    z2 = min(max({code2}, e.k{g}_lo2), e.k{g}_hi2)")
             g1 = f"({g1}) * ({forms[1].code('z2', args[len(forms[0].args) :])})"
         b = ["1.0", f"({g1}) * e.k{g}_gs"]
     elif group.tensor:  # sum_ij c_ij B_i(z) B_j(z2), the second variable's basis bb<j>
@@ -1694,6 +1749,7 @@ __all__ = [
     "FORCES",
     "FORMS",
     "FORM_GRID",
+    "HARMONICS",
     "INDICATORS",
     "PROBE_SUFFIX",
     "SCALES",
@@ -1716,6 +1772,7 @@ __all__ = [
     "is_closed_form",
     "memory_steps",
     "numbers",
+    "on_circle",
     "parse",
     "parse_form",
     "penalty",

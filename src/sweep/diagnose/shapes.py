@@ -87,15 +87,20 @@ SHIP_VARIABLES = tuple(v for v in VARIABLES if v not in PLACE_AND_TIME)
 #: yawing); a share of each sub-model's force varying with the drift angle (the oblique inflow
 #: every sub-model sees) and with the sub-model's own variable: the hull's sway force in beta,
 #: the propeller's thrust in beta and in the advance ratio J_P, the rudder's normal force in the
-#: rudder angle and in its effective inflow angle alpha_R
+#: rudder angle and in its effective inflow angle alpha_R. The thrust is that of Eq. (5), where
+#: n_p >= 0 (``X_P*pos``): the thrust deduction and the wake fraction act in that branch of the
+#: propeller model alone, the reversed propeller's thrust is another formula (Eq. (11)); on the
+#: planted thrust deduction growing with drift, its named form as a share of both branches
+#: refitted by output error to a training J of 2.96, as a share of Eq. (5)'s to 0.858 (the
+#: planted form's own refit: 0.858)
 PRODUCTS = (
     ("U", "v"),
     ("U", "rp"),
     ("n", "v"),
     ("n", "rp"),
     ("beta", "Y_H"),
-    ("beta", "X_P"),
-    ("JP", "X_P"),
+    ("beta", "X_P*pos"),
+    ("JP", "X_P*pos"),
     ("delta", "F_N"),
     ("alphaR", "F_N"),
 )

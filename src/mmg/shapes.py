@@ -510,10 +510,10 @@ class Group:
 
     ``variable`` is a key of :data:`VARIABLES` or ``"1"`` (a constant, ``n`` = 1);
     ``lo``, ``hi`` the knot range in the variable's unit, ``n`` the number of basis functions;
-    ``multiplier`` "" or a key of :data:`VARIABLES`, :data:`INDICATORS` or :data:`FORCES`,
-    or a force in one quadrant (``X_P*pos``: the thrust where n_p >= 0, one branch of its
-    sub-model: Eq. (5) and not the reversed propeller's Eq. (11));
-    (a key of :data:`SHARES` with the component S alone);
+    ``multiplier`` "" or a key of :data:`VARIABLES`, :data:`INDICATORS` or :data:`FORCES`
+    (a key of :data:`SHARES` with the component S alone), or a force in one quadrant
+    (``X_P*pos``: the thrust where n_p >= 0, the branch of Eq. (5) and not the reversed
+    propeller's Eq. (11));
     ``scale`` "" (the variable's default) or a key of :data:`SCALES`; ``form`` "" (a spline)
     or a closed form (:func:`parse_form`, ``n`` = 2: a + b g / g_max).
 

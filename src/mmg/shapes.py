@@ -491,6 +491,21 @@ def on_circle(variable: str, form: Form) -> bool:
     return form.key in HARMONICS and var is not None and var.unit == "rad" and not var.control
 
 
+def _form_at(variable: str, form: Form, z: Any, lo: float, hi: float) -> Any:
+    """Where the closed form ``form`` of ``variable`` is evaluated for the values z: z itself on
+    the circle (:func:`on_circle`), else z held within [lo, hi]."""
+    return z if on_circle(variable, form) else np.clip(z, lo, hi)
+
+
+def _form_input(name: str, variable: str, form: Form, lo: str, hi: str) -> str:
+    """The hook's line that sets ``name`` to the variable a closed form is evaluated at: as
+    :func:`_form_at`, with the range's bounds the kernel's parameters ``lo`` and ``hi``."""
+    code = VARIABLES[variable].code
+    if on_circle(variable, form):
+        return f"    {name} = {code}"
+    return f"    {name} = min(max({code}, {lo}), {hi})"
+
+
 def form_scale(group: Group) -> float:
     """g_max of a closed-form group: the largest |g| over its range (0 for a spline group); of
     a product g1(z) g2(z2), the product of each factor's largest |g| over its range."""
@@ -915,8 +930,7 @@ def basis(group: Group, z: Any) -> FloatArray:
         raise ValueError(f"{group.text}: a memory's closed form is no sum of basis functions")
     if group.form:  # a + b g / g_max
         form = parse_form(group.form)
-        at = z if on_circle(group.variable, form) else np.clip(z, group.lo, group.hi)
-        g = form(at) / form_scale(group)
+        g = form(_form_at(group.variable, form, z, group.lo, group.hi)) / form_scale(group)
         return np.column_stack([np.ones_like(z), g])
     return _spline_basis(group.lo, group.hi, group.n, z)
 
@@ -939,9 +953,9 @@ def basis2(group: Group, z: Any, z2: Any) -> FloatArray:
     z2 = np.atleast_1d(np.asarray(z2, dtype=np.float64))
     if group.form:  # a product of closed forms: a + b g1 g2 / g_max
         g1, g2 = parse_forms(group.form)
-        at = z if on_circle(group.variable, g1) else np.clip(z, group.lo, group.hi)
-        at2 = z2 if on_circle(group.variable2, g2) else np.clip(z2, group.lo2, group.hi2)
-        g = g1(at) * g2(at2)
+        g = g1(_form_at(group.variable, g1, z, group.lo, group.hi)) * g2(
+            _form_at(group.variable2, g2, z2, group.lo2, group.hi2)
+        )
         return np.column_stack([np.ones_like(g), g / form_scale(group)])
     a = _spline_basis(group.lo, group.hi, group.n, z)
     b = _spline_basis(group.lo2, group.hi2, group.n2, z2)
@@ -1207,14 +1221,14 @@ def _factors(group: Group) -> tuple[list[str], dict[str, str]]:
     if m in SHARES:
         return [], {"S": m}
     if group.force:
-        force = group.force
         setup = []
+        term = group.force
         if group.quadrant:  # the force in one quadrant: a branch of its sub-model
             setup = [f"    ind = {INDICATORS[group.quadrant][1]}"]
-            force = f"{force} * ind"
-        if FORCES[group.force][1]:
-            return setup, {"X": f"{force} / Lp", "Y": f"{force} / Lp", "N": force}
-        return setup, {"X": force, "Y": force, "N": f"{force} * Lp"}
+            term = f"{term} * ind"
+        if FORCES[group.force][1]:  # a moment: divided by L_pp into a force
+            return setup, {"X": f"{term} / Lp", "Y": f"{term} / Lp", "N": term}
+        return setup, {"X": term, "Y": term, "N": f"{term} * Lp"}
     mult = INDICATORS[m][1] if m in INDICATORS else (VARIABLES[m].factor if m else "1.0")
     _, _, sx, syn = SCALES[group.scale_name]
     return [f"    mult = {mult}"], {
@@ -1230,20 +1244,12 @@ def _group_lines(g: int, group: Group) -> list[str]:
     if group.variable == "1":
         b = ["1.0"]
     elif group.form:  # f = a + b g(z) / g_max, z held at the ends of its range (not on a circle)
-        code = VARIABLES[group.variable].code
         forms = parse_forms(group.form)
-        if on_circle(group.variable, forms[0]):
-            lines.append(f"    z = {code}")
-        else:
-            lines.append(f"    z = min(max({code}, e.k{g}_lo), e.k{g}_hi)")
+        lines.append(_form_input("z", group.variable, forms[0], f"e.k{g}_lo", f"e.k{g}_hi"))
         args = [f"e.k{g}_a{i}" for i in range(sum(len(f.args) for f in forms))]
         g1 = forms[0].code("z", args[: len(forms[0].args)])
         if group.tensor:  # a product g1(z) g2(z2), z2 held at the ends of its range too
-            code2 = VARIABLES[group.variable2].code
-            if on_circle(group.variable2, forms[1]):
-                lines.append(f"    z2 = {code2}")
-            else:
-                lines.append(f"    z2 = min(max({code2}, e.k{g}_lo2), e.k{g}_hi2)")
+            lines.append(_form_input("z2", group.variable2, forms[1], f"e.k{g}_lo2", f"e.k{g}_hi2"))
             g1 = f"({g1}) * ({forms[1].code('z2', args[len(forms[0].args) :])})"
         b = ["1.0", f"({g1}) * e.k{g}_gs"]
     elif group.tensor:  # sum_ij c_ij B_i(z) B_j(z2), the second variable's basis bb<j>

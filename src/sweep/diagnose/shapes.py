@@ -90,9 +90,9 @@ SHIP_VARIABLES = tuple(v for v in VARIABLES if v not in PLACE_AND_TIME)
 #: rudder angle and in its effective inflow angle alpha_R. The thrust is that of Eq. (5), where
 #: n_p >= 0 (``X_P*pos``): the thrust deduction and the wake fraction act in that branch of the
 #: propeller model alone, the reversed propeller's thrust is another formula (Eq. (11)); on the
-#: planted thrust deduction growing with drift, its named form as a share of both branches
-#: refitted by output error to a training J of 2.96, as a share of Eq. (5)'s to 0.858 (the
-#: planted form's own refit: 0.858)
+#: planted thrust deduction growing with drift, its named form a + b cos 2 beta refitted by output
+#: error as a share of both branches to a training J of 3.56, as a share of Eq. (5)'s to 0.858,
+#: the planted form's own (benchmarks/refit_forms.py)
 PRODUCTS = (
     ("U", "v"),
     ("U", "rp"),

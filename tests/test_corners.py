@@ -62,6 +62,34 @@ def test_a_hinges_corner_stays_inside_the_range_and_counts_one_number() -> None:
     assert fitted.count == 1
 
 
+def test_a_waves_period_and_phase_move_to_where_the_refit_is_best() -> None:
+    """A wave named on the grid (period 40 s: the nearest of 2 x 400 s / k; phase pi / 6) over a
+    400-s range moves to the refit's optimum (40.9 s, 0.3): its frequency within an eighth of
+    the naming's spacing (half a cycle over the range), its phase at the middle of the range
+    within an eighth of pi / 6; two numbers counted."""
+    effect = shape_effect("x~t[5:405]:wave(40,0.523599)")
+    p0 = with_effects(efd_parameters(), (effect,), [0.0, 0.01])
+
+    t = [5.0 + 0.5 * k for k in range(801)]
+
+    def refit(e: Effect, p: Parameters) -> tuple[float, Parameters]:
+        """J of the wave against sin(2 pi t / 40.9 + 0.3) over the range: a misfit that, like a
+        trajectory's, turns with the phase at every t."""
+        T, phi = parse_form(groups_of(e)[0].form).args
+        gap = [
+            math.sin(2 * math.pi * z / T + phi) - math.sin(2 * math.pi * z / 40.9 + 0.3) for z in t
+        ]
+        return 1.0 + sum(d * d for d in gap) / len(t), with_effects(p, (e,), [0.1, 0.1])
+
+    fitted = fit_numbers(effect, p0, refit, FINE, N_EFF)
+    assert fitted is not None and fitted.count == 2
+    T, phi = parse_form(groups_of(fitted.effect)[0].form).args
+    assert abs(1.0 / T - 1.0 / 40.9) <= 0.5 / 400.0 / 8
+    # the phase at the middle of the range (t = 205 s), which the period leaves in place
+    mid = phi + 2 * math.pi * 205 / T - (0.3 + 2 * math.pi * 205 / 40.9)
+    assert abs(math.remainder(mid, 2 * math.pi)) <= math.pi / 6 / 8
+
+
 def test_forms_without_a_corner_are_left_alone() -> None:
     effect = shape_effect("X~U[0:0.4]:lin+N~beta[-1:1]:cos(2)")
     p0 = with_effects(efd_parameters(), (effect,), [0.0] * len(effect.params))

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mmg.shapes import FORMS, SYMMETRIC, Form, Group, basis, curve
+from mmg.shapes import FORMS, SYMMETRIC, Form, Group, basis, curve, parse_form
 from sweep.diagnose.naming import CLOSE, closest_forms, families, form_group
 
 
@@ -42,6 +42,22 @@ def test_a_shape_is_named_by_the_closed_form_it_was_made_of(f, family, formula):
     best = closest_forms(group, _coefficients(group, f))[0]
     assert (best.family, best.formula) == (family, formula)
     assert best.r2 > 0.99 >= CLOSE
+
+
+def test_a_force_that_comes_and_goes_in_time_is_named_by_its_wave() -> None:
+    """A shape of time sin(2 pi t / 40 s + 0.5) over 400 s (a knot every 10.7 s) is named a wave
+    of about that period and phase; waves are tried for time only, from one cycle over the
+    range to a period of three knot intervals."""
+    from sweep.diagnose.naming import waves
+
+    group = Group("x", "t", 5.0, 405.0, 40)
+    best = closest_forms(group, _coefficients(group, lambda t: np.sin(2 * np.pi * t / 40 + 0.5)))[0]
+    assert best.family == "wave" and best.r2 > 0.8
+    T, phi = parse_form(best.form).args
+    assert abs(1.0 / T - 1.0 / 40.0) <= 0.5 / 400.0 and abs(np.sin(phi - 0.5)) < 0.3
+    ws = waves(5.0, 405.0)
+    assert {w.args[0] for w in ws} >= {400.0, 40.0} and min(w.args[0] for w in ws) >= 32.4
+    assert not any(f.key == "wave" for f in families(-1.0, 1.0, True))
 
 
 def test_a_shape_of_no_simple_family_is_not_close_to_any():
@@ -194,6 +210,8 @@ def test_every_closed_form_computes_the_same_in_numpy_and_in_the_hook_code(key: 
     import math
 
     args = {0: (), 1: (0.3,), 2: (0.2, 0.1)}[FORMS[key][0]]
+    if key == "wave":  # a period, a phase
+        args = (1.7, 0.4)
     form = Form(key, args)
     for z in np.linspace(-2.5, 2.5, 41):
         got = eval(form.code("z"), {"math": math, "z": float(z)})  # the generated code itself

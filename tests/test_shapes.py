@@ -270,6 +270,60 @@ def test_a_harmonic_of_an_angle_acts_on_the_whole_circle() -> None:
     U2 = u * u + v_m * v_m
     assert pytest.approx(q * U2 * (0.1 + 0.5 * math.cos(2 * beta)), rel=1e-12) == X
     assert pytest.approx(q * U2 * 0.25 / form_scale(held), rel=1e-12) == Y
+    # a wave (a period of its own) comes and goes beyond its range as within it
+    wave = parse("x~t[0:100]:wave(40,0.5)")[0]
+    assert on_circle("t", Form("wave", (40.0, 0.5)))
+    t = np.array([-30.0, 50.0, 230.0])
+    g_max = form_scale(wave)
+    np.testing.assert_allclose(
+        curve(wave, [0.1, 0.5], t), 0.1 + 0.5 * np.sin(2 * np.pi * t / 40 + 0.5) / g_max
+    )
+    eff = get_effect("shape:x~t[0:100]:wave(40,0.5)")
+    assert eff.force_at is not None
+    e = eff.param_type(0.1, 0.5)
+    for ti in t:
+        X, Y, _ = eff.force_at(ti, 1.0, 2.0, u, v_m, r, 0.0, 0.0, 10.0, 1.0, 0.5, e, th, sh)
+        assert pytest.approx(q * (0.1 + 0.5 * np.sin(2 * np.pi * ti / 40 + 0.5) / g_max)) == X
+
+
+def test_a_force_fixed_to_the_basin_turns_with_the_heading() -> None:
+    """Components x and y are a force along the basin's x0 and y0 axes (U_ref^2 scaling for
+    time): on the ship's axes X = F_x0 cos psi + F_y0 sin psi, Y = -F_x0 sin psi + F_y0 cos
+    psi, no moment; the probe gives each coefficient's force alike; a basin force is not a share
+    of a force, nor mixed with the ship's axes."""
+    spec = "shape:xy~t[0:400]/6+Y~beta[-0.5:0.5]/4"
+    eff, probe = get_effect(spec), get_effect(spec + "#probe")
+    group = groups_of(eff)[0]
+    assert group.components == "xy" and group.scale_name == "ref"
+    assert group.formula("x").startswith("F_x0 += 0.5 rho L_pp d U_ref^2 f_x0(t)")
+    assert "Y -= F_x0 sin psi" in group.formula("x") and "F_y0 cos psi" in group.formula("y")
+    p = efd_parameters()
+    th, sh = p.theta, p.ship
+    q = 0.5 * sh.rho * sh.L_pp * sh.d
+    assert eff.force_at is not None and probe.force_at is not None
+    rng = np.random.default_rng(3)
+    cx, cy = rng.uniform(-1, 1, 6), rng.uniform(-1, 1, 6)
+    e = eff.param_type(*cx, *cy, *np.zeros(4))
+    for t, psi in ((12.0, 0.3), (250.0, -2.6), (500.0, 1.9)):
+        args = (t, 1.0, 2.0, 0.4, 0.05, 0.01, psi, 0.1, 10.0, 1.0, 0.5)
+        Fx, Fy = (q * curve(group, c, t)[0] for c in (cx, cy))
+        X, Y, N = eff.force_at(*args, e, th, sh)
+        assert pytest.approx(Fx * math.cos(psi) + Fy * math.sin(psi), rel=1e-12) == X
+        assert pytest.approx(-Fx * math.sin(psi) + Fy * math.cos(psi), rel=1e-12) == Y
+        assert N == 0.0
+        for i, row in enumerate(probe_rows(eff, 0.7)):
+            values = np.zeros(len(eff.params))
+            values[i] = 0.7
+            want = eff.force_at(*args, eff.param_type(*values), th, sh)
+            got = probe.force_at(*args, probe.param_type(*row), th, sh)
+            assert got == pytest.approx(want, rel=1e-12, abs=1e-300), (i, t)
+    for bad, why in (
+        ("x~t[0:400]/6*X_P", "not a share of the force X_P"),
+        ("Xy~t[0:400]/6", "one or more of X, Y, N"),
+        ("yx~t[0:400]/6", "x, y or xy"),
+    ):
+        with pytest.raises(ValueError, match=why):
+            parse(bad)
 
 
 def test_a_share_scales_a_sub_models_three_components_alike() -> None:
@@ -460,19 +514,26 @@ def test_candidate_groups_span_the_recorded_ranges() -> None:
     assert by["U", "v"].n == 6 and by["1", "ast"].components == "XYN"
     assert by["delta", "F_R"].components == "S"
     forces = [g for g in groups if g.variable != "ed" and g.multiplier != "F_R"]
-    assert all(g.components == "XYN" for g in forces)
+    assert all(g.components == "XYN" for g in forces if g.components != "xy")
+    # a force fixed to the basin of position and time, a knot every 10 s of time at most
+    basin = [g.variable for g in forces if g.components == "xy"]
+    assert basin == ["x0", "y0", "t"] or basin == ["t"]
+    times = [g for g in groups if g.variable == "t"]
+    assert [g.n for g in times] == [17, 17]  # 14 knot intervals over [0.4, 139.6] s
     assert by["ed", ""].components == "D" and by["ed", ""].lo == -by["ed", ""].hi
 
 
 def test_an_angle_recorded_over_most_of_a_turn_gets_knots_a_quarter_radian_apart() -> None:
     """Eight basis functions at least; an angle's knots at most 0.25 rad apart up to 24 basis
-    functions (alpha_R ahead and astern); other variables keep the eight."""
+    functions (alpha_R ahead and astern), time's 10 s apart up to 40; other variables keep the
+    eight."""
     from sweep.diagnose.shapes import basis_count
 
     assert basis_count("delta", -0.6, 0.6) == 8
     assert basis_count("beta", -1.0, 1.0) == 11
     assert basis_count("alphaR", -3.3, 2.6) == 24
-    assert basis_count("U", 0.0, 10.0) == 8 and basis_count("t", 0.0, 600.0, 6) == 6
+    assert basis_count("U", 0.0, 10.0) == 8 and basis_count("t", 0.0, 50.0, 6) == 8
+    assert basis_count("t", 5.9, 403.1) == 40 and basis_count("t", 0.0, 600.0) == 40
 
 
 def test_a_force_in_the_non_dimensional_sway_velocity_is_the_papers_v_prime() -> None:

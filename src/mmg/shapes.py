@@ -199,8 +199,12 @@ class Control:
 
 
 #: the components of groups in a probe's order: forces X, Y, N, memories of D (rudder angle)
-#: and P (propeller speed), S a share of a sub-model's force (all three of its components)
-COMPONENTS = "XYNDPS"
+#: and P (propeller speed), S a share of a sub-model's force (all three of its components),
+#: x and y a force fixed to the basin, along its x0 and its y0 axis (turned into the ship's
+#: axes by the heading: X = F_x0 cos psi + F_y0 sin psi, Y = -F_x0 sin psi + F_y0 cos psi)
+COMPONENTS = "XYNDPSxy"
+#: the components of a force fixed to the basin, and the basin's axis of each
+BASIN = {"x": "x0", "y": "y0"}
 
 #: the controls of memory shapes. A group ``D~ed[lo:hi]/n`` makes the acting rudder angle
 #: delta = delta_log - e_delta f_D(z_delta): f is the share of the gap e_delta that the rudder
@@ -287,6 +291,12 @@ SCALES: dict[str, tuple[str, str, str, str]] = {
 
 _TWO_PI = 2.0 * math.pi
 
+#: how a force fixed to the basin acts on the ship's axes (:meth:`Group.formula`)
+_TURNED = {
+    "F_x0": " (X += F_x0 cos psi, Y -= F_x0 sin psi)",
+    "F_y0": " (X += F_y0 sin psi, Y += F_y0 cos psi)",
+}
+
 #: what the hook computes before the groups, in this order: (names it provides, code lines);
 #: a block is written when a group's code (or a later block that is written) uses a name of it
 _PRELUDE: tuple[tuple[tuple[str, ...], tuple[str, ...]], ...] = (
@@ -301,10 +311,10 @@ _PRELUDE: tuple[tuple[tuple[str, ...], tuple[str, ...]], ...] = (
     ),
     (("alpha_R",), ("alpha_R = delta - _atan2(v_R, u_R)",)),
     (("J_P",), ("J_P = advance_ratio(u, n_p, sh) * wake_factor(u, v_m, r, th, sh)",)),
+    (("sin_psi", "cos_psi"), ("sin_psi, cos_psi = _sincos(psi)",)),
     (
         ("uA", "vA", "UA2", "wT", "wL"),
         (
-            "sin_psi, cos_psi = _sincos(psi)",
             "sin_g, cos_g = _sincos(gamma_T)",
             "uA, vA = apparent_wind(u, v_m, sin_psi, cos_psi, U_T, sin_g, cos_g)",
             "UA2 = uA * uA + vA * vA",
@@ -362,6 +372,8 @@ class Form:
             raise ValueError(f"closed form {self.key!r}: its width must be positive")
         if self.key in (*SYMMETRIC, "absstep") and self.args[0] < 0.0:
             raise ValueError(f"closed form {self.key!r}: its corner |z| must not be negative")
+        if self.key in WAVES and self.args[0] <= 0.0:
+            raise ValueError(f"closed form {self.key!r}: its period must be positive")
 
     @property
     def text(self) -> str:
@@ -398,6 +410,7 @@ class Form:
             "cos": lambda: np.cos(a[0] * x),
             "sinodd": lambda: np.sin(a[0] * x) * np.abs(np.sin(a[0] * x)),
             "cosodd": lambda: np.cos(a[0] * x) * np.abs(np.cos(a[0] * x)),
+            "wave": lambda: np.sin(_TWO_PI * x / a[0] + a[1]),
         }
         return np.asarray(values[self.key](), dtype=np.float64)
 
@@ -410,7 +423,8 @@ class Form:
 #: rudder angle) is reached on both sides at once: the symmetric hinges ``absup`` (even, e.g. a
 #: share of a force beyond |beta| = c) and ``oddup`` (odd, e.g. a side force beyond it, on the
 #: side it comes from), and the symmetric step ``absstep`` (even, e.g. a share of a force lost
-#: beyond |alpha_R| = c).
+#: beyond |alpha_R| = c). A ``wave`` has a period T and a phase phi of its own (a + b sin(2 pi z
+#: / T + phi)): a force that comes and goes in time (a basin's sloshing, a wave group).
 FORMS: dict[str, tuple[int, str, str]] = {
     "lin": (0, "{z}", "{z}"),
     "sq": (0, "{z}^2", "{z} * {z}"),
@@ -442,6 +456,11 @@ FORMS: dict[str, tuple[int, str, str]] = {
         1,
         "cos({a[0]} {z})|cos({a[0]} {z})|",
         "math.cos({a[0]} * {z}) * abs(math.cos({a[0]} * {z}))",
+    ),
+    "wave": (
+        2,
+        "sin(2 pi {z} / {a[0]} + {a[1]})",
+        "math.sin(" + repr(2.0 * math.pi) + " * {z} / {a[0]} + {a[1]})",
     ),
 }
 #: the symmetric hinges: their corner is a size |z| (not negative)
@@ -479,14 +498,19 @@ def parse_forms(text: str) -> tuple[Form, ...]:
 
 #: closed forms periodic in their variable: harmonics and their odd squares
 HARMONICS = ("sin", "cos", "sinodd", "cosodd")
+#: closed forms of a period of their own: (period, phase)
+WAVES = ("wave",)
 
 
 def on_circle(variable: str, form: Form) -> bool:
     """Whether the closed form ``form`` of ``variable`` acts at every value of it, not held at
     the ends of its range: a harmonic of an angle (or its odd square) is a function on the
     circle, bounded by its amplitude, as an angle's force coefficients are (a wind force's in
-    gamma_A, a cross-flow's in beta); its g_max is still taken over the range it was learnt on.
-    Every other closed form, and every spline, is held constant beyond that range."""
+    gamma_A, a cross-flow's in beta); so is a wave of any variable (a period of its own: it comes
+    and goes beyond the range as within it). Its g_max is still taken over the range it was
+    learnt on. Every other closed form, and every spline, is held constant beyond that range."""
+    if form.key in WAVES:
+        return True
     var = VARIABLES.get(variable)
     return form.key in HARMONICS and var is not None and var.unit == "rad" and not var.control
 
@@ -577,10 +601,19 @@ class Group:
                 )
             if self.scale:
                 raise ValueError(f"a share of {self.multiplier} takes no scale")
+        elif c and set(c) <= set(BASIN):
+            if c not in ("x", "y", "xy"):
+                raise ValueError(f"components {c!r}: a force fixed to the basin is x, y or xy")
+            if self.force:
+                raise ValueError(
+                    f"components {c!r}: a force fixed to the basin is not a share of the "
+                    f"force {self.force} (the ship's axes: X, Y, N)"
+                )
         elif not c or any(x not in "XYN" for x in c) or "".join(sorted(c, key="XYN".index)) != c:
             raise ValueError(
-                f"components {c!r}: one or more of X, Y, N, in this order (or D, P with the "
-                "gap of the rudder, ed, and of the propeller, en; S with a sub-model's force)"
+                f"components {c!r}: one or more of X, Y, N, in this order (or x, y: a force "
+                "fixed to the basin, along x0 and y0; D, P with the gap of the rudder, ed, and "
+                "of the propeller, en; S with a sub-model's force)"
             )
         if len(set(c)) != len(c):
             raise ValueError(f"components {c!r}: repeated")
@@ -778,14 +811,17 @@ class Group:
                 lever = " / L_pp"
             where = f" {INDICATORS[self.quadrant][0]}" if self.quadrant else ""
             return f"{component} += {f} {force}{where}{lever}  [{unit}]"
+        if component in BASIN:  # a force fixed to the basin, along its axis
+            unit = "N"
+            component = f"F_{BASIN[component]}"
         q = "0.5 rho L_pp^2 d" if component == "N" else "0.5 rho L_pp d"
         mult = ""
         if m in INDICATORS:
             mult = " " + INDICATORS[m][0]
         elif m:
             mult = f" ({VARIABLES[m].factor_formula or VARIABLES[m].symbol})"
-        scale = SCALES[self.scale_name][0 if component == "X" else 1]
-        return f"{component} += {q} {scale} {f}{mult}  [{unit}]"
+        scale = SCALES[self.scale_name][0 if component in ("X", "F_x0") else 1]
+        return f"{component} += {q} {scale} {f}{mult}  [{unit}]{_TURNED.get(component, '')}"
 
     def memory_closed(self, c: float, dt: float) -> str:
         """A memory's closed form for its coefficient ``c`` in the control's terms, at time
@@ -834,7 +870,7 @@ class Group:
 
 
 _GROUP = re.compile(
-    r"^(?P<c>[XYNDPS]+)~(?:(?P<one>1)|(?P<v>\w+)(?:&(?P<v2>\w+))?"
+    r"^(?P<c>[XYNDPSxy]+)~(?:(?P<one>1)|(?P<v>\w+)(?:&(?P<v2>\w+))?"
     r"\[(?P<lo>[^:\]]+):(?P<hi>[^\]&]+)(?:&(?P<lo2>[^:\]]+):(?P<hi2>[^\]]+))?\]"
     r"(?:/(?P<n>\d+)(?:x(?P<n2>\d+))?|:(?P<f>[a-z]+(?:\([^)]*\))?(?:&[a-z]+(?:\([^)]*\))?)?)))"
     r"(?:\*(?P<m>\w+(?:\*\w+)?))?(?:@(?P<s>\w+))?$"
@@ -1235,7 +1271,13 @@ def _factors(group: Group) -> tuple[list[str], dict[str, str]]:
         "X": f"q * {sx} * mult",
         "Y": f"q * {syn} * mult",
         "N": f"q * Lp * {syn} * mult",
+        "x": f"q * {sx} * mult",
+        "y": f"q * {syn} * mult",
     }
+
+
+#: a force fixed to the basin (F along x0 or y0) on the ship's axes: (X, Y) += F (cos, sin)
+_BASIN_AXES = {"x": ("cos_psi", "-sin_psi"), "y": ("sin_psi", "cos_psi")}
 
 
 def _group_lines(g: int, group: Group) -> list[str]:
@@ -1269,6 +1311,10 @@ def _group_lines(g: int, group: Group) -> list[str]:
             lines.append(f"    f = {terms}")
             forces = zip("XYN", SHARES[factor[c]][1:], strict=True)
             lines += [f"    {x} += f * {name}" for x, name in forces]
+        elif c in BASIN:  # along the basin's axis, turned into the ship's by the heading
+            along, across = _BASIN_AXES[c]
+            lines.append(f"    F = ({factor[c]}) * ({terms})")
+            lines += [f"    X += F * {along}", f"    Y += F * {across}"]
         else:
             lines.append(f"    {c} += ({factor[c]}) * ({terms})")
     return lines
@@ -1338,7 +1384,9 @@ def _probe_lines(groups: Sequence[Group]) -> list[str]:
     lines = ["    z = 0.0", "    spline = 0.0"]
     if pairs:  # the second variable of a shape of two variables, in the lane's range
         lines += ["    z2 = 0.0", "    pair = 0.0"]
-    lines += [f"    f{c} = 0.0" for c in ("X", "Y", "N", "SX", "SY", "SN")]
+    basin = any(c in BASIN for g in groups for c in g.components)
+    sums = ("X", "Y", "N", "SX", "SY", "SN", *(BASIN if basin else ()))
+    lines += [f"    f{c} = 0.0" for c in sums]
     for g, group in enumerate(groups):
         if group.control:
             continue
@@ -1360,11 +1408,16 @@ def _probe_lines(groups: Sequence[Group]) -> list[str]:
     if pairs:  # B_J(z) B_J2(z2) for a lane of a shape of two variables
         lines.append("    b2 = pair * _b3(z2 - (e.J2 - 1.0)) + (1.0 - pair)")
         b += " * b2"
+    lines += [b, f"    share = 1.0 if e.C == {s!r} else 0.0"]
+    turned = ["", ""]
+    if basin:  # a force fixed to the basin, along x0 (ex) or y0 (ey), on the ship's axes
+        for c in BASIN:
+            k = float(COMPONENTS.index(c))
+            lines.append(f"    e{c} = (1.0 if e.C == {k!r} else 0.0) * f{c}")
+        turned = [" + ex * cos_psi + ey * sin_psi", " - ex * sin_psi + ey * cos_psi"]
     lines += [
-        b,
-        f"    share = 1.0 if e.C == {s!r} else 0.0",
-        "    X = ((1.0 if e.C == 0.0 else 0.0) * fX + share * fSX) * b",
-        "    Y = ((1.0 if e.C == 1.0 else 0.0) * fY + share * fSY) * b",
+        f"    X = ((1.0 if e.C == 0.0 else 0.0) * fX + share * fSX{turned[0]}) * b",
+        f"    Y = ((1.0 if e.C == 1.0 else 0.0) * fY + share * fSY{turned[1]}) * b",
         "    N = ((1.0 if e.C == 2.0 else 0.0) * fN + share * fSN) * b",
     ]
     return lines
@@ -1394,7 +1447,7 @@ def _source(name: str, groups: Sequence[Group], key: str, probe: bool = False) -
         memory = _probe_memory_lines(groups)
         fields = [
             "    G: float  # the group (0, 1, ...)",
-            "    C: float  # the component (0: X, 1: Y, 2: N, 3: D, 4: P, 5: S)",
+            "    C: float  # the component (0: X, 1: Y, 2: N, 3: D, 4: P, 5: S, 6: x, 7: y)",
             "    J: float  # the basis function (0 .. n - 1)",
             "    A: float  # its coefficient (0: no force)",
             "    L: float  # the group's knot range [L, U] in the variable's unit",
@@ -1614,7 +1667,7 @@ def probe_effect(groups: Sequence[Group] | str) -> Effect:
         module, key = _module(name, gs, probe=True)
         table: tuple[tuple[str, float, float, float, str], ...] = (
             ("G", 0.0, 0.0, len(gs) - 1, "group"),
-            ("C", 0.0, 0.0, 5.0, "component (0: X, 1: Y, 2: N, 3: D, 4: P, 5: S)"),
+            ("C", 0.0, 0.0, 7.0, "component (0: X, 1: Y, 2: N, 3: D, 4: P, 5: S, 6: x, 7: y)"),
             ("J", 0.0, 0.0, MAX_BASIS - 1, "basis function"),
             ("A", 0.0, 0.0, 1.0, "coefficient"),
             ("L", 0.0, -PROBE_RANGE, PROBE_RANGE, "lower end of the group's knot range"),

@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 from mmg.shapes import (
     CONTROLS,
     FORM_GRID,
+    MAX_BASIS,
     MEMORY_FORMS,
     SYMMETRIC,
     VARIABLES,
@@ -89,6 +90,7 @@ FAMILY = {
     "cos": "harmonic",
     "sinodd": "odd square of a harmonic",
     "cosodd": "odd square of a harmonic",
+    "wave": "wave",
 }
 
 #: closed forms whose numbers are fixed multiples, not taken from the data (a harmonic's k)
@@ -136,12 +138,37 @@ def _corners(
     return sorted({_round(c) for c in cs if lo < _round(c) < hi})
 
 
+#: the variables whose closed forms include waves of a period of their own (:func:`waves`): a
+#: force that comes and goes in time
+WAVE_VARIABLES = ("t",)
+#: a wave's shortest period, in knot intervals of the naming's grid (:data:`MAX_BASIS` basis
+#: functions over the range): a shorter one is not resolved by the columns it is compared on
+WAVE_KNOTS = 3
+#: a wave's phases tried: this many over [0, pi) (its coefficient b takes either sign)
+WAVE_PHASES = 6
+
+
+def waves(lo: float, hi: float) -> list[Form]:
+    """Waves sin(2 pi z / T + phi) over [lo, hi]: k half-cycles over the range (T = 2 (hi - lo)
+    / k), from one whole cycle (k = 2) to the shortest period of :data:`WAVE_KNOTS` knot
+    intervals, each at :data:`WAVE_PHASES` phases; a period and a phase are numbers taken from
+    the data, refined by output error (:func:`sweep.diagnose.corners.fit_numbers`)."""
+    width = hi - lo
+    shortest = WAVE_KNOTS * width / (MAX_BASIS - 3)
+    return [
+        Form("wave", (_round(2.0 * width / k), _round(np.pi * m / WAVE_PHASES)))
+        for k in range(2, int(2.0 * width / shortest + 1e-9) + 1)
+        for m in range(WAVE_PHASES)
+    ]
+
+
 def families(
     lo: float,
     hi: float,
     angle: bool,
     at: Sequence[float] | FloatArray | None = None,
     fine: bool = True,
+    wave: bool = False,
 ) -> list[Form]:
     """Every closed form tried over [lo, hi], simpler families first (a form whose constants
     are fixed before a corner or a width is chosen from the data comes before one that has
@@ -154,7 +181,8 @@ def families(
     an angle's harmonics come with the odd squares of the first, sin(z)|sin(z)| and
     cos(z)|cos(z)| (a cross-flow force in the drift angle, a wind force in its angle);
     without it, steps are 10 % of the range wide (the forms fitted to a spline,
-    :func:`sweep.diagnose.shaping.closest_form`)."""
+    :func:`sweep.diagnose.shaping.closest_form`). ``wave``: the waves of :func:`waves` last
+    (a period and a phase each)."""
     out = [Form(k) for k in ("lin", "sq", "odd", "cube", "abs")]
     if angle:
         out += [Form(k, (float(m),)) for m in (1, 2, 3) for k in ("sin", "cos")]
@@ -183,7 +211,7 @@ def families(
             for c in _corners(RANGE_CORNERS, side, 0.0, (0.0, side), sizes):
                 hinges += [Form(k, (c,)) for k in SYMMETRIC]
                 steps += [Form("absstep", (c, _round(w * side))) for w in STEP_WIDTHS]
-    return out + hinges + steps
+    return out + hinges + steps + (waves(lo, hi) if wave else [])
 
 
 def fit_points(group: Group, at: Sequence[float] | FloatArray | None) -> FloatArray:
@@ -236,9 +264,10 @@ def closest_forms(
         return []
     z = fit_points(group, at)
     angle = VARIABLES[group.variable].unit == "rad"
+    wave = group.variable in WAVE_VARIABLES
     out = [
         c
-        for form in families(group.lo, group.hi, angle, at, fine)
+        for form in families(group.lo, group.hi, angle, at, fine, wave)
         if (c := fitted_form(group, coefficients, form, z)) is not None
     ]
     out.sort(key=lambda c: -c.r2)
@@ -476,4 +505,5 @@ __all__ = [
     "product_r2",
     "product_transform",
     "products",
+    "waves",
 ]

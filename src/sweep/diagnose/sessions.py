@@ -79,7 +79,8 @@ def check_sessions(ctx: Context, base: Fit, cands: Candidates) -> None:
             f"sessions: {c.effect} fitted on some sessions' runs and judged on the others': "
             f"gain {c.session_gain:.3g}, "
             f"{sum(v < 0 for v in c.session_run_changes.values())} of "
-            f"{len(c.session_run_changes)} runs better"
+            f"{len(c.session_run_changes)} runs better, worst run "
+            f"{max(c.session_run_changes.values(), default=0.0):+.1%}"
         )
 
 

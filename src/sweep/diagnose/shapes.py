@@ -33,6 +33,7 @@ from mmg import Parameters
 from mmg.effect import Effect
 from mmg.shapes import (
     COMPONENTS,
+    MAX_BASIS,
     Group,
     basis2,
     penalty,
@@ -81,6 +82,11 @@ PLACE_AND_TIME = tuple(v for vs in PLACE_AND_TIME_KINDS.values() for v in vs)
 #: Train-R (one day) a yaw moment in x0 passed every check on the held-out training runs and
 #: raised the test recordings' J2 by 29 %
 SHIP_VARIABLES = tuple(v for v in VARIABLES if v not in PLACE_AND_TIME)
+#: the variables of a force fixed to the basin (components x, y: along x0 and y0), beside the
+#: force on the ship's axes (X, Y, N): a force of the water or the air in the basin (a current,
+#: a seiche, a wind set-up) keeps its direction there while the ship turns under it, which no
+#: shape on the ship's axes of position or time alone can follow
+BASIN_VARIABLES = ("x0", "y0", "t")
 #: varying-coefficient candidates: (shape variable, multiplier). The hull's derivatives
 #: varying with speed, Y_v(U) v_m U and Y_r(U) r' U^2, and with the propeller's loading,
 #: Y_v(n_p) (n_p D_p)^2 v_m / U_e and Y_r(n_p) (n_p D_p)^2 r' (a propeller in oblique inflow or
@@ -130,6 +136,12 @@ PAIR_BASIS = 6
 ANGLE_KNOT_SPACING = 0.25
 #: basis functions of an angle's shape at most
 MAX_ANGLE_BASIS = 24
+#: a shape of time has its knots at most this far apart [s] (up to
+#: :data:`mmg.shapes.MAX_BASIS` basis functions): about the time the ship takes to sail its own
+#: length at the recordings' speeds (L_pp / U = 3 m / 0.3 m/s), the shortest change of a force
+#: its motion resolves; eight basis functions over a 400-s recording put a knot every 80 s, and
+#: a force that changes sign within that (a sloshing basin, gusts) would be averaged away
+TIME_KNOT_SPACING = 10.0
 #: basis functions per memory shape (the share of a control's gap left open, over the gap's
 #: asinh scale: a knot every ~0.6, from a degree's play to a reversal)
 N_MEMORY_BASIS = 16
@@ -236,7 +248,8 @@ def candidate_groups(
     n: int = N_BASIS,
 ) -> list[Group]:
     """The candidate groups, all three components each (one basis per variable in the hook):
-    a shape of each variable that varies over ``windows``, the varying-coefficient
+    a shape of each variable that varies over ``windows`` (of position and time also a force
+    fixed to the basin, :data:`BASIN_VARIABLES`), the varying-coefficient
     ``products``, the ``shares`` of sub-models' forces (one component, S) and a constant times
     each quadrant indicator; a control's gap gives the memory of that control (one component,
     :data:`N_MEMORY_BASIS` functions)."""
@@ -265,6 +278,7 @@ def _groups(
         for v in variables
         if v in ranges
     ]
+    groups += [spline("xy", v) for v in variables if v in ranges and v in BASIN_VARIABLES]
     groups += [spline("XYN", v, m) for v, m in products if v in ranges]
     groups += [spline("S", v, m) for v, m in shares if v in ranges]
     groups += [Group("XYN", "1", multiplier=q) for q in quadrants]
@@ -330,7 +344,11 @@ def support(group: Group, windows: Sequence[Recording], params: Parameters) -> F
 def basis_count(variable: str, lo: float, hi: float, n: int = N_BASIS) -> int:
     """The basis functions of a shape of ``variable`` over [lo, hi]: ``n``, or for an angle
     as many as put its knots at most :data:`ANGLE_KNOT_SPACING` apart (up to
-    :data:`MAX_ANGLE_BASIS`); knots are n - 3 intervals apart."""
+    :data:`MAX_ANGLE_BASIS`), for time at most :data:`TIME_KNOT_SPACING` apart (up to
+    :data:`mmg.shapes.MAX_BASIS`); knots are n - 3 intervals apart."""
+    if variable == "t":
+        need = int(np.ceil((hi - lo) / TIME_KNOT_SPACING - 1e-9)) + 3
+        return int(min(max(n, need), max(n, MAX_BASIS)))
     if SHAPE_VARIABLES[variable].unit != "rad":
         return n
     need = int(np.ceil((hi - lo) / ANGLE_KNOT_SPACING - 1e-9)) + 3

@@ -41,6 +41,7 @@ from sweep.diagnose.fit import Fit
 from sweep.diagnose.naming import (
     FAMILY,
     GRID,
+    WAVE_VARIABLES,
     ClosedForm,
     Product,
     closest_forms,
@@ -167,7 +168,8 @@ def _fine_structures(
     groups', one per fine group, so that two chosen groups of one variable in the same
     components (a shape and a product of it) share them. Returns (the fine groups in unit
     order, {chosen group: [(fine group, unit)]})."""
-    units: dict[str, int] = {}
+    # a chosen group already of FINE_BASIS functions (a shape of time) is its own fine group
+    units: dict[str, int] = {g.text: i for i, g in enumerate(groups)}
     extra: list[Group] = []
     fine: dict[int, list[tuple[Group, int]]] = {}
     for i, g in enumerate(groups):
@@ -243,7 +245,8 @@ def named_form(
     for i, fus in fine_units.items():
         g = groups[i]
         at = None if samples is None else samples.get(g.variable)
-        forms = families(g.lo, g.hi, SHAPE_VARIABLES[g.variable].unit == "rad", at)
+        angle = SHAPE_VARIABLES[g.variable].unit == "rad"
+        forms = families(g.lo, g.hi, angle, at, wave=g.variable in WAVE_VARIABLES)
         for fg, fu in fus:
             trial = [(fu, 0.0) if k == i else (u, kap) for k, (u, kap) in enumerate(chosen)]
             for form in forms:

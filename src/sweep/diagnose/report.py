@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from mmg import Parameters, get_effect, simulate_batch
-from mmg.shapes import SHAPE_PREFIX, is_closed_form
+from mmg.shapes import BASIN, SHAPE_PREFIX, is_closed_form
 from sweep.data.recordings import Recording
 from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.locate import GROUPS, bin_edges, residual_frame
@@ -1092,7 +1092,8 @@ def plot_shapes(d: Diagnosis, path: Path) -> None:
             ax.set_title(f"closest: {c['formula']} (R^2 {c['r2']:.2f})", fontsize=8)
         ax.axhline(0.0, color="k", lw=0.5)
         ax.set_xlabel(f"{g['variable']} [{g['unit']}]")
-        ax.set_ylabel(f"f_{g['component']} [-]")
+        along = BASIN.get(g["component"])  # a force fixed to the basin: along its axis
+        ax.set_ylabel(f"f_{g['component']} [-]" + (f", along {along}" if along else ""))
         ax.legend(fontsize=7)
     title = "named after its learned shape" if entry["closed_form"] else "learned shape(s)"
     fig.suptitle(f"{title}: {entry['effect']}", fontsize=8)

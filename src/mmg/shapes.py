@@ -545,7 +545,9 @@ def form_scale(group: Group) -> float:
 
 @dataclass(frozen=True)
 class Group:
-    """One group of a shape effect: f_C(variable) for each component C in ``components``.
+    """One group of a shape effect: f_C(variable) for each component C in ``components`` (forces
+    X, Y, N on the ship's axes; x, y a force fixed to the basin, along x0 and y0; D, P a memory
+    of a control; S a share of a sub-model's force: :data:`COMPONENTS`).
 
     ``variable`` is a key of :data:`VARIABLES` or ``"1"`` (a constant, ``n`` = 1);
     ``lo``, ``hi`` the knot range in the variable's unit, ``n`` the number of basis functions;

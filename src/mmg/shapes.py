@@ -291,11 +291,22 @@ SCALES: dict[str, tuple[str, str, str, str]] = {
 
 _TWO_PI = 2.0 * math.pi
 
-#: how a force fixed to the basin acts on the ship's axes (:meth:`Group.formula`)
-_TURNED = {
-    "F_x0": " (X += F_x0 cos psi, Y -= F_x0 sin psi)",
-    "F_y0": " (X += F_y0 sin psi, Y += F_y0 cos psi)",
-}
+#: a force fixed to the basin on the ship's axes: per component (along x0, along y0) the
+#: factors of its X and Y in the hook's names (X = F_x0 cos psi + F_y0 sin psi,
+#: Y = -F_x0 sin psi + F_y0 cos psi)
+BASIN_AXES = {"x": ("cos_psi", "-sin_psi"), "y": ("sin_psi", "cos_psi")}
+
+
+def _turned(component: str) -> str:
+    """How the basin's force of ``component`` acts on the ship's axes, as a formula says it:
+    " (X += F_x0 cos psi, Y -= F_x0 sin psi)"."""
+    force = f"F_{BASIN[component]}"
+    parts = []
+    for axis, factor in zip("XY", BASIN_AXES[component], strict=True):
+        sign = "-" if factor.startswith("-") else "+"
+        parts.append(f"{axis} {sign}= {force} {factor.lstrip('-').replace('_', ' ')}")
+    return f" ({', '.join(parts)})"
+
 
 #: what the hook computes before the groups, in this order: (names it provides, code lines);
 #: a block is written when a group's code (or a later block that is written) uses a name of it
@@ -813,8 +824,9 @@ class Group:
                 lever = " / L_pp"
             where = f" {INDICATORS[self.quadrant][0]}" if self.quadrant else ""
             return f"{component} += {f} {force}{where}{lever}  [{unit}]"
+        turned = ""
         if component in BASIN:  # a force fixed to the basin, along its axis
-            unit = "N"
+            unit, turned = "N", _turned(component)
             component = f"F_{BASIN[component]}"
         q = "0.5 rho L_pp^2 d" if component == "N" else "0.5 rho L_pp d"
         mult = ""
@@ -823,7 +835,7 @@ class Group:
         elif m:
             mult = f" ({VARIABLES[m].factor_formula or VARIABLES[m].symbol})"
         scale = SCALES[self.scale_name][0 if component in ("X", "F_x0") else 1]
-        return f"{component} += {q} {scale} {f}{mult}  [{unit}]{_TURNED.get(component, '')}"
+        return f"{component} += {q} {scale} {f}{mult}  [{unit}]{turned}"
 
     def memory_closed(self, c: float, dt: float) -> str:
         """A memory's closed form for its coefficient ``c`` in the control's terms, at time
@@ -1278,10 +1290,6 @@ def _factors(group: Group) -> tuple[list[str], dict[str, str]]:
     }
 
 
-#: a force fixed to the basin (F along x0 or y0) on the ship's axes: (X, Y) += F (cos, sin)
-_BASIN_AXES = {"x": ("cos_psi", "-sin_psi"), "y": ("sin_psi", "cos_psi")}
-
-
 def _group_lines(g: int, group: Group) -> list[str]:
     """The hook's code of group ``g``: the clamped variable, its basis, each component's sum."""
     lines = [f"    # {structure_text(group)}"]
@@ -1314,9 +1322,8 @@ def _group_lines(g: int, group: Group) -> list[str]:
             forces = zip("XYN", SHARES[factor[c]][1:], strict=True)
             lines += [f"    {x} += f * {name}" for x, name in forces]
         elif c in BASIN:  # along the basin's axis, turned into the ship's by the heading
-            along, across = _BASIN_AXES[c]
             lines.append(f"    F = ({factor[c]}) * ({terms})")
-            lines += [f"    X += F * {along}", f"    Y += F * {across}"]
+            lines += [f"    {x} += F * {k}" for x, k in zip("XY", BASIN_AXES[c], strict=True)]
         else:
             lines.append(f"    {c} += ({factor[c]}) * ({terms})")
     return lines
@@ -1416,7 +1423,7 @@ def _probe_lines(groups: Sequence[Group]) -> list[str]:
         for c in BASIN:
             k = float(COMPONENTS.index(c))
             lines.append(f"    e{c} = (1.0 if e.C == {k!r} else 0.0) * f{c}")
-        turned = [" + ex * cos_psi + ey * sin_psi", " - ex * sin_psi + ey * cos_psi"]
+        turned = ["".join(f" + e{c} * {BASIN_AXES[c][i]}" for c in BASIN) for i in (0, 1)]
     lines += [
         f"    X = ((1.0 if e.C == 0.0 else 0.0) * fX + share * fSX{turned[0]}) * b",
         f"    Y = ((1.0 if e.C == 1.0 else 0.0) * fY + share * fSY{turned[1]}) * b",
@@ -1804,6 +1811,8 @@ def penalty_matrix(effect: Effect, order: int = 2) -> FloatArray:
 
 
 __all__ = [
+    "BASIN",
+    "BASIN_AXES",
     "COMPONENTS",
     "CONTROLS",
     "DEFAULT_BOUND",
@@ -1817,6 +1826,7 @@ __all__ = [
     "SHAPE_PREFIX",
     "SHARES",
     "VARIABLES",
+    "WAVES",
     "Control",
     "Form",
     "Group",

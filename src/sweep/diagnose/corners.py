@@ -153,9 +153,9 @@ def _wave_tries(group: Group, args: Sequence[float], r: int) -> list[list[float]
     pi / :data:`WAVE_PHASES`) halved ``r + 1`` times, from half of it: the named wave is the
     grid's nearest, and a whole step lands on a neighbour the naming judged (where a wave of
     ten cycles fits another side lobe). The phase moves as the phase at the middle of the range,
-    which a change of the frequency leaves in place (at z = 0, a tenth of a cycle's change of
-    the period over ten cycles turns the phase by a whole cycle at the far end), and is written
-    back at z = 0, within (-pi, pi]."""
+    which a change of the frequency leaves in place (at z = 0, a period 1 % longer over ten
+    cycles turns the phase at the far end by a tenth of a cycle), and is written back at z = 0,
+    within (-pi, pi]."""
     zc = 0.5 * (group.lo + group.hi)
     df = 0.5 / (group.hi - group.lo) / 2 ** (r + 1)
     dphi = math.pi / WAVE_PHASES / 2 ** (r + 1)

@@ -214,6 +214,16 @@ def families(
     return out + hinges + steps + (waves(lo, hi) if wave else [])
 
 
+def group_families(
+    group: Group, at: Sequence[float] | FloatArray | None = None, fine: bool = True
+) -> list[Form]:
+    """:func:`families` over the range of ``group``'s variable, as its variable takes them:
+    an angle's with its harmonics, time's with its waves (:data:`WAVE_VARIABLES`)."""
+    angle = VARIABLES[group.variable].unit == "rad"
+    wave = group.variable in WAVE_VARIABLES
+    return families(group.lo, group.hi, angle, at, fine, wave)
+
+
 def fit_points(group: Group, at: Sequence[float] | FloatArray | None) -> FloatArray:
     """Where forms are fitted: ``at`` held within the range (its finite values), else an even
     grid of :data:`GRID` points over the range."""
@@ -263,11 +273,9 @@ def closest_forms(
     if group.variable == "1" or group.control:
         return []
     z = fit_points(group, at)
-    angle = VARIABLES[group.variable].unit == "rad"
-    wave = group.variable in WAVE_VARIABLES
     out = [
         c
-        for form in families(group.lo, group.hi, angle, at, fine, wave)
+        for form in group_families(group, at, fine)
         if (c := fitted_form(group, coefficients, form, z)) is not None
     ]
     out.sort(key=lambda c: -c.r2)
@@ -501,6 +509,7 @@ __all__ = [
     "fitted_form",
     "form_group",
     "form_transform",
+    "group_families",
     "memory_forms",
     "product_r2",
     "product_transform",

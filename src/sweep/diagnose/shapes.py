@@ -347,12 +347,13 @@ def basis_count(variable: str, lo: float, hi: float, n: int = N_BASIS) -> int:
     :data:`MAX_ANGLE_BASIS`), for time at most :data:`TIME_KNOT_SPACING` apart (up to
     :data:`mmg.shapes.MAX_BASIS`); knots are n - 3 intervals apart."""
     if variable == "t":
-        need = int(np.ceil((hi - lo) / TIME_KNOT_SPACING - 1e-9)) + 3
-        return int(min(max(n, need), max(n, MAX_BASIS)))
-    if SHAPE_VARIABLES[variable].unit != "rad":
+        spacing, most = TIME_KNOT_SPACING, MAX_BASIS
+    elif SHAPE_VARIABLES[variable].unit == "rad":
+        spacing, most = ANGLE_KNOT_SPACING, MAX_ANGLE_BASIS
+    else:
         return n
-    need = int(np.ceil((hi - lo) / ANGLE_KNOT_SPACING - 1e-9)) + 3
-    return int(min(max(n, need), max(n, MAX_ANGLE_BASIS)))
+    need = int(np.ceil((hi - lo) / spacing - 1e-9)) + 3
+    return int(min(max(n, need), max(n, most)))
 
 
 def probe_groups(groups: Sequence[Group]) -> list[Group]:

@@ -41,17 +41,16 @@ from sweep.diagnose.fit import Fit
 from sweep.diagnose.naming import (
     FAMILY,
     GRID,
-    WAVE_VARIABLES,
     ClosedForm,
     Product,
     closest_forms,
     closest_products,
     complexity,
-    families,
     fit_points,
     fitted_form,
     form_group,
     form_transform,
+    group_families,
     memory_forms,
     product_r2,
     product_transform,
@@ -245,8 +244,7 @@ def named_form(
     for i, fus in fine_units.items():
         g = groups[i]
         at = None if samples is None else samples.get(g.variable)
-        angle = SHAPE_VARIABLES[g.variable].unit == "rad"
-        forms = families(g.lo, g.hi, angle, at, wave=g.variable in WAVE_VARIABLES)
+        forms = group_families(g, at)
         for fg, fu in fus:
             trial = [(fu, 0.0) if k == i else (u, kap) for k, (u, kap) in enumerate(chosen)]
             for form in forms:

@@ -815,8 +815,8 @@ def test_the_backward_check_drops_a_group_that_adds_less_than_its_share() -> Non
 
 
 def test_the_lead_goes_to_a_single_group_that_gains_its_share_more_by_output_error() -> None:
-    """Another single group leads a shape only when it takes at least MIN_GAIN more off the
-    held-out runs' J by output error than the selection's own first group."""
+    """Another single group leads a shape only when its lead score (the typical held-out
+    window's) is at least MIN_GAIN above the selection's own first group's."""
     from sweep.diagnose.pruning import lead_to_take
     from sweep.diagnose.shapes import MIN_GAIN
 
@@ -828,3 +828,23 @@ def test_the_lead_goes_to_a_single_group_that_gains_its_share_more_by_output_err
     assert lead_to_take([-3.0, 0.5], 0) == 1
     assert lead_to_take([1.0, float("nan"), float("inf")], 0) is None  # failed fits never lead
     assert lead_to_take([float("nan"), 2.0], 0) == 1
+
+
+def test_the_lead_is_judged_by_the_typical_held_out_window_not_the_sum() -> None:
+    """A group that makes most held-out runs a hundred times better and two worse (they leave
+    the range its half of the runs taught it) leads one that makes every run a few times
+    better, though the latter takes more off the summed J, which the runs the base fits worst
+    decide."""
+    from sweep.diagnose.pruning import lead_score, lead_to_take
+    from sweep.diagnose.scoring import typical_change
+
+    control = np.array([66.1, 19.1, 52.1, 155.3, 32.0, 28.3, 94.8, 190.1, 47.8, 111.2, 2.5, 27.9])
+    many = control / 150.0
+    many[2:4] = control[2:4] * np.array([3.4, 1.6])  # two runs worse
+    every = control / np.array([11, 27, 0.44, 2.5, 8.3, 32, 5, 3.6, 1.8, 2.3, 1.4, 12])
+    assert control.sum() - every.sum() > control.sum() - many.sum()  # the sum prefers `every`
+    scores = [lead_score(typical_change(j, control)) for j in (every, many)]
+    assert lead_to_take(scores, 0) == 1
+    assert lead_score(typical_change(control, control)) == pytest.approx(0.0, abs=1e-12)
+    assert lead_score(typical_change(control / 10.0, control)) == pytest.approx(np.log(10.0))
+    assert np.isnan(lead_score(float("nan")))

@@ -1194,10 +1194,12 @@ def _shape_md(d: Diagnosis) -> list[str]:
         md += [
             "First group checked by output error among the single groups within "
             f"{SCREEN_SHARE:.0%} of the best linearised one (each fitted alone with the 57 "
-            "parameters on one half of the runs and judged on the other; held-out gain [J], "
-            "the linearised share in brackets): "
+            "parameters on one half of the runs and judged on the other, led by the best "
+            "typical held-out window; its change, the held-out gain [J] and the linearised "
+            "share): "
             + "; ".join(
-                f"`{x.group}` {x.heldout_gain:.4g} ({100 * x.linearised:.0f} %)"
+                f"`{x.group}` {100 * x.typical:+.1f} %, {x.heldout_gain:.4g} "
+                f"({100 * x.linearised:.0f} %)"
                 for x in sp.screened
             )
             + ".",

@@ -28,7 +28,7 @@ are fitted alone with the 57 parameters, as above, and compared by their typical
 window (the geometric mean of the held-out runs' J ratios to the control's,
 :func:`lead_score`): when another's is at least :data:`MIN_GAIN` better than the selection's
 first group's, the selection is made again with it first. There a share of the thrust ahead
-in beta made ten of the twelve held-out runs 100-1,000 times better (+99 % typical) and two
+in beta made ten of the twelve held-out runs 19-2,800 times better (+99 % typical) and two
 worse, runs that left the drift angles its half of the runs had taught it. The summed held-out
 J, which the runs the base fits worst decide, preferred a share of the hull's sway force
 (every run 2-30 times better, +79 % typical): led by it, the shape made the test recordings

@@ -125,9 +125,9 @@ def group_to_drop(full: float, without: list[float]) -> int | None:
 
 
 class _Gains:
-    """Held-out gains [J] by output error of shapes (selections), each fitted once: the
-    candidates' fold fits (:func:`~sweep.diagnose.candidates.candidate_folds`) against the
-    control's."""
+    """Shapes (selections) scored by output error, each fitted once: the candidates' fold fits
+    (:func:`~sweep.diagnose.candidates.candidate_folds`) against the control's; their held-out
+    gains [J] (the backward check) or their whole scores (the lead's typical windows)."""
 
     def __init__(self, ctx: Context, base: Fit) -> None:
         self.ctx, self.base = ctx, base
@@ -166,8 +166,9 @@ def lead_score(improvement: float) -> float:
 def lead_to_take(scores: Sequence[float], first: int) -> int | None:
     """The index of the single group to lead a shape, by the lead scores ``scores``
     (:func:`lead_score`) of the single groups checked, ``first`` the selection's own first
-    group: the best, when its score is at least :data:`MIN_GAIN` above ``first``'s (None: the
-    first stays). A score that is not finite (a fit that failed) never leads."""
+    group: the best, when its score is at least 1 + :data:`MIN_GAIN` times ``first``'s (any
+    positive score where ``first``'s is not; None: the first stays). A score that is not finite
+    (a fit that failed) never leads."""
     finite = np.where(np.isfinite(scores), np.asarray(scores, dtype=float), -np.inf)
     best = int(np.argmax(finite))
     if not np.isfinite(finite[best]):

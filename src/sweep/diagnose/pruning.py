@@ -158,8 +158,9 @@ class _Gains:
 
 def lead_score(improvement: float) -> float:
     """A single group's score for the lead, -log of its typical held-out window's ratio to the
-    control's (``improvement`` = 1 - that geometric mean, :func:`~sweep.diagnose.scoring.
-    typical_change`): 0 when the typical window is no better, log 10 when ten times better."""
+    control's (``improvement`` = 1 - that geometric mean,
+    :func:`~sweep.diagnose.scoring.typical_change`): 0 when the typical window is no better,
+    log 10 when ten times better; NaN for a fit that failed."""
     return float(-np.log(max(1.0 - improvement, 1e-300))) if np.isfinite(improvement) else np.nan
 
 

@@ -40,7 +40,7 @@ The procedure is described in the user guide (docs/guide/diagnosis.md).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -221,7 +221,7 @@ def lead_by_output_error(
         )
     )
     if i_best is None:
-        return selection, screened
+        return fitted_coefficients(selection, sels, scores), screened
     lead = top[i_best][1]
     again = columns.select(r, ctx.n_eff, first=lead)
     kept = not again.groups or again.dbic > threshold
@@ -231,7 +231,24 @@ def lead_by_output_error(
         f"{again.dbic:.1f}"
         + (f" above the null's threshold {threshold:.1f}: the first kept" if kept else "")
     )
-    return (selection if kept else again), screened
+    return fitted_coefficients(selection if kept else again, sels, scores), screened
+
+
+def fitted_coefficients(
+    selection: ShapeSelection, singles: Sequence[ShapeSelection], scores: Sequence[CandidateScore]
+) -> ShapeSelection:
+    """``selection`` with the coefficients of its fit by output error where it is one of the
+    single groups the lead check fitted (``singles``, their ``scores``: the fold fit that
+    carries the effect's values), else as it is. Its closed forms are then named from the
+    spline the trajectories taught, not from the linearised columns, which a base far from the
+    data bends (a share of the thrust ahead in beta: linearised, cos(beta)|cos(beta)| was the
+    closest form; fitted by output error, cos 2 beta, the planted sin^2 beta)."""
+    if len(selection.groups) != 1:
+        return selection
+    for single, c in zip(singles, scores, strict=True):
+        if single.spec == selection.spec and len(c.params) == len(selection.values()):
+            return replace(selection, coefficients=[list(c.params.values())])
+    return selection
 
 
 def prune(

@@ -848,3 +848,50 @@ def test_the_lead_is_judged_by_the_typical_held_out_window_not_the_sum() -> None
     assert lead_score(typical_change(control, control)) == pytest.approx(0.0, abs=1e-12)
     assert lead_score(typical_change(control / 10.0, control)) == pytest.approx(np.log(10.0))
     assert np.isnan(lead_score(float("nan")))
+
+
+def test_a_single_group_the_lead_check_fitted_is_named_from_its_output_error_fit() -> None:
+    """The selection's coefficients become those of its fit by output error when it is one of
+    the single groups the lead check fitted; a selection of two groups, or one the check did
+    not fit, keeps its linearised coefficients."""
+    from mmg.shapes import Group, shape_effect
+    from sweep.diagnose.pruning import fitted_coefficients
+    from sweep.diagnose.scoring import CandidateScore
+    from sweep.diagnose.shapes import ShapeSelection
+
+    g1, g2 = Group("X", "beta", -1.5, 1.5, 6), Group("N", "rp", -1.0, 1.0, 6)
+
+    def selection(groups: list[Group]) -> ShapeSelection:
+        n = [g.n for g in groups]
+        return ShapeSelection(
+            groups=groups,
+            coefficients=[[0.1 * (i + 1)] * k for i, k in enumerate(n)],
+            penalties=[np.eye(k) for k in n],
+            heldout_gain=[0.5] * len(groups),
+            edf=[3.0] * len(groups),
+            dbic=-40.0,
+        )
+
+    def fitted(groups: list[Group], values: list[float]) -> CandidateScore:
+        names = [p.name for p in shape_effect(groups).params]
+        return CandidateScore(
+            shape_effect(groups).name,
+            "",
+            "",
+            dict(zip(names, values, strict=True)),
+            1.0,
+            1.0,
+            0.6,
+            -50.0,
+        )
+
+    oe = [0.3, -0.2, 0.1, 0.0, -0.1, 0.4]
+    singles = [selection([g2]), selection([g1])]
+    scores = [fitted([g2], [9.0] * 6), fitted([g1], oe)]
+    named = fitted_coefficients(selection([g1]), singles, scores)
+    assert named.coefficients == [oe]
+    assert named.groups == [g1] and named.dbic == -40.0  # the rest as selected
+    pair = selection([g1, g2])
+    assert fitted_coefficients(pair, singles, scores) is pair
+    other = selection([Group("Y", "beta", -1.5, 1.5, 6)])
+    assert fitted_coefficients(other, singles, scores) is other

@@ -800,8 +800,9 @@ def test_symmetric_hinges_act_on_both_sides_alike_in_numpy_and_in_the_hook() -> 
 
 
 def test_the_backward_check_drops_a_group_that_adds_less_than_its_share() -> None:
-    """A group stays when the shape with it takes at least MIN_GAIN more off the held-out runs'
-    J than the best shape without it; else the group whose absence costs least goes."""
+    """A group stays when the shape with it scores (its typical held-out window's lead score) at
+    least MIN_GAIN more than the best shape without it; else the group whose absence costs
+    least goes."""
     from sweep.diagnose.pruning import group_to_drop
     from sweep.diagnose.shapes import MIN_GAIN
 
@@ -812,6 +813,8 @@ def test_the_backward_check_drops_a_group_that_adds_less_than_its_share() -> Non
     assert group_to_drop(4.0, [5.0, 1.0]) == 0  # a group that makes the held-out runs worse
     assert group_to_drop(-1.0, [-3.0, -2.0]) is None  # nothing gains: left to the verdict
     assert group_to_drop(5.0, []) is None
+    assert group_to_drop(5.0, [float("nan"), 4.5]) == 1  # a failed fit without a group: it stays
+    assert group_to_drop(float("nan"), [1.0, 0.5]) == 0  # the whole shape's fit failed
 
 
 def test_the_lead_goes_to_a_single_group_that_gains_its_share_more_by_output_error() -> None:
@@ -850,16 +853,16 @@ def test_the_lead_is_judged_by_the_typical_held_out_window_not_the_sum() -> None
     assert np.isnan(lead_score(float("nan")))
 
 
-def test_a_single_group_the_lead_check_fitted_is_named_from_its_output_error_fit() -> None:
-    """The selection's coefficients become those of its fit by output error when it is one of
-    the single groups the lead check fitted; a selection of two groups, or one the check did
-    not fit, keeps its linearised coefficients."""
+def test_a_shape_the_output_error_fitted_is_named_from_that_fit() -> None:
+    """The selection's coefficients become those of its fit by output error, group by group,
+    when the lead check or the backward check fitted it (a single group or several); one that
+    neither fitted keeps its linearised coefficients."""
     from mmg.shapes import Group, shape_effect
     from sweep.diagnose.pruning import fitted_coefficients
     from sweep.diagnose.scoring import CandidateScore
     from sweep.diagnose.shapes import ShapeSelection
 
-    g1, g2 = Group("X", "beta", -1.5, 1.5, 6), Group("N", "rp", -1.0, 1.0, 6)
+    g1, g2 = Group("X", "beta", -1.5, 1.5, 6), Group("N", "rp", -1.0, 1.0, 4)
 
     def selection(groups: list[Group]) -> ShapeSelection:
         n = [g.n for g in groups]
@@ -872,26 +875,18 @@ def test_a_single_group_the_lead_check_fitted_is_named_from_its_output_error_fit
             dbic=-40.0,
         )
 
-    def fitted(groups: list[Group], values: list[float]) -> CandidateScore:
-        names = [p.name for p in shape_effect(groups).params]
-        return CandidateScore(
-            shape_effect(groups).name,
-            "",
-            "",
-            dict(zip(names, values, strict=True)),
-            1.0,
-            1.0,
-            0.6,
-            -50.0,
-        )
+    def fitted(groups: list[Group], values: list[float]) -> tuple[str, CandidateScore]:
+        eff = shape_effect(groups)
+        params = dict(zip([p.name for p in eff.params], values, strict=True))
+        return selection(groups).spec, CandidateScore(eff.name, "", "", params, 1, 1, 0.6, -50)
 
     oe = [0.3, -0.2, 0.1, 0.0, -0.1, 0.4]
-    singles = [selection([g2]), selection([g1])]
-    scores = [fitted([g2], [9.0] * 6), fitted([g1], oe)]
-    named = fitted_coefficients(selection([g1]), singles, scores)
+    both = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, -1.0, -2.0, -3.0, -4.0]
+    fits = dict([fitted([g2], [9.0] * 4), fitted([g1], oe), fitted([g1, g2], both)])
+    named = fitted_coefficients(selection([g1]), fits)
     assert named.coefficients == [oe]
     assert named.groups == [g1] and named.dbic == -40.0  # the rest as selected
-    pair = selection([g1, g2])
-    assert fitted_coefficients(pair, singles, scores) is pair
+    assert fitted_coefficients(selection([g1, g2]), fits).coefficients == [both[:6], both[6:]]
     other = selection([Group("Y", "beta", -1.5, 1.5, 6)])
-    assert fitted_coefficients(other, singles, scores) is other
+    assert fitted_coefficients(other, fits) is other
+    assert fitted_coefficients(selection([g2, g1]), fits).coefficients == [[0.1] * 4, [0.2] * 6]

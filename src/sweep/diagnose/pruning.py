@@ -15,8 +15,9 @@ the shape and each shape with one group left out (its coefficients refitted line
 one half of the training runs and judged on the other, both ways round (the candidates' fold
 fits, :func:`~sweep.diagnose.candidates.candidate_folds`; stages ``candidate-c-NAME-foldJ``
 and ``candidate-NAME-foldJ``, which the candidates stage then resumes). A group stays only
-when the shape with it takes at least :data:`MIN_GAIN` more off the held-out runs' J than the
-best shape without it; otherwise that group is dropped and the check repeats on the rest.
+when the shape with it makes the typical held-out window at least :data:`MIN_GAIN` better
+(:func:`lead_score`, as for the lead below) than the best shape without it; otherwise that
+group is dropped and the check repeats on the rest.
 
 The first group is checked by output error too (:func:`lead_by_output_error`). Far from a good
 fit the linearised columns saturate: on a planted thrust deduction growing with the drift angle
@@ -34,12 +35,17 @@ J, which the runs the base fits worst decide, preferred a share of the hull's sw
 (every run 2-30 times better, +79 % typical): led by it, the shape made the test recordings
 no better.
 
+A shape the output error has fitted this way, a single group of the lead check or the shape
+the backward check keeps, is named from that fit (:func:`fitted_coefficients`): its closed
+forms are compared with the spline the trajectories taught, not with the linearised one, which
+a base far from the data bends.
+
 The procedure is described in the user guide (docs/guide/diagnosis.md).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -87,12 +93,15 @@ class Screened:
 @dataclass(frozen=True)
 class Dropped:
     """One step of the backward check: the shape before it, the group left out, and the
-    held-out gains [J] (the control's held-out J minus the candidate's) of both shapes."""
+    held-out gains [J] (the control's held-out J minus the candidate's) and typical held-out
+    windows' changes (positive: better) of both shapes."""
 
     shape: str
     group: str
     gain_with: float
     gain_without: float
+    typical_with: float = float("nan")
+    typical_without: float = float("nan")
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -100,6 +109,8 @@ class Dropped:
             "group": self.group,
             "heldout_gain_with": self.gain_with,
             "heldout_gain_without": self.gain_without,
+            "heldout_typical_with": self.typical_with,
+            "heldout_typical_without": self.typical_without,
         }
 
 
@@ -114,20 +125,24 @@ def register(ctx: Context, selection: ShapeSelection) -> None:
 
 
 def group_to_drop(full: float, without: list[float]) -> int | None:
-    """The index of the group to leave out of a shape whose held-out gain [J] is ``full``, by
-    the held-out gains ``without`` of the shape without each of its groups: the one whose
-    absence costs least, when the shape with it takes less than :data:`MIN_GAIN` more off the
-    held-out runs' J than without it (None: every group stays)."""
+    """The index of the group to leave out of a shape whose score is ``full`` (:func:`lead_score`
+    of its typical held-out window), by the scores ``without`` of the shape without each of its
+    groups: the one whose absence costs least, when the shape with it scores less than
+    :data:`MIN_GAIN` more than without it (None: every group stays). A score that is not finite
+    (a fit that failed) counts as the worst."""
     if not without:
         return None
-    i = int(np.argmax(without))
-    return None if full > (1.0 + MIN_GAIN) * without[i] else i
+    worst = -np.inf
+    w = np.where(np.isfinite(without), np.asarray(without, dtype=float), worst)
+    i = int(np.argmax(w))
+    f = full if np.isfinite(full) else worst
+    return None if f > (1.0 + MIN_GAIN) * w[i] else i
 
 
 class _Gains:
     """Shapes (selections) scored by output error, each fitted once: the candidates' fold fits
-    (:func:`~sweep.diagnose.candidates.candidate_folds`) against the control's; their held-out
-    gains [J] (the backward check) or their whole scores (the lead's typical windows)."""
+    (:func:`~sweep.diagnose.candidates.candidate_folds`) against the control's; ``scores`` by
+    the shapes' names."""
 
     def __init__(self, ctx: Context, base: Fit) -> None:
         self.ctx, self.base = ctx, base
@@ -150,10 +165,6 @@ class _Gains:
                 eff, folds, self.control, ctx.n_eff, ctx.parameter_count(eff)
             )
         return [self.scores[s.spec] for s in sels]
-
-    def __call__(self, sels: list[ShapeSelection]) -> list[float]:
-        """The held-out gains [J] of the shapes ``sels``."""
-        return [c.heldout_gain for c in self.scored(sels)]
 
 
 def lead_score(improvement: float) -> float:
@@ -221,7 +232,7 @@ def lead_by_output_error(
         )
     )
     if i_best is None:
-        return fitted_coefficients(selection, sels, scores), screened
+        return fitted_coefficients(selection, gain_of.scores), screened
     lead = top[i_best][1]
     again = columns.select(r, ctx.n_eff, first=lead)
     kept = not again.groups or again.dbic > threshold
@@ -231,24 +242,27 @@ def lead_by_output_error(
         f"{again.dbic:.1f}"
         + (f" above the null's threshold {threshold:.1f}: the first kept" if kept else "")
     )
-    return fitted_coefficients(selection if kept else again, sels, scores), screened
+    return fitted_coefficients(selection if kept else again, gain_of.scores), screened
 
 
 def fitted_coefficients(
-    selection: ShapeSelection, singles: Sequence[ShapeSelection], scores: Sequence[CandidateScore]
+    selection: ShapeSelection, fitted: Mapping[str, CandidateScore]
 ) -> ShapeSelection:
-    """``selection`` with the coefficients of its fit by output error where it is one of the
-    single groups the lead check fitted (``singles``, their ``scores``: the fold fit that
-    carries the effect's values), else as it is. Its closed forms are then named from the
-    spline the trajectories taught, not from the linearised columns, which a base far from the
-    data bends (a share of the thrust ahead in beta: linearised, cos(beta)|cos(beta)| was the
-    closest form; fitted by output error, cos 2 beta, the planted sin^2 beta)."""
-    if len(selection.groups) != 1:
+    """``selection`` with the coefficients of its fit by output error where the lead check or
+    the backward check fitted it (``fitted``: their scores by the shapes' names, each with the
+    fold fit that carries the effect's values), else as it is. Its closed forms are then named
+    from the spline the trajectories taught, not from the linearised columns, which a base far
+    from the data bends (a share of the thrust ahead in beta: linearised, cos(beta)|cos(beta)|
+    was the closest form; fitted by output error, cos 2 beta, the planted sin^2 beta)."""
+    c = fitted.get(selection.spec) if selection.groups else None
+    values = list(c.params.values()) if c is not None else []
+    if len(values) != len(selection.values()):
         return selection
-    for single, c in zip(singles, scores, strict=True):
-        if single.spec == selection.spec and len(c.params) == len(selection.values()):
-            return replace(selection, coefficients=[list(c.params.values())])
-    return selection
+    per_group, k = [], 0
+    for cs in selection.coefficients:
+        per_group.append(values[k : k + len(cs)])
+        k += len(cs)
+    return replace(selection, coefficients=per_group)
 
 
 def prune(
@@ -256,7 +270,8 @@ def prune(
 ) -> tuple[ShapeSelection, list[Dropped]]:
     """The backward check (module docstring) of the groups ``selection`` chose on the base's
     residual vector ``r`` (S, M) on ``columns``: the selection without the groups dropped, and
-    the steps that dropped them; logged."""
+    the steps that dropped them (named from its fit by output error,
+    :func:`fitted_coefficients`); logged."""
     dropped: list[Dropped] = []
     if len(selection.groups) < 2:
         return selection, dropped
@@ -267,23 +282,37 @@ def prune(
         subs = [
             columns.restricted(r, ctx.n_eff, pairs[:i] + pairs[i + 1 :]) for i in range(len(pairs))
         ]
-        full, *without = gain_of([selection, *subs])
+        full, *without = gain_of.scored([selection, *subs])
         ctx.log(
-            f"backward check of {selection.spec} by output error: held-out gain {full:.4g}; "
+            f"backward check of {selection.spec} by output error (typical held-out window, "
+            f"held-out gain [J]): {100 * full.improvement:+.1f} %, {full.heldout_gain:.4g}; "
             + ", ".join(
-                f"without {g.text} {w:.4g}" for g, w in zip(selection.groups, without, strict=True)
+                f"without {g.text} {100 * w.improvement:+.1f} %, {w.heldout_gain:.4g}"
+                for g, w in zip(selection.groups, without, strict=True)
             )
         )
-        i = group_to_drop(full, without)
+        i = group_to_drop(
+            lead_score(full.improvement), [lead_score(w.improvement) for w in without]
+        )
         if i is None:
             break
-        dropped.append(Dropped(selection.spec, selection.groups[i].text, full, without[i]))
+        w = without[i]
+        dropped.append(
+            Dropped(
+                selection.spec,
+                selection.groups[i].text,
+                full.heldout_gain,
+                w.heldout_gain,
+                full.improvement,
+                w.improvement,
+            )
+        )
         ctx.log(
             f"backward check: {selection.groups[i].text} adds less than {MIN_GAIN:.0%} to the "
-            f"held-out gain of the rest by output error -> dropped"
+            f"typical held-out window of the rest by output error -> dropped"
         )
         selection = subs[i]
-    return selection, dropped
+    return fitted_coefficients(selection, gain_of.scores), dropped
 
 
 __all__ = [

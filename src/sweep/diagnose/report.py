@@ -419,8 +419,8 @@ def explainable_text(d: Diagnosis) -> str:
         text += (
             " The backward check by output error left out "
             + ", ".join(x.group for x in sp.dropped)
-            + f" (each took less than {MIN_GAIN:.0%} more off the held-out runs' J than the "
-            f"rest): {final}."
+            + f" (each made the typical held-out window less than {MIN_GAIN:.0%} better than the "
+            f"rest alone): {final}."
         )
     fitted = next((c for c in d.candidates if c.effect == final), None)
     if fitted is not None:
@@ -1209,11 +1209,12 @@ def _shape_md(d: Diagnosis) -> list[str]:
         md += [
             f"Chosen on the trajectory residuals: `{sp.chosen.spec}`. Backward check by output "
             "error, each shape fitted with the 57 parameters on one half of the runs and judged "
-            f"on the other (a group stays when it adds {MIN_GAIN:.0%} to the held-out gain of "
-            "the rest): "
+            f"on the other (a group stays when it makes the typical held-out window "
+            f"{MIN_GAIN:.0%} better, on a log scale, than the rest alone): "
             + "; ".join(
-                f"`{x.group}` left out (held-out gain {x.gain_with:.4g} with it, "
-                f"{x.gain_without:.4g} without)"
+                f"`{x.group}` left out (typical held-out window {100 * x.typical_with:+.1f} % "
+                f"with it, {100 * x.typical_without:+.1f} % without; held-out gain "
+                f"{x.gain_with:.4g} and {x.gain_without:.4g})"
                 for x in sp.dropped
             )
             + ".",

@@ -36,9 +36,10 @@ J, which the runs the base fits worst decide, preferred a share of the hull's sw
 no better.
 
 A shape the output error has fitted this way, a single group of the lead check or the shape
-the backward check keeps, is named from that fit (:func:`fitted_coefficients`): its closed
-forms are compared with the spline the trajectories taught, not with the linearised one, which
-a base far from the data bends.
+the backward check keeps, has two splines: the linearised one, fitted on all windows, and that
+of its fit by output error on one half of the runs (:func:`fitted_coefficients`), which a base
+far from the data does not bend. Each names the shape; where the names differ, both are
+candidates and the fit by output error decides (:mod:`sweep.diagnose.shaping`).
 
 The procedure is described in the user guide (docs/guide/diagnosis.md).
 """
@@ -197,21 +198,22 @@ def lead_by_output_error(
     r: FloatArray,
     selection: ShapeSelection,
     threshold: float,
-) -> tuple[ShapeSelection, list[Screened]]:
+) -> tuple[ShapeSelection, list[Screened], dict[str, CandidateScore]]:
     """The check of the lead (module docstring) of ``selection``, chosen on the base's residual
     vector ``r`` (S, M) on ``columns``: the selection, made again when another single group
     leads by output error (and the selection made with it first passes the null's
-    ``threshold`` on its linearised dBIC, as the first one did), and the single groups checked
-    (none when the first group stands out linearised); logged."""
+    ``threshold`` on its linearised dBIC, as the first one did), the single groups checked
+    (none when the first group stands out linearised) and their scores by output error by the
+    shapes' names (for :func:`fitted_coefficients`); logged."""
     if not selection.groups:
-        return selection, []
+        return selection, [], {}
     singles = columns.singles(r)
     top = [row for row in singles if row[0] >= SCREEN_SHARE * singles[0][0]][:SCREEN_MOST]
     first = selection.groups[0]
     if not any(g == first for _, g, _ in top):
         top.append(next(row for row in singles if row[1] == first))
     if len(top) < 2:
-        return selection, []
+        return selection, [], {}
     gain_of = _Gains(ctx, base)
     sels = [columns.restricted(r, ctx.n_eff, [(g, k)]) for _, g, k in top]
     scores = gain_of.scored(sels)
@@ -232,7 +234,7 @@ def lead_by_output_error(
         )
     )
     if i_best is None:
-        return fitted_coefficients(selection, gain_of.scores), screened
+        return selection, screened, gain_of.scores
     lead = top[i_best][1]
     again = columns.select(r, ctx.n_eff, first=lead)
     kept = not again.groups or again.dbic > threshold
@@ -242,7 +244,7 @@ def lead_by_output_error(
         f"{again.dbic:.1f}"
         + (f" above the null's threshold {threshold:.1f}: the first kept" if kept else "")
     )
-    return fitted_coefficients(selection if kept else again, gain_of.scores), screened
+    return (selection if kept else again), screened, gain_of.scores
 
 
 def fitted_coefficients(
@@ -267,14 +269,14 @@ def fitted_coefficients(
 
 def prune(
     ctx: Context, base: Fit, columns: ShapeColumns, r: FloatArray, selection: ShapeSelection
-) -> tuple[ShapeSelection, list[Dropped]]:
+) -> tuple[ShapeSelection, list[Dropped], dict[str, CandidateScore]]:
     """The backward check (module docstring) of the groups ``selection`` chose on the base's
-    residual vector ``r`` (S, M) on ``columns``: the selection without the groups dropped, and
-    the steps that dropped them (named from its fit by output error,
+    residual vector ``r`` (S, M) on ``columns``: the selection without the groups dropped, the
+    steps that dropped them, and the shapes' scores by output error by their names (for
     :func:`fitted_coefficients`); logged."""
     dropped: list[Dropped] = []
     if len(selection.groups) < 2:
-        return selection, dropped
+        return selection, dropped, {}
     gain_of = _Gains(ctx, base)
 
     while len(selection.groups) >= 2:
@@ -312,7 +314,7 @@ def prune(
             f"typical held-out window of the rest by output error -> dropped"
         )
         selection = subs[i]
-    return fitted_coefficients(selection, gain_of.scores), dropped
+    return selection, dropped, gain_of.scores
 
 
 __all__ = [

@@ -56,7 +56,14 @@ from sweep.diagnose.naming import (
     product_transform,
     products,
 )
-from sweep.diagnose.pruning import Dropped, Screened, lead_by_output_error, prune, register
+from sweep.diagnose.pruning import (
+    Dropped,
+    Screened,
+    fitted_coefficients,
+    lead_by_output_error,
+    prune,
+    register,
+)
 from sweep.diagnose.shapes import (
     SHIP_VARIABLES,
     VARIABLES,
@@ -668,7 +675,9 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
     numbers: list[dict[str, Any]] = []
     pairs: dict[str, Any] | None = None
     if proposed:
-        selection, screened = lead_by_output_error(ctx, base, columns, r, selection, threshold)
+        selection, screened, fits = lead_by_output_error(
+            ctx, base, columns, r, selection, threshold
+        )
         if s.shape_pairs and R is not None:
             pair = paired(ctx, cal, columns, selection, r, R, variables)
             if pair is not None:
@@ -681,11 +690,15 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
                         pair.threshold,
                     )
         full = selection
-        selection, dropped = prune(ctx, base, columns, r, selection)
+        selection, dropped, more = prune(ctx, base, columns, r, selection)
         chosen = full if dropped else None
         samples = sample_values(ctx.windows, params, selection.groups)
         joint = pair_samples(ctx.windows, params, selection.groups)
+        # named on the trajectories from the linearised spline (a memory's closed form is read
+        # off its spline), the closest forms from the spline of its fit by output error where
+        # the checks fitted it: two views, and the fit by output error decides between them
         named, form, start = named_form(columns, selection, r, samples, joint)
+        selection = fitted_coefficients(selection, {**fits, **more})
         closest, closest_start = closest_form(selection, samples, joint)
         if closest is not None and form is not None and closest.name == form.name:
             closest = None  # (before the numbers are fitted: one search for the two)

@@ -634,6 +634,43 @@ def default_variables(ctx: Context) -> tuple[str, ...]:
     return VARIABLES if ctx.session_w is not None else SHIP_VARIABLES
 
 
+def _with_numbers(
+    ctx: Context,
+    base: Fit,
+    selection: ShapeSelection,
+    named_on_trajectories: tuple[Effect | None, list[float], list[ClosedForm | None]],
+    closest_to_spline: tuple[Effect | None, list[float]],
+) -> tuple[
+    Effect | None,
+    list[float],
+    list[ClosedForm | None],
+    Effect | None,
+    list[float],
+    list[dict[str, Any]],
+]:
+    """The two named candidates of ``selection`` with their closed forms' numbers fitted by
+    output error (:func:`fitted_numbers`): the form named on the trajectories (effect, start,
+    per group its closed form) and the one closest to the spline (effect, start; None when it
+    is the same effect), and the records of the numbers fitted; logged."""
+    form, start, named = named_on_trajectories
+    closest, closest_start = closest_to_spline
+    numbers: list[dict[str, Any]] = []
+    if closest is not None and form is not None and closest.name == form.name:
+        closest = None  # (before the numbers are fitted: one search for the two)
+    if form is not None:
+        variables_named = [g.variable for g in selection.groups]
+        form, start, named, record = fitted_numbers(ctx, base, form, start, named, variables_named)
+        numbers += [record] if record is not None else []
+    if closest is not None:
+        closest, closest_start, _, record = fitted_numbers(ctx, base, closest, closest_start)
+        numbers += [record] if record is not None else []
+    if closest is not None and form is not None and closest.name == form.name:
+        closest = None
+    if closest is not None:
+        ctx.log(f"shapes' closest closed forms: candidate {closest.name}")
+    return form, start, named, closest, closest_start, numbers
+
+
 def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | None:
     """The shape candidate at the ``base`` model (None with shapes off), checked group by group
     by output error (:mod:`sweep.diagnose.pruning`) when it has several, logged."""
@@ -700,21 +737,9 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
         named, form, start = named_form(columns, selection, r, samples, joint)
         selection = fitted_coefficients(selection, {**fits, **more})
         closest, closest_start = closest_form(selection, samples, joint)
-        if closest is not None and form is not None and closest.name == form.name:
-            closest = None  # (before the numbers are fitted: one search for the two)
-        if form is not None:
-            variables_named = [g.variable for g in selection.groups]
-            form, start, named, record = fitted_numbers(
-                ctx, base, form, start, named, variables_named
-            )
-            numbers += [record] if record is not None else []
-        if closest is not None:
-            closest, closest_start, _, record = fitted_numbers(ctx, base, closest, closest_start)
-            numbers += [record] if record is not None else []
-        if closest is not None and form is not None and closest.name == form.name:
-            closest = None
-        if closest is not None:
-            ctx.log(f"shapes' closest closed forms: candidate {closest.name}")
+        form, start, named, closest, closest_start, numbers = _with_numbers(
+            ctx, base, selection, (form, start, named), (closest, closest_start)
+        )
     if form is not None:
         ctx.log(
             "shapes named on the trajectories: "

@@ -101,8 +101,8 @@ class Dropped:
     group: str
     gain_with: float
     gain_without: float
-    typical_with: float = float("nan")
-    typical_without: float = float("nan")
+    typical_with: float
+    typical_without: float
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -252,10 +252,10 @@ def fitted_coefficients(
 ) -> ShapeSelection:
     """``selection`` with the coefficients of its fit by output error where the lead check or
     the backward check fitted it (``fitted``: their scores by the shapes' names, each with the
-    fold fit that carries the effect's values), else as it is. Its closed forms are then named
-    from the spline the trajectories taught, not from the linearised columns, which a base far
-    from the data bends (a share of the thrust ahead in beta: linearised, cos(beta)|cos(beta)|
-    was the closest form; fitted by output error, cos 2 beta, the planted sin^2 beta)."""
+    fold fit that carries the effect's values), else as it is: the spline the trajectories
+    taught, which a base far from the data does not bend as it bends the linearised one (a
+    share of the thrust ahead in beta: the form closest to the linearised spline was
+    cos(beta)|cos(beta)|, to the fitted one cos 2 beta, the planted sin^2 beta)."""
     c = fitted.get(selection.spec) if selection.groups else None
     values = list(c.params.values()) if c is not None else []
     if len(values) != len(selection.values()):

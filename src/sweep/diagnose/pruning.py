@@ -133,11 +133,16 @@ def group_to_drop(full: float, without: list[float]) -> int | None:
     (a fit that failed) counts as the worst."""
     if not without:
         return None
-    worst = -np.inf
-    w = np.where(np.isfinite(without), np.asarray(without, dtype=float), worst)
+    w = _failed_as_worst(without)
     i = int(np.argmax(w))
-    f = full if np.isfinite(full) else worst
+    f = _failed_as_worst([full])[0]
     return None if f > (1.0 + MIN_GAIN) * w[i] else i
+
+
+def _failed_as_worst(scores: Sequence[float]) -> FloatArray:
+    """``scores`` with any that is not finite (a fit that failed) set to -inf."""
+    a = np.asarray(scores, dtype=float)
+    return np.where(np.isfinite(a), a, -np.inf)
 
 
 class _Gains:
@@ -182,7 +187,7 @@ def lead_to_take(scores: Sequence[float], first: int) -> int | None:
     group: the best, when its score is at least 1 + :data:`MIN_GAIN` times ``first``'s (any
     positive score where ``first``'s is not; None: the first stays). A score that is not finite
     (a fit that failed) never leads."""
-    finite = np.where(np.isfinite(scores), np.asarray(scores, dtype=float), -np.inf)
+    finite = _failed_as_worst(scores)
     best = int(np.argmax(finite))
     if not np.isfinite(finite[best]):
         return None

@@ -22,10 +22,11 @@ Two sets, each reported in its own rows (``--set``, default ``twin``):
   own and in other forms, forms outside the catalog that a library term expresses, a form in the
   paper's own form, and no-effect cases;
 - ``unforeseen``, forms no library term or catalog effect expresses
-  (:data:`benchmarks.planted.UNFORESEEN_CASES`, cases 100-132, named like ``seiche/strong``):
-  each at a strong and a weak magnitude set by the rule of :mod:`benchmarks.planted` (the true
-  ship without the effect at 8-12 x and 1.8-2.2 x the true model's test J2), and no-effect cases
-  with their own seeds in each magnitude's row. ``--scale`` and ``--weak`` apply to the twin set.
+  (:data:`benchmarks.planted.UNFORESEEN_CASES`, cases 100-152, named like ``seiche/strong``):
+  each at a strong, a weak and a medium magnitude set by the rule of :mod:`benchmarks.planted`
+  (the true ship without the effect at 8-12 x, 1.8-2.2 x and 3.5-5 x the true model's test J2),
+  and no-effect cases with their own seeds in each magnitude's row. ``--scale`` and ``--weak``
+  apply to the twin set.
 
 Per row: cases **explained** (an accepted finding, the re-identified base's test J2 above 1.5 x
 the true model's and the model with the finding within 1.5 x), **named** (the verdict names the
@@ -715,7 +716,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         default="twin",
         choices=SETS,
         help="twin: the forms with a library twin (0-35); unforeseen: forms no library term "
-        "expresses (100-132); all: both, each in its own rows",
+        "expresses (100-152); all: both, each in its own rows",
     )
     ap.add_argument(
         "--cases",

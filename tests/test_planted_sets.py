@@ -19,6 +19,7 @@ from benchmarks.diagnose_planted import (
 from benchmarks.harm import Harm, finding_harm, report_harm, total
 from benchmarks.planted import (
     FAMILY,
+    MEDIUM_BAND,
     STRONG_BAND,
     UNFORESEEN,
     UNFORESEEN_CASES,
@@ -38,7 +39,7 @@ from mmg import catalog, efd_parameters
 from mmg.library import TERMS
 
 
-def test_the_unforeseen_set_covers_every_kind_at_two_magnitudes_with_its_own_seeds():
+def test_the_unforeseen_set_covers_every_kind_at_three_magnitudes_with_its_own_seeds():
     assert len(UNFORESEEN) >= 8
     kinds = {f.kind for f in UNFORESEEN.values()}
     wanted = {"time", "position", "controls", "state", "component", "interaction", "memory"}
@@ -47,15 +48,13 @@ def test_the_unforeseen_set_covers_every_kind_at_two_magnitudes_with_its_own_see
         assert name not in TERMS and name not in catalog() and FAMILY[name] == "discovered"
         assert form.strength or form.onset
         bands = sorted(c.band for c in UNFORESEEN_CASES if c.form == name)
-        assert bands == sorted([STRONG_BAND, WEAK_BAND])
+        assert bands == sorted([STRONG_BAND, WEAK_BAND, MEDIUM_BAND])
     indices = [c.index for c in UNFORESEEN_CASES]
     assert len(set(indices)) == len(indices)
     assert not set(indices) & set(range(len(SPECS)))  # seeds apart from the twin set's
-    for band in (STRONG_BAND, WEAK_BAND):  # no-effect cases in each magnitude's row
+    for row in ("strong", "weak", "medium"):  # no-effect cases in each magnitude's row
         none = [
-            c
-            for c in UNFORESEEN_CASES
-            if c.form == "none" and c.name.split("/")[1][0] == ("s" if band == STRONG_BAND else "w")
+            c for c in UNFORESEEN_CASES if c.form == "none" and c.name.split("/")[1].startswith(row)
         ]
         assert len(none) >= 3
     # a magnitude scale multiplies the strengths and divides the onsets
@@ -153,4 +152,4 @@ def test_cases_are_selected_by_set_index_or_name():
     assert case.set == "unforeseen" and case.band == STRONG_BAND and case.phi is not None
     assert [c.index for c in select_cases("unforeseen", "3,100")] == [3, 100]
     with pytest.raises(SystemExit, match="unknown case"):
-        select_cases("all", "seiche/medium")
+        select_cases("all", "seiche/huge")

@@ -163,6 +163,31 @@ def test_a_candidate_that_does_not_carry_over_to_held_out_runs_is_not_accepted(
     assert (v.verdict, v.effect) == ("none", "")
 
 
+def test_within_the_noise_floor_a_catalog_effect_s_worst_run_counts_in_its_noise_j(
+    tmp_path: Path,
+) -> None:
+    """A catalog effect whose worst held-out run is 8 % worse relative to the control's J of it
+    (within the null's 30 %) but 0.4 x that run's noise J (beyond 0.3) carries over when the
+    base misses a force (the misfit beyond the floor) and not when the misfit is within the
+    floor, where the control's J is no longer inflated by a missing force."""
+    lines: list[str] = []
+    ctx = _context(tmp_path, lines)
+    c = _score("propeller_walk", -50.0, 0.1, gain=0.6)
+    c.run_changes = {"run1": -0.5, "run2": 0.08, "run3": -0.01}
+    c.run_losses = {"run1": -0.5, "run2": 0.8, "run3": -0.01}
+    c.worst_run_change = 0.08
+    v = decide(ctx, [c], ["propeller_walk"], _null(-10.0, heldout=0.5), significant=True)
+    assert (v.verdict, v.effect) == ("propeller_walk", "propeller_walk")
+    assert "of the control's J of that run for a catalog effect" in lines[1]
+    v = decide(ctx, [c], ["propeller_walk"], _null(-10.0, heldout=0.5), significant=False)
+    assert (v.verdict, v.effect) == ("none", "")
+    assert not v.scores[0].carries_over
+    assert (
+        "of its noise J for every candidate, the misfit being within the noise floor" in (lines[-2])
+    )
+    assert "largest loss of a run +40 % of its noise J: does not carry over" in lines[-1]
+
+
 def test_the_verdict_stage_without_an_accepted_candidate(tmp_path: Path) -> None:
     lines: list[str] = []
     ctx = _context(tmp_path, lines, max_delta_bic=-60.0)  # set by hand: nothing reaches it

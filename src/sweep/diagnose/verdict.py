@@ -52,8 +52,16 @@ def acceptance_threshold(settings: DiagnoseSettings, null: AcceptanceNull) -> fl
     return null.threshold if settings.max_delta_bic is None else settings.max_delta_bic
 
 
-def _log_threshold(ctx: Context, null: AcceptanceNull, threshold: float) -> None:
+def _log_threshold(
+    ctx: Context, null: AcceptanceNull, threshold: float, significant: bool = True
+) -> None:
     s = ctx.settings
+    catalog = (
+        "of the control's J of that run for a catalog effect, of its noise J for library terms "
+        "and learned shapes"
+        if significant
+        else "of its noise J for every candidate, the misfit being within the noise floor"
+    )
     ctx.log(
         f"acceptance: dBIC <= {threshold:.1f} ("
         + (
@@ -70,8 +78,7 @@ def _log_threshold(ctx: Context, null: AcceptanceNull, threshold: float) -> None
         f"noise-only copies, {100 * null.heldout_quantile:.1f} % of the noise's J "
         f"{null.noise_J:.3g}, at least 0), more held-out runs better than worse, and no held-out "
         f"run worse by more than {100 * null.worst_run_limit:.0f} % (the same quantile of the best "
-        "catalog candidate's worst held-out run) of the control's J of that run for a catalog "
-        "effect, of its noise J for library terms and learned shapes (a run worse by at most "
+        f"catalog candidate's worst held-out run) {catalog} (a run worse by at most "
         f"{100 * NEGLIGIBLE:.0f} % of its J is not counted)"
     )
 
@@ -86,16 +93,24 @@ def decide(
     """Mark the accepted candidates (refined when the refinement ran, dBIC at most the
     threshold, a held-out gain above the null's, typical held-out window at least
     ``min_improvement``), rank the leaders (:func:`rank`) before the others (by dBIC), and name
-    the verdict after the first accepted candidate in that order; logged."""
+    the verdict after the first accepted candidate in that order; logged.
+
+    A catalog effect's worst held-out run is judged relative to the control's J of that run
+    only when the misfit test finds the base beyond the noise floor (``significant``): that
+    scale stands in for a missing force inflating every run's J far beyond its noise. Within the
+    floor there is no such force, and every candidate's worst run is judged in units of its
+    noise J, as a generated candidate's always is."""
     s = ctx.settings
     threshold = acceptance_threshold(s, null)
-    _log_threshold(ctx, null, threshold)
+    _log_threshold(ctx, null, threshold, significant)
     refined = s.refines
     for c in scores:
         c.worst_run_excess = null.run_excess(c.run_losses, c.run_changes)
         c.sessions_carry = carries_to_other_sessions(null, c)
         c.carries_over = (
-            null.carries_over(c.heldout_gain, c.run_losses, c.run_changes, generated(c.effect))
+            null.carries_over(
+                c.heldout_gain, c.run_losses, c.run_changes, generated(c.effect) or not significant
+            )
             or transferred(null, c)
         ) and c.sessions_carry
         c.accepted = (

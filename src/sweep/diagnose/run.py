@@ -280,7 +280,7 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
     threshold = acceptance_threshold(s, cal.null)
     cands = refine(ctx, base, fit_candidates(ctx, base, extra), threshold)
     check_sessions(ctx, base, cands)
-    check_transfer(ctx, base, cands, cal.null, threshold)
+    check_transfer(ctx, base, cands, cal.null, threshold, cal.misfit.significant)
     clock.lap("candidates")
     verdict = decide(ctx, cands.scores, cands.leaders, cal.null, cal.misfit.significant)
     final = reidentify(ctx, base, cands, verdict, threshold, cal.misfit.significant)

@@ -11,7 +11,9 @@ the true model's.
 
 So each leading generated candidate (library terms, learned shapes and their closed forms) that
 makes more held-out runs better than worse but is refused by its held-out runs (by its worst
-run, or by a held-out gain one run's loss keeps below the null's) is checked a second way: its
+run, or by a held-out gain one run's loss keeps below the null's) is checked a second way (and
+so is a catalog effect where the base's misfit is within the noise floor, since its worst run
+is then judged as a generated candidate's): its
 effect as fitted on one half of the runs is held fixed, and the base alone is refitted on the
 *other* half, from the control's fit of that half (stage ``transfer-NAME-foldJ``); the reference
 is the control's fit of that half continued by the same Levenberg-Marquardt without an effect
@@ -73,15 +75,23 @@ TRANSFER = "transfer-"
 SESSIONS = "sessions-"
 
 
-def needs_transfer(ctx: Context, null: AcceptanceNull, threshold: float, c: CandidateScore) -> bool:
+def needs_transfer(
+    ctx: Context,
+    null: AcceptanceNull,
+    threshold: float,
+    c: CandidateScore,
+    significant: bool = True,
+) -> bool:
     """Whether a generated candidate not tied to position or time, which makes more held-out
     runs better than worse and passes every other condition of acceptance (refined, when the
     refinement runs), is refused by its held-out runs: by its worst one, or by a held-out gain
     that a single run's loss can keep below the null's. Only then can the transfer check
-    accept it."""
+    accept it. Where the misfit is within the noise floor (not ``significant``) a catalog
+    effect's worst run is judged as a generated candidate's (:func:`sweep.diagnose.verdict.decide`),
+    and it gets the same second look."""
     s = ctx.settings
     return (
-        generated(c.effect)
+        (generated(c.effect) or not significant)
         and not place_or_time(c.effect, ("position", "time"))
         and c.refined == s.refines
         and c.delta_bic <= threshold
@@ -93,14 +103,22 @@ def needs_transfer(ctx: Context, null: AcceptanceNull, threshold: float, c: Cand
 
 
 def check_transfer(
-    ctx: Context, base: Fit, cands: Candidates, null: AcceptanceNull, threshold: float
+    ctx: Context,
+    base: Fit,
+    cands: Candidates,
+    null: AcceptanceNull,
+    threshold: float,
+    significant: bool = True,
 ) -> None:
-    """The transfer check of every leading candidate that needs it (:func:`needs_transfer`),
-    recorded in its score; when it passes and the runs are of several sessions, the same check
-    across sessions; logged."""
+    """The transfer check of every leading candidate that needs it (:func:`needs_transfer`;
+    ``significant``: whether the base's misfit is beyond the noise floor), recorded in its
+    score; when it passes and the runs are of several sessions, the same check across
+    sessions; logged."""
     leaders = set(cands.leaders)
     todo = [
-        c for c in cands.scores if c.effect in leaders and needs_transfer(ctx, null, threshold, c)
+        c
+        for c in cands.scores
+        if c.effect in leaders and needs_transfer(ctx, null, threshold, c, significant)
     ]
     if not todo:
         return

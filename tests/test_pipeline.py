@@ -19,6 +19,7 @@ from sweep.diagnose.scoring import CandidateScore, typical_change
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.store import StageStore
 from sweep.diagnose.threshold import AcceptanceNull
+from sweep.diagnose.transfer import needs_transfer
 from sweep.diagnose.verdict import decide
 from sweep.identification.vector import with_effects
 
@@ -186,6 +187,26 @@ def test_within_the_noise_floor_a_catalog_effect_s_worst_run_counts_in_its_noise
         "of its noise J for every candidate, the misfit being within the noise floor" in (lines[-2])
     )
     assert "largest loss of a run +40 % of its noise J: does not carry over" in lines[-1]
+
+
+def test_within_the_noise_floor_a_refused_catalog_effect_gets_the_transfer_check(
+    tmp_path: Path,
+) -> None:
+    """The transfer check's second look goes to generated candidates refused by their worst
+    run, and, within the noise floor, to catalog effects refused alike; never to one that
+    passes, nor to a catalog effect where the base misses a force (its worst run is then judged
+    relative to the control's J, and that verdict stands)."""
+    ctx = _context(tmp_path, [])
+    null = _null(-10.0, heldout=0.5)
+    c = _score("heading_bias", -30.0, 0.17, gain=0.6)
+    c.run_changes = {"run1": -0.5, "run2": 0.26, "run3": -0.1}
+    c.run_losses = {"run1": -0.5, "run2": 0.8, "run3": -0.1}  # 0.4 x run2's noise J: > 0.3
+    assert not needs_transfer(ctx, null, -10.0, c, significant=True)
+    assert needs_transfer(ctx, null, -10.0, c, significant=False)
+    c.effect = "discovered:N_nn"
+    assert needs_transfer(ctx, null, -10.0, c, significant=True)
+    c.run_losses = {"run1": -0.5, "run2": 0.5, "run3": -0.1}  # 0.25 x: carries over as it is
+    assert not needs_transfer(ctx, null, -10.0, c, significant=False)
 
 
 def test_the_verdict_stage_without_an_accepted_candidate(tmp_path: Path) -> None:

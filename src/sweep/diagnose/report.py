@@ -1346,6 +1346,16 @@ def _candidates_md(d: Diagnosis) -> list[str]:
         )
     held = (d.extra.get("acceptance") or {}).get("heldout")
     if held:
+        within = d.misfit is not None and not d.misfit.significant
+        scale = (
+            "of that run's noise J for every candidate (the base's misfit is within the noise "
+            "floor, so a catalog effect's too; else it is judged relative to the control's J of "
+            "the run)"
+            if within
+            else "of the control's J of that run for a catalog effect, of that run's noise J for "
+            "library terms and learned shapes (chosen on all training windows, so their "
+            "held-out gains are biased in their favour)"
+        )
         md += [
             "",
             f"Carrying over: a candidate's fits on one half must take more than "
@@ -1356,9 +1366,7 @@ def _candidates_md(d: Diagnosis) -> list[str]:
             f"({held.get('noise_J', float('nan')):.3g}), and at least 0; make more held-out runs "
             f"better than worse; and make no held-out run worse by more than "
             f"{100 * held.get('worst_run_limit', 0.0):.0f} % (the same quantile of the best "
-            "catalog candidate's worst held-out run) of the control's J of that run for a catalog "
-            "effect, of that run's noise J for library terms and learned shapes (chosen on all "
-            "training windows, so their held-out gains are biased in their favour); a run "
+            f"catalog candidate's worst held-out run) {scale}; a run "
             f"worse by at most {100 * NEGLIGIBLE:.0f} % of its J is not counted. A library "
             "term or shape of the heading, the position or the time must carry over alike to "
             "another session's runs (fitted on some days' runs, judged on the others'): "
@@ -1377,8 +1385,9 @@ def _transfer_md(d: Diagnosis) -> list[str]:
         return []
     md = [
         "",
-        "Transfer check (a library term or shape that makes more held-out runs better than worse "
-        "but is refused by its worst held-out run, or by a held-out gain below the null's): its "
+        "Transfer check (a library term or shape, or within the noise floor a catalog effect, "
+        "that makes more held-out runs better than worse but is refused by its worst held-out "
+        "run, or by a held-out gain below the null's): its "
         "effect as fitted on one half of the runs held fixed, the 57 base parameters refitted on "
         "the other half from the control's fit of it, against that fit continued without the "
         "effect. It carries over when the summed J falls, more runs get better than worse, no "

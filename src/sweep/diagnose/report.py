@@ -462,10 +462,15 @@ def _unexplained_statement(d: Diagnosis) -> str:
             f"windows the base model is at the noise floor ({m.ratio:.2f} x), but on the "
             f"test recordings its {g.objective} is {g.J:.3g}, {g.ratio:.1f} x the median of "
             f"what a model exact in form, identified on the same training windows, reaches "
-            f"there ({g.median:.3g}; significant above {g.limit:.3g}). Something the "
-            f"training manoeuvres do not excite is missing: no candidate (catalog or "
-            f"discovered) could be fitted to it. Runs beyond their own limit: "
-            f"{beyond or 'none alone'}; add training recordings of their regime."
+            f"there ({g.median:.3g}; significant above {g.limit:.3g}). "
+            + (
+                "No candidate"
+                if d.departures
+                else "Something the training manoeuvres do not excite is missing: no candidate"
+            )
+            + " (catalog or discovered) could be fitted to it. Runs beyond their own "
+            f"limit: {beyond or 'none alone'}; add training recordings of their regime."
+            + _departures_text(d)
         )
     conf = d.extra.get("confirmation")
     if conf:
@@ -479,6 +484,20 @@ def _unexplained_statement(d: Diagnosis) -> str:
         ch = max(worst["channels"], key=worst["channels"].get)
         text += f" Worst run: {worst['run']} ({worst['ratio']:.1f} x its floor, most in {ch})."
     return text + _best_text(d)
+
+
+def _departures_text(d: Diagnosis) -> str:
+    """Where the test recordings leave the training's ranges, and what that means for a gap on
+    them ("" when they stay inside)."""
+    if not d.departures:
+        return ""
+    worst = max(d.departures, key=lambda x: x.time_share)
+    return (
+        f" The test recordings leave the training's ranges ({len(d.departures)} excursion(s); "
+        f"the longest: {worst.text()}): there a force the training manoeuvres do not excite and "
+        "base parameters they leave undetermined look alike, so the gap may be either; training "
+        "recordings of that regime tell them apart."
+    )
 
 
 def _none_statement(d: Diagnosis) -> str:

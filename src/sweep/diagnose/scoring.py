@@ -109,6 +109,14 @@ def generated(effect: str) -> bool:
     return effect.startswith((DISCOVERED_PREFIX, SHAPE_PREFIX))
 
 
+def judged_as_generated(effect: str, significant: bool) -> bool:
+    """Whether ``effect``'s worst held-out run is judged in units of its noise J and it may
+    have the transfer check: a generated one always, a catalog effect when the base's misfit
+    is within the noise floor (not ``significant``), where no missing force inflates the
+    control's J of a run (:mod:`sweep.diagnose.threshold`)."""
+    return generated(effect) or not significant
+
+
 def name_kind(effect: str) -> int:
     """How specific a candidate's name is, most specific first: 0 a catalog effect, 1 library
     terms (``discovered:``), 2 a learned shape's closed form, 3 a learned spline shape."""

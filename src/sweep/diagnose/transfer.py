@@ -61,7 +61,7 @@ from sweep.diagnose.candidates import Candidates, candidate_settings, run_change
 from sweep.diagnose.context import Context
 from sweep.diagnose.fit import Fit, FitSettings
 from sweep.diagnose.floor import run_of
-from sweep.diagnose.scoring import CandidateScore, generated, heldout_per_window
+from sweep.diagnose.scoring import CandidateScore, heldout_per_window, judged_as_generated
 from sweep.diagnose.sessions import place_or_time, session_fits
 from sweep.diagnose.store import stage_label
 from sweep.diagnose.threshold import AcceptanceNull, more_better
@@ -80,7 +80,7 @@ def needs_transfer(
     null: AcceptanceNull,
     threshold: float,
     c: CandidateScore,
-    significant: bool = True,
+    significant: bool,
 ) -> bool:
     """Whether a generated candidate not tied to position or time, which makes more held-out
     runs better than worse and passes every other condition of acceptance (refined, when the
@@ -91,7 +91,7 @@ def needs_transfer(
     and it gets the same second look."""
     s = ctx.settings
     return (
-        (generated(c.effect) or not significant)
+        judged_as_generated(c.effect, significant)
         and not place_or_time(c.effect, ("position", "time"))
         and c.refined == s.refines
         and c.delta_bic <= threshold
@@ -108,7 +108,7 @@ def check_transfer(
     cands: Candidates,
     null: AcceptanceNull,
     threshold: float,
-    significant: bool = True,
+    significant: bool,
 ) -> None:
     """The transfer check of every leading candidate that needs it (:func:`needs_transfer`;
     ``significant``: whether the base's misfit is beyond the noise floor), recorded in its

@@ -16,7 +16,7 @@ from sweep.diagnose.scoring import (
     KEEP,
     CandidateScore,
     form_share,
-    generated,
+    judged_as_generated,
     rank,
     shape_and_form,
 )
@@ -52,9 +52,7 @@ def acceptance_threshold(settings: DiagnoseSettings, null: AcceptanceNull) -> fl
     return null.threshold if settings.max_delta_bic is None else settings.max_delta_bic
 
 
-def _log_threshold(
-    ctx: Context, null: AcceptanceNull, threshold: float, significant: bool = True
-) -> None:
+def _log_threshold(ctx: Context, null: AcceptanceNull, threshold: float, significant: bool) -> None:
     s = ctx.settings
     catalog = (
         "of the control's J of that run for a catalog effect, of its noise J for library terms "
@@ -109,7 +107,10 @@ def decide(
         c.sessions_carry = carries_to_other_sessions(null, c)
         c.carries_over = (
             null.carries_over(
-                c.heldout_gain, c.run_losses, c.run_changes, generated(c.effect) or not significant
+                c.heldout_gain,
+                c.run_losses,
+                c.run_changes,
+                judged_as_generated(c.effect, significant),
             )
             or transferred(null, c)
         ) and c.sessions_carry

@@ -491,10 +491,10 @@ def _departures_text(d: Diagnosis) -> str:
     them ("" when they stay inside)."""
     if not d.departures:
         return ""
-    worst = max(d.departures, key=lambda x: x.time_share)
+    longest = max(d.departures, key=lambda x: x.time_share)
     return (
         f" The test recordings leave the training's ranges ({len(d.departures)} excursion(s); "
-        f"the longest: {worst.text()}): there a force the training manoeuvres do not excite and "
+        f"the longest: {longest.text()}): there a force the training manoeuvres do not excite and "
         "base parameters they leave undetermined look alike, so the gap may be either; training "
         "recordings of that regime tell them apart."
     )

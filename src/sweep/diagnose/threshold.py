@@ -13,10 +13,12 @@ held-out run worse by more than the best candidate's fits make their worst held-
 same copies in all but a share ``alpha`` of them (:attr:`AcceptanceNull.worst_run_limit`; the
 best catalog candidate's, as the library's greedy selection on noise is not what a proposal
 fits). A catalog effect's worst run is compared relative to the control's J of that run, as the
-null is; a candidate generated from the data (library terms, learned shapes and their closed
-forms) was chosen on residuals of all training windows, the held-out ones included, so its
-held-out gains are biased in its favour: its worst run's loss is compared in units of that run's
-noise J, the null's scale before any model error inflates the control's J. A run worse by at
+null is, where the base misses a force (the misfit beyond the noise floor; within it, in units
+of the run's noise J like a generated candidate's); a candidate generated from the data
+(library terms, learned shapes and their closed forms) was chosen on residuals of all training
+windows, the held-out ones included, so its held-out gains are biased in its favour: its worst
+run's loss is compared in units of that run's noise J, the null's scale before any model error
+inflates the control's J. A run worse by at
 most :data:`NEGLIGIBLE` of the control's J of it is not held against any candidate: that is the
 harm figure's own tolerance, and a quiet run's noise J can be a small share of its J when the
 control misses the effect there.
@@ -128,7 +130,9 @@ class AcceptanceNull:
         :attr:`heldout_threshold`, more runs better than worse (``run_changes``), and no run
         worse than :attr:`worst_run_limit` allows: relative to the control's J of the run for a
         catalog effect, in units of the run's noise J (:meth:`run_excess` of ``run_losses``)
-        for a ``generated`` one."""
+        for a ``generated`` one, and for any candidate the caller judges alike
+        (:func:`sweep.diagnose.scoring.judged_as_generated`: a catalog effect where the base's
+        misfit is within the noise floor)."""
         if not self.heldout_ok(heldout_gain, run_changes):
             return False
         if generated:

@@ -45,6 +45,7 @@ from sweep.diagnose.fit import Fit
 from sweep.diagnose.floor import MisfitTest, above_floor
 from sweep.diagnose.generalise import GeneralisationTest
 from sweep.diagnose.location import Location, locate_misfit
+from sweep.diagnose.memory import probe_kernels, propose_memory
 from sweep.diagnose.proposals import Proposals, propose
 from sweep.diagnose.scoring import CandidateScore
 from sweep.diagnose.sessions import check_sessions
@@ -239,11 +240,14 @@ def probes(discover: bool = True, shapes: bool = True) -> list[tuple[Effect, tup
 def probe_tasks(ctx: Context) -> list[tuple[tuple[Effect, ...], str]]:
     """The kernels of :func:`probes` on the base model, with the stages that use them on."""
     s = ctx.settings
-    return [
+    out = [
         task
         for probe, entries in probes(s.discover, s.shapes)
         for task in tasks([ctx.with_base((probe,))], entries)
     ]
+    if s.shapes:
+        out += probe_kernels(ctx)
+    return out
 
 
 def run_stages(ctx: Context, t0: float) -> Diagnosis:
@@ -276,6 +280,11 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
         extra = (*extra, *named)
         sets = [ctx.with_base((shape.effect,)), *(ctx.with_base((e,)) for e in named)]
         precompile(tasks(sets), log=ctx.log)
+    memory = propose_memory(ctx, base, cal)
+    # (a rate limit the shapes named already is that candidate: not fitted twice)
+    if memory is not None and memory.proposed and memory.name not in {e.name for e in extra}:
+        extra = (*extra, memory.proposal)
+        precompile(tasks([ctx.with_base((memory.proposal,))]), log=ctx.log)
     clock.lap("shapes")
     threshold = acceptance_threshold(s, cal.null)
     cands = refine(ctx, base, fit_candidates(ctx, base, extra), threshold)
@@ -300,6 +309,7 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
     ctx.log(f"time per stage: {clock.text()}")
     out = report(ctx, t0, base, cal, base_retry, location, proposals, cands, tested)
     out.shape = shape
+    out.extra["memory"] = memory.as_dict() if memory is not None else None
     out.extra["stage_seconds"] = clock.seconds
     out.extra["trust"] = trust
     out.extra["time_step"] = float(np.median(np.concatenate([np.diff(w.t) for w in ctx.windows])))

@@ -305,3 +305,57 @@ def test_a_learned_memory_becomes_its_closed_form_candidate() -> None:
     assert start[0] * e_max == pytest.approx(math.radians(2.0), rel=0.02)
     closest, closest_start = closest_form(sel)
     assert closest is not None and closest.name == form.name and closest_start == start
+
+
+def test_the_probe_s_sizes_are_powers_of_two_of_the_control_s_quantum() -> None:
+    """Play b = c e_max and a rate limit's largest step (1 - c) e_max run over the quantum times
+    2^-4 ... 2^4 (1 deg of rudder, 0.5 rev/s of propeller), those within the range's largest
+    gap; the groups are the two forms of each control whose log moves."""
+    from sweep.diagnose.memory import FORMS, GRID_EXPONENTS, grid_values, memory_groups
+
+    g = Group("D", "ed", -4.0, 4.0, 1, form="play")
+    e_max = math.radians(1.0) * math.sinh(4.0)
+    b = [c * e_max for c in grid_values(g)]
+    assert b == pytest.approx([math.radians(1.0) * 2.0**k for k in GRID_EXPONENTS], rel=1e-12)
+    r = Group("P", "en", -2.0, 2.0, 1, form="rate")
+    steps = [(1.0 - c) * 0.5 * math.sinh(2.0) for c in grid_values(r)]
+    assert steps == pytest.approx([0.5 * 2.0**k for k in GRID_EXPONENTS if 2.0**k < math.sinh(2)])
+    p = efd_parameters()
+    k = np.arange(300)
+    x = np.zeros((300, 6))
+    x[:, 1] = 0.5
+    c = np.column_stack([np.where(k < 150, 0.0, 0.2), np.full(300, 10.0)])
+    t = np.asarray(0.1 * k, dtype=np.float64)
+    wins = [Recording("w", None, t, x, c, np.zeros((300, 2)))]
+    groups = memory_groups(wins, p)
+    assert [(g.components, g.form) for g in groups] == [("D", f) for f in FORMS]
+    assert groups[0].hi == pytest.approx(math.asinh(0.2 / math.radians(1.0)), rel=1e-5)
+
+
+def test_the_probe_counts_only_a_change_that_takes_the_residual_away() -> None:
+    """A direction g and a residual r: the base refitted beside g (here nothing to refit), its
+    scale free but positive. r = -2 g: scale 2, all of r's J gained; r = +g: the form would make
+    the fit worse at any positive size, so no gain, and the dBIC is the price of a coefficient."""
+    from types import SimpleNamespace
+
+    from sweep.diagnose.memory import best_direction
+
+    class Fold:  # the base's Jacobian projected out: none in this test double
+        @staticmethod
+        def stack(X: np.ndarray) -> np.ndarray:
+            return X.reshape(X.shape[0] * X.shape[1], -1)
+
+        @staticmethod
+        def resid(X: np.ndarray) -> np.ndarray:
+            return X
+
+    cal = SimpleNamespace(lin=SimpleNamespace(all=Fold()))
+    rng = np.random.default_rng(5)
+    g = rng.normal(size=(3, 40, 1))
+    noise = 0.01 * rng.normal(size=(3, 40, 1))
+    R = np.concatenate([-2.0 * g + noise, g + noise], axis=-1)
+    dbic, scale, J0 = best_direction(cal, g, R, 100.0)  # type: ignore[arg-type]
+    assert scale[0, 0] == pytest.approx(2.0, rel=0.01) and scale[0, 1] < 0
+    assert dbic[0, 0] < -300.0
+    assert dbic[0, 1] == pytest.approx(math.log(100.0))
+    np.testing.assert_allclose(J0, (R * R).sum(axis=(0, 1)), rtol=1e-12)

@@ -697,6 +697,7 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
         "names_shape": names_shape(d),
         "shapes": d.shape.as_dict() if d.shape is not None else None,
         "explainable": explainable(d),
+        "memory": d.extra.get("memory"),
         "misfit": asdict(d.misfit) if d.misfit is not None else None,
         "generalisation": _generalisation_dict(d.generalisation),
         "generalisation_after": _generalisation_dict(d.generalisation_after),
@@ -1174,6 +1175,23 @@ def _variables_md(variables: Sequence[str], chosen: bool) -> str:
     return f"Candidate groups in {', '.join(variables)} ({why})."
 
 
+def _memory_probe_md(memory: dict[str, Any] | None) -> list[str]:
+    """The probe of the controls' memories by their closed forms
+    (:mod:`sweep.diagnose.memory`), a paragraph; none where no control moves."""
+    if not memory or not memory.get("effect"):
+        return []
+    return [
+        "Memories of the controls, probed by their closed forms at finite sizes (a rate limit "
+        "and play; the catalog's actuator_lag is the lag), which the shapes' columns, linearised "
+        f"where the controls act as logged, do not show: {len(memory['trials'])} sizes, the "
+        f"best `{memory['effect']}` at c = {memory['start'][0]:.4g}, linearised dBIC "
+        f"{memory['dbic']:.1f} against the null's quantile {memory['threshold']:.1f} "
+        f"({len(memory['null'])} noise-only copies): "
+        + ("proposed." if memory["proposed"] else "not proposed."),
+        "",
+    ]
+
+
 def _shape_md(d: Diagnosis) -> list[str]:
     """The learned shape: formula, table and plot (verdict ``shape``), or the selection's
     result otherwise."""
@@ -1195,6 +1213,7 @@ def _shape_md(d: Diagnosis) -> list[str]:
         + ("proposed." if sp.proposed else "not proposed."),
         "",
     ]
+    md += _memory_probe_md(d.extra.get("memory"))
     if sp.pairs is not None:
         pr = sp.pairs
         verdict = "taken" if pr["taken"] else "not taken"

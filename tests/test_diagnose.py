@@ -406,13 +406,14 @@ def test_a_form_no_library_term_expresses_is_learned_as_a_shape_end_to_end(runs,
     *kernels(("shape:D~ed[-4:4]:play",), "simulate", "moments"),
 )
 def test_a_steering_gear_with_play_is_found_by_its_memory_s_closed_form(runs, tmp_path):
-    """Play of 0.7 deg in the steering gear (of the planted set no library term expresses; the
+    """Play of 1.7 deg in the steering gear (of the planted set no library term expresses; the
     rudder stays short of the log on the side it came from): the shapes' columns, linearised
     where the rudder acts as logged, do not show it; the probe of the memories' closed forms
-    proposes play, which is fitted with the 57 parameters, accepted over the catalog's lag, and
-    the re-identified model fits the test recording better."""
+    proposes play, which is fitted with the 57 parameters, carries over to another session's
+    runs (random runs one day, zigzags another), is accepted over the catalog's lag, and the
+    re-identified model fits the test recording better."""
     rng = np.random.default_rng(3)
-    wins = pick_windows(runs, {"random": 5}, rng)
+    wins = pick_windows(runs, {"random": 4, "zigzag": 3}, rng)
     noise = noise_levels([r for v in runs.values() for r in v])
     spec = unforeseen_spec("rudder_play", 1.0)
     recs, diverged = generate(wins, efd_parameters(), spec, noise, rng)
@@ -429,6 +430,8 @@ def test_a_steering_gear_with_play_is_found_by_its_memory_s_closed_form(runs, tm
     assert len(memory["null"]) == report["settings"]["shape_null_draws"]
     assert report["verdict"] == "shape", report["statement"]
     assert report["finding"] == memory["effect"]
+    play = next(c for c in report["candidates"] if c["effect"] == memory["effect"])
+    assert play["sessions"] == "checked" and play["sessions_carry"]
     before, after = report["J_before"]["J2"]["Total"], report["J_after"]["J2"]["Total"]
     assert after < 0.5 * before
     md = (out / "report.md").read_text()

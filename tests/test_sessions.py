@@ -12,7 +12,7 @@ import numpy as np
 from sweep.data.recordings import Recording
 from sweep.diagnose.context import Context
 from sweep.diagnose.scoring import CandidateScore
-from sweep.diagnose.sessions import place_or_time
+from sweep.diagnose.sessions import memory_of_controls, place_or_time, session_bound, tie_text
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.shapes import PLACE_AND_TIME, SHIP_VARIABLES, VARIABLES
 from sweep.diagnose.shaping import default_variables
@@ -62,6 +62,23 @@ def test_terms_and_shapes_of_heading_position_or_time_are_tied_to_the_session() 
     assert place_or_time("shape:N~U[0:0.4]/6*t")
     assert not place_or_time("shape:N~u[-0.07:0.41]/8+Y~delta[-0.6:0.6]:sin(2)")
     assert not place_or_time("rudder_offset")
+
+
+def test_a_memory_of_a_control_must_carry_over_to_another_session_too() -> None:
+    """A learned memory of a control, or its closed form, is checked on another session's runs
+    (how a session's programme moves the controls is the session's); a force of the state, the
+    catalog's effects (the lag of actuator_lag among them) and library terms are not."""
+    for memory in (
+        "shape:D~ed[-4:4]:play",
+        "shape:P~en[-3:3]/6",
+        "shape:N~beta[-1:1]/8+D~ed[-4:4]:rate",
+    ):
+        assert memory_of_controls(memory) and session_bound(memory)
+        assert tie_text(memory).startswith("a memory of the controls")
+    for free in ("shape:YN~delta[-0.6:0.6]:step(0,0.1)", "actuator_lag", "discovered:N_vvr"):
+        assert not memory_of_controls(free) and not session_bound(free)
+    assert session_bound("shape:N~x0[0:30]/8") and not memory_of_controls("shape:N~x0[0:30]/8")
+    assert tie_text("shape:N~x0[0:30]/8") == "tied to heading, position or time"
 
 
 def _null() -> AcceptanceNull:

@@ -1406,8 +1406,9 @@ def _candidates_md(d: Diagnosis) -> list[str]:
             f"{100 * held.get('worst_run_limit', 0.0):.0f} % (the same quantile of the best "
             f"catalog candidate's worst held-out run) {scale}; a run "
             f"worse by at most {100 * NEGLIGIBLE:.0f} % of its J is not counted. A library "
-            "term or shape of the heading, the position or the time must carry over alike to "
-            "another session's runs (fitted on some days' runs, judged on the others'): "
+            "term or shape of the heading, the position or the time, and a memory of a control, "
+            "must carry over alike to another session's runs (fitted on some days' runs, judged "
+            "on the others'): "
             '"no (one session)" when all training runs are of one day, "no (other '
             'sessions)" when it does not.',
         ]

@@ -1,4 +1,5 @@
-"""Findings tied to where and when a run was recorded must carry over to another session.
+"""Findings tied to where and when a run was recorded, or to how its controls moved, must carry
+over to another session.
 
 A generated candidate whose force depends on the heading, the position or the time (library
 terms of those kinds, learned shapes in psi, x0, y0 or t) can stand in for whatever the runs of
@@ -8,7 +9,17 @@ x0 fitted in place of a wind force passed every check on the held-out training r
 test recordings 2.7 x worse; on the real Train-R (one day) a moment in x0 raised the test J2 by
 29 %. A bank or a force fixed to the basin acts on every day's runs alike.
 
-So each leading candidate of that kind is fitted once more on the runs of some sessions and
+A memory of a control (a learned shape of a control's gap, ``D~ed`` or ``P~en``, or its closed
+form: a lag, a rate limit, play) acts on how the controls move, and each session's programme
+moves them its own way (one day's random runs in many small steps, another day's zigzags in
+large reversals, berthing with the propeller reversed). Fitted to one programme's steps it can
+stand in for whatever those runs share: on the real Train-R (four random runs of one day) play
+of 3.1 deg in the steering gear made every held-out run better and the test recordings (other
+days, other manoeuvres) 14 % worse, berthing 2.3 x; on a planted moment of the wind at a medium
+magnitude play made the test recordings 35 % worse. A steering gear's play acts on every day's
+runs alike.
+
+So each leading candidate of either kind is fitted once more on the runs of some sessions and
 judged on the others' (both ways round; the sessions are the dates in the recordings' names,
 :func:`sweep.diagnose.windows.session_of`), against the control fitted alike, and must carry
 over there by the same rule as on the held-out runs
@@ -25,6 +36,7 @@ from dataclasses import replace
 from mmg.effect import DISCOVERED_PREFIX, Effect
 from mmg.library import term
 from mmg.shapes import SHAPE_PREFIX, parse
+from mmg.shapes import VARIABLES as SHAPE_VARIABLES
 from sweep.diagnose.candidates import (
     CANDIDATE,
     Candidates,
@@ -55,11 +67,31 @@ def place_or_time(effect: str, kinds: tuple[str, ...] = EXOGENOUS_KINDS) -> bool
     return False
 
 
+def memory_of_controls(effect: str) -> bool:
+    """Whether a learned shape holds a memory of a control (a group of a control's gap)."""
+    if not effect.startswith(SHAPE_PREFIX):
+        return False
+    return any(SHAPE_VARIABLES[g.variable].control for g in parse(effect) if g.variable != "1")
+
+
+def session_bound(effect: str) -> bool:
+    """Whether a generated effect must carry over to another session's runs: its force depends
+    on the heading, the position or the time, or it is a memory of a control."""
+    return place_or_time(effect) or memory_of_controls(effect)
+
+
+def tie_text(effect: str) -> str:
+    """Why ``effect`` is checked on other sessions, in words."""
+    if memory_of_controls(effect):
+        return "a memory of the controls, fitted to how one session's runs moved them"
+    return "tied to heading, position or time"
+
+
 def check_sessions(ctx: Context, base: Fit, cands: Candidates) -> None:
-    """Fit every leading candidate tied to heading, position or time on whole sessions and
-    judge it on the others (stages ``control-sessions-foldJ`` and
-    ``candidate-c-NAME-sessions-foldJ``), recording the result in its score; logged."""
-    tied = [c for c in cands.scores if c.effect in cands.leaders and place_or_time(c.effect)]
+    """Fit every leading candidate tied to heading, position or time, and every memory of a
+    control, on whole sessions and judge it on the others (stages ``control-sessions-foldJ``
+    and ``candidate-c-NAME-sessions-foldJ``), recording the result in its score; logged."""
+    tied = [c for c in cands.scores if c.effect in cands.leaders and session_bound(c.effect)]
     if not tied:
         return
     if ctx.session_w is None:
@@ -67,8 +99,8 @@ def check_sessions(ctx: Context, base: Fit, cands: Candidates) -> None:
             c.sessions = "one session"
         ctx.log(
             "sessions: all training runs are of one session, so "
-            + ", ".join(c.effect for c in tied)
-            + " (tied to heading, position or time) cannot be checked on another session's runs"
+            + ", ".join(f"{c.effect} ({tie_text(c.effect)})" for c in tied)
+            + " cannot be checked on another session's runs"
         )
         return
     by_name = {e.name: e for e in cands.effects}

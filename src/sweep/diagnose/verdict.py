@@ -20,6 +20,7 @@ from sweep.diagnose.scoring import (
     rank,
     shape_and_form,
 )
+from sweep.diagnose.sessions import tie_text
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.threshold import CEILING, NEGLIGIBLE, AcceptanceNull, more_better
 
@@ -190,8 +191,9 @@ def transferred(null: AcceptanceNull, c: CandidateScore) -> bool:
 
 
 def carries_to_other_sessions(null: AcceptanceNull, c: CandidateScore) -> bool:
-    """Whether a candidate tied to heading, position or time carries over to another session's
-    runs (:mod:`sweep.diagnose.sessions`; True for any other candidate)."""
+    """Whether a candidate tied to heading, position or time, or a memory of a control, carries
+    over to another session's runs (:mod:`sweep.diagnose.sessions`; True for any other
+    candidate)."""
     if c.sessions == "one session":
         return False
     if c.sessions == "checked":
@@ -210,8 +212,8 @@ def _carry_text(c: CandidateScore) -> str:
         return ": does not carry over (the transfer check across sessions)"
     if not c.sessions_carry:
         if c.sessions == "one session":
-            return ": tied to heading, position or time, and all training runs are of one session"
-        return ": tied to heading, position or time, does not carry over to another session's runs"
+            return f": {tie_text(c.effect)}, and all training runs are of one session"
+        return f": {tie_text(c.effect)}, does not carry over to another session's runs"
     return ": does not carry over"
 
 

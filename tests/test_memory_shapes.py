@@ -359,3 +359,21 @@ def test_the_probe_counts_only_a_change_that_takes_the_residual_away() -> None:
     assert dbic[0, 0] < -300.0
     assert dbic[0, 1] == pytest.approx(math.log(100.0))
     np.testing.assert_allclose(J0, (R * R).sum(axis=(0, 1)), rtol=1e-12)
+
+
+def test_the_probe_runs_only_where_the_base_misses_beyond_the_noise_floor() -> None:
+    """Within the floor there is no misfit whose cause the probe could look for: nothing is
+    probed or proposed, and the log says why."""
+    from types import SimpleNamespace
+
+    from sweep.diagnose.memory import propose_memory
+    from sweep.diagnose.settings import DiagnoseSettings
+
+    lines: list[str] = []
+    ctx = SimpleNamespace(settings=DiagnoseSettings(), log=lines.append, windows=[])
+    cal = SimpleNamespace(misfit=SimpleNamespace(significant=False))
+    assert propose_memory(ctx, None, cal) is None  # type: ignore[arg-type]
+    assert lines == ["memories of the controls: not probed (the base is within the noise floor)"]
+    off = SimpleNamespace(settings=DiagnoseSettings(shapes=False), log=lines.append)
+    assert propose_memory(off, None, cal) is None  # type: ignore[arg-type]
+    assert len(lines) == 1

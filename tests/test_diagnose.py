@@ -65,6 +65,21 @@ def _case(runs: dict[str, list], spec: PlantedSpec, directory: Path, phi: float 
     write_case(directory, recs[1:], recs[:1], spec, efd_parameters())
 
 
+def _unforeseen_case(
+    runs: dict[str, list], kinds: dict[str, int], form: str, scale: float, directory: Path
+) -> Path:
+    """Windows of ``kinds`` of the EFD ship with the unforeseen ``form`` planted at ``scale``
+    (white measurement noise), the first window the test recording, the others training."""
+    rng = np.random.default_rng(3)
+    wins = pick_windows(runs, kinds, rng)
+    noise = noise_levels([r for v in runs.values() for r in v])
+    spec = unforeseen_spec(form, scale)
+    recs, diverged = generate(wins, efd_parameters(), spec, noise, rng)
+    assert not diverged
+    write_case(directory, recs[1:], recs[:1], spec, efd_parameters())
+    return directory
+
+
 def _diagnose(case: Path, out: Path, *extra: str) -> int:
     return main([*planted_case_args(case, out), *extra])
 
@@ -351,14 +366,7 @@ def test_a_form_no_library_term_expresses_is_learned_as_a_shape_end_to_end(runs,
     model fits the test recording better."""
     # random runs only: their slow, crabbing stretches pass 30 deg of drift in every window, so
     # that each half of the windows sees the hinge
-    rng = np.random.default_rng(3)
-    wins = pick_windows(runs, {"random": 5}, rng)
-    noise = noise_levels([r for v in runs.values() for r in v])
-    spec = unforeseen_spec("drift_hinge", 2.0)
-    recs, diverged = generate(wins, efd_parameters(), spec, noise, rng)
-    assert not diverged
-    case = tmp_path / "case"
-    write_case(case, recs[1:], recs[:1], spec, efd_parameters())
+    case = _unforeseen_case(runs, {"random": 5}, "drift_hinge", 2.0, tmp_path / "case")
     out = tmp_path / "out"
     args = ("--no-tracking", "--no-discovery", "--candidates", "rudder_offset")
     assert _diagnose(case, out, *args) == 0
@@ -412,14 +420,7 @@ def test_a_steering_gear_with_play_is_found_by_its_memory_s_closed_form(runs, tm
     proposes play, which is fitted with the 57 parameters, carries over to another session's
     runs (random runs one day, zigzags another), is accepted over the catalog's lag, and the
     re-identified model fits the test recording better."""
-    rng = np.random.default_rng(3)
-    wins = pick_windows(runs, {"random": 4, "zigzag": 3}, rng)
-    noise = noise_levels([r for v in runs.values() for r in v])
-    spec = unforeseen_spec("rudder_play", 1.0)
-    recs, diverged = generate(wins, efd_parameters(), spec, noise, rng)
-    assert not diverged
-    case = tmp_path / "case"
-    write_case(case, recs[1:], recs[:1], spec, efd_parameters())
+    case = _unforeseen_case(runs, {"random": 4, "zigzag": 3}, "rudder_play", 1.0, tmp_path / "case")
     out = tmp_path / "out"
     args = ("--no-tracking", "--no-discovery", "--candidates", "actuator_lag")
     assert _diagnose(case, out, *args) == 0

@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -152,7 +152,7 @@ class MemoryProposal:
             "proposed": self.proposed,
             "seconds": self.seconds,
             "null": self.null,
-            "trials": [t.__dict__ for t in self.trials],
+            "trials": [asdict(t) for t in self.trials],
         }
 
 

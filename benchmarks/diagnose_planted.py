@@ -80,10 +80,12 @@ from benchmarks.planted import (
     unforeseen_spec,
     write_case,
 )
+from benchmarks.refit_forms import planted_reach
 from mmg import Parameters, efd_parameters
 from sweep.data.datasets import data_root
 from sweep.data.objective import Objective
 from sweep.data.recordings import Recording, read_recordings
+from sweep.diagnose.context import stderr_log
 from sweep.diagnose.run import diagnose_rounds, final_round
 from sweep.diagnose.settings import DiagnoseSettings
 
@@ -508,6 +510,17 @@ def absorbed(r: dict[str, Any]) -> bool:
     return r["J2_test_before"] <= EXPLAINED_RATIO * r["J2_test_true"]
 
 
+def reachable(r: dict[str, Any]) -> bool | None:
+    """Whether anything could explain the case from its training windows: the base's test J2
+    above 1.5 x the true model's and the planted form itself, refitted from the diagnosis' base
+    re-identified without a finding (:func:`benchmarks.refit_forms.planted_reach`, ``--reach``),
+    within 1.5 x (None: not measured)."""
+    reach = r.get("planted_reach")
+    if reach is None:
+        return None
+    return not absorbed(r) and reach["J2_test"] <= EXPLAINED_RATIO * r["J2_test_true"]
+
+
 def case_harm(r: dict[str, Any], out: Path | None = None) -> Harm:
     """The harm counts of a case's accepted finding (:mod:`benchmarks.harm`), from its per-test-
     recording J2 (results stored before they were kept: from the case's report.json in ``out``,
@@ -539,6 +552,7 @@ def row_figures(results: list[dict[str, Any]], out: Path | None = None) -> list[
         eff = [r for r in rs if r["family"] not in ("none", "in_form")]
         none = [r for r in rs if r["family"] == "none"]
         harm = total(case_harm(r, out) for r in rs)
+        reach = [reachable(r) for r in eff]
         figures.append(
             {
                 "row": row,
@@ -555,6 +569,14 @@ def row_figures(results: list[dict[str, Any]], out: Path | None = None) -> list[
                     else None
                 ),
                 "absorbed": sum(absorbed(r) for r in eff),
+                # the planted form itself within 1.5 x from the windows (--reach; None: a case
+                # of the row was not measured), and how many of those are explained
+                "reachable": None if None in reach else sum(bool(x) for x in reach),
+                "explained_reachable": (
+                    None
+                    if None in reach
+                    else sum(bool(x) and explained(r) for x, r in zip(reach, eff, strict=True))
+                ),
                 "none": len(none),
                 "false_alarms": sum(r["verdict"] != "none" for r in none),
                 "harm": asdict(harm),
@@ -569,15 +591,16 @@ def rows_table(figures: list[dict[str, Any]]) -> str:
     lines = [
         f"{'row':40s} {'effects':>7s} {'explained':>9s} {'(unbounded)':>11s} {'(former)':>8s} "
         f"{'named':>5s} {'flagged':>7s} {'more missing':>12s} {'absorbed':>8s} "
-        f"{'false alarms':>12s}  harm"
+        f"{'reachable':>9s} {'false alarms':>12s}  harm"
     ]
     for f in figures:
-        more = f.get("more_missing")
+        more, reach = f.get("more_missing"), f.get("reachable")
+        reach_text = "-" if reach is None else f"{f['explained_reachable']} of {reach}"
         lines.append(
             f"{f['row']:40s} {f['effects']:7d} {f['explained']:9d} "
             f"{f['explained_unbounded']:11d} {f['explained_former']:8d} "
             f"{f['named']:5d} {f['flagged']:7d} {'-' if more is None else more:>12} "
-            f"{f['absorbed']:8d} "
+            f"{f['absorbed']:8d} {reach_text:>9s} "
             f"{f['false_alarms']:>7d} of {f['none']:2d}  {f['harm_text']}"
         )
     lines.append(
@@ -587,7 +610,9 @@ def rows_table(figures: list[dict[str, Any]]) -> str:
         f"discovered and within {EXPLAINED_RATIO} x, without the base's condition; more missing: "
         "a finding the report says leaves more missing (the model with it still above the noise "
         "floor on the training windows, or on the test recordings; - for results from before "
-        f"that was recorded); absorbed: the base already within {EXPLAINED_RATIO} x"
+        f"that was recorded); absorbed: the base already within {EXPLAINED_RATIO} x; "
+        "reachable: explained of the cases where the planted form itself, refitted from the "
+        f"training windows, reaches {EXPLAINED_RATIO} x (--reach; - where not measured)"
     )
     return "\n".join(lines)
 
@@ -746,6 +771,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="shapes of two variables among the learned shapes' candidates (the diagnosis' "
         "--shape-pairs)",
     )
+    ap.add_argument(
+        "--reach",
+        action="store_true",
+        help="also refit each effect case's planted form itself from the diagnosis' base "
+        "re-identified without a finding: what any finding could reach from its training "
+        "windows (also for cases already in --out)",
+    )
     ap.add_argument("--out", default="benchmarks/out/diagnose")
     ap.add_argument(
         "--results",
@@ -801,6 +833,25 @@ def row_label(case: Case, args: argparse.Namespace) -> str:
     if args.weak:
         return case.row + " (weak)"
     return case.row + ("" if args.scale == 1.0 else f" (x {args.scale:g})")
+
+
+def with_reach(r: dict[str, Any], out: Path) -> bool:
+    """Adds ``planted_reach`` (:func:`benchmarks.refit_forms.planted_reach`) to the result ``r``
+    of an effect case whose directory is in ``out``, unless it has it; whether it was added."""
+    if "planted_reach" in r or FAMILY[r["form"]] in ("none", "in_form"):
+        return False
+    case_dir = out / f"case-{r['index']:02d}-{r['repeat']}"
+    reach = planted_reach(case_dir, stderr_log)
+    if reach is None:
+        return False
+    r["planted_reach"] = reach
+    print(
+        f"case {r['index']:2d}.{r['repeat']}: the planted form refitted from the training windows "
+        f"reaches test J2 {reach['J2_test']:.3g} ({reach['J2_test'] / r['J2_test_true']:.2f} x "
+        "the true model's)",
+        flush=True,
+    )
+    return True
 
 
 def _commit() -> str:
@@ -867,7 +918,10 @@ def main(argv: list[str] | None = None) -> int:
         for case in cases:
             path = out / f"result-{case.index:02d}-{repeat}.json"
             if path.exists():
-                results.append(json.loads(path.read_text()))
+                r = json.loads(path.read_text())
+                if args.reach and with_reach(r, out):
+                    path.write_text(json.dumps(r, indent=2, default=float) + "\n")
+                results.append(r)
                 continue
             spec, scale, e = magnitude(case, repeat, runs, noise, args)
             if case.band is not None or args.weak:
@@ -875,6 +929,8 @@ def main(argv: list[str] | None = None) -> int:
             r = run_case(case.index, spec, repeat, runs, noise, settings, out, case.phi)
             r |= {"set": case.set, "name": case.name, "row": row_label(case, args)}
             r |= {"scale": scale, "excess": e, "command": command}
+            if args.reach:
+                with_reach(r, out)
             path.write_text(json.dumps(r, indent=2, default=float) + "\n")
             results.append(r)
             write_results(results_path, command, results, out)

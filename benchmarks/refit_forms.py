@@ -33,6 +33,7 @@ from sweep.data.objective import Objective
 from sweep.data.recordings import Recording, read_recordings
 from sweep.diagnose.context import Context, stderr_log
 from sweep.diagnose.final import final_prefix, finding_settings
+from sweep.diagnose.fit import Fit
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.identification.vector import with_effects
 
@@ -84,6 +85,38 @@ def open_case(case: Path, log: Callable[[str], None]) -> Case | None:
     return Case(ctx, spec, test, true_params, true_effects, J_true)
 
 
+def refit_form(case: Case, before: Fit, name: str) -> tuple[float, float]:
+    """(training J, test J2) of the case's base re-identified without a finding (``before``)
+    refitted with the form ``name`` (a registered effect's name, or :data:`TRUTH`), the way the
+    diagnosis re-identifies a finding. Raises KeyError or ValueError for an unknown name."""
+    ctx, spec = case.ctx, case.spec
+    if name == TRUTH:
+        effects = truth_form(spec, case.true_effects)
+        values = [v for _, vals in case.true_params.effects for _, v in vals]
+        start = with_effects(before.params, effects, values or None)
+    else:
+        effects = (get_effect(name),)
+        start = with_effects(before.params, effects)
+    after = ctx.refit(ctx.windows, start, effects, finding_settings(ctx), name)
+    J = float(Objective(case.test, "J2", effects=effects).evaluate(after.params)[0])
+    return float(after.f), J
+
+
+def planted_reach(case_dir: Path, log: Callable[[str], None]) -> dict[str, float] | None:
+    """What the planted form itself reaches from a diagnosed case's training windows (an upper
+    bound on what any finding can: :func:`refit_form` with :data:`TRUTH`): its training J, its
+    test J2 and the true model's; None when the case's parts or its stage of the base
+    re-identified without a finding are missing."""
+    opened = open_case(case_dir, log)
+    if opened is None:
+        return None
+    before = opened.ctx.store.load(f"{final_prefix(opened.ctx)}-base", ())
+    if before is None:
+        return None
+    J_train, J_test = refit_form(opened, before, TRUTH)
+    return {"J_train": J_train, "J2_test": J_test, "J2_test_true": opened.J_true}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("case", type=Path, help="a case directory of benchmarks/diagnose_planted.py")
@@ -93,8 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     opened = open_case(case, stderr_log)
     if opened is None:
         return 2
-    ctx, spec, test = opened.ctx, opened.spec, opened.test
-    true_params, true_effects, J_true = opened.true_params, opened.true_effects, opened.J_true
+    ctx, spec, test, J_true = opened.ctx, opened.spec, opened.test, opened.J_true
     before = ctx.store.load(f"{final_prefix(ctx)}-base", ())
     if before is None:
         print(f"error: {case} has no stage {final_prefix(ctx)}-base", file=sys.stderr)
@@ -105,22 +137,13 @@ def main(argv: list[str] | None = None) -> int:
         f"  {'base':<60} training J {before.f:8.4g}  test J2 {J_before:8.4g} "
         f"({J_before / J_true:.2f} x)"
     )
-    fit_settings = finding_settings(ctx)
     for name in args.forms:
-        if name == TRUTH:
-            effects = truth_form(spec, true_effects)
-            values = [v for _, vals in true_params.effects for _, v in vals]
-            start = with_effects(before.params, effects, values or None)
-        else:
-            try:
-                effects = (get_effect(name),)
-            except (KeyError, ValueError) as err:
-                print(f"error: {name}: {err}", file=sys.stderr)
-                return 2
-            start = with_effects(before.params, effects)
-        after = ctx.refit(ctx.windows, start, effects, fit_settings, name)
-        J = float(Objective(test, "J2", effects=effects).evaluate(after.params)[0])
-        print(f"  {name:<60} training J {after.f:8.4g}  test J2 {J:8.4g} ({J / J_true:.2f} x)")
+        try:
+            J_train, J = refit_form(opened, before, name)
+        except (KeyError, ValueError) as err:
+            print(f"error: {name}: {err}", file=sys.stderr)
+            return 2
+        print(f"  {name:<60} training J {J_train:8.4g}  test J2 {J:8.4g} ({J / J_true:.2f} x)")
     return 0
 
 

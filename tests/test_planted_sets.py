@@ -13,6 +13,7 @@ from benchmarks.diagnose_planted import (
     all_cases,
     explained,
     explained_former,
+    reachable,
     row_figures,
     select_cases,
 )
@@ -144,6 +145,26 @@ def test_rows_keep_the_sets_apart_and_count_harm_and_false_alarms():
     assert f["more_missing"] is None  # results from before it was recorded: not counted as 0
     marked = [dict(r, more_missing=r["index"] == 100) for r in results]
     assert {f["row"]: f for f in row_figures(marked)}[strong]["more_missing"] == 1
+
+
+def test_a_row_counts_what_the_planted_form_itself_reaches_only_where_measured():
+    medium = ROWS["unforeseen"] + ", medium"
+    results = [
+        _result(140, "seiche", "unexplained", 4.0, 4.0, row=medium),
+        _result(141, "shallow_patch", "shape", 9.0, 1.2, row=medium),
+        _result(142, "dead_band", "unexplained", 1.2, 1.2, row=medium),  # absorbed
+        _result(150, "none", "none", 1.0, 1.0, row=medium),  # no effect: never refitted
+    ]
+    assert {f["row"]: f for f in row_figures(results)}[medium]["reachable"] is None
+    reach = [2.5, 1.1, 1.0, None]
+    measured = [
+        dict(r, planted_reach={"J2_test": x}) if x is not None else r
+        for r, x in zip(results, reach, strict=True)
+    ]
+    f = {f["row"]: f for f in row_figures(measured)}[medium]
+    # 140: the planted form misses 1.5 x; 142: nothing to explain; 141: reachable and explained
+    assert (f["reachable"], f["explained_reachable"], f["explained"]) == (1, 1, 1)
+    assert reachable(measured[0]) is False and reachable(measured[3]) is None
 
 
 def test_cases_are_selected_by_set_index_or_name():

@@ -14,7 +14,8 @@ CASE_DIR is a case of ``benchmarks/diagnose_planted.py --out DIR`` (``DIR/case-N
 ``train``, ``test``, ``truth.json`` and ``diagnosis/stages``); a FORM is a registered effect's
 name (a catalog effect, ``discovered:...``, ``shape:...``, with or without a closed form) or
 ``truth``: the planted form itself, started at its planted values, its search interval four
-times their size (an upper bound on what any form can reach from these windows).
+times their size (what the planted form reaches from these windows, refitted from this one
+start: a finding re-identified from its own fold fits can reach further).
 Figures from it are development figures: the forms are chosen by someone who knows the case.
 """
 
@@ -103,8 +104,9 @@ def refit_form(case: Case, before: Fit, name: str) -> tuple[float, float]:
 
 
 def planted_reach(case_dir: Path, log: Callable[[str], None]) -> dict[str, float] | None:
-    """What the planted form itself reaches from a diagnosed case's training windows (an upper
-    bound on what any finding can: :func:`refit_form` with :data:`TRUTH`): its training J, its
+    """What the planted form itself reaches from a diagnosed case's training windows
+    (:func:`refit_form` with :data:`TRUTH`; one refit from one start, not a strict bound on what
+    a finding can reach): its training J, its
     test J2 and the true model's; None when the case's parts or its stage of the base
     re-identified without a finding are missing."""
     opened = open_case(case_dir, log)

@@ -165,6 +165,8 @@ def test_a_row_counts_what_the_planted_form_itself_reaches_only_where_measured()
     # 140: the planted form misses 1.5 x; 142: nothing to explain; 141: reachable and explained
     assert (f["reachable"], f["explained_reachable"], f["explained"]) == (1, 1, 1)
     assert reachable(measured[0]) is False and reachable(measured[3]) is None
+    # explained where the planted form refitted from one start is not: shown within reach
+    assert reachable(dict(measured[1], planted_reach={"J2_test": 2.0})) is True
 
 
 def test_cases_are_selected_by_set_index_or_name():

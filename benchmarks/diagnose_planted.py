@@ -572,8 +572,9 @@ def row_figures(results: list[dict[str, Any]], out: Path | None = None) -> list[
                     else None
                 ),
                 "absorbed": sum(absorbed(r) for r in eff),
-                # the planted form itself within 1.5 x from the windows (--reach; None: a case
-                # of the row was not measured), and how many of those are explained
+                # within reach: the planted form refitted from the windows or the finding within
+                # 1.5 x (--reach; None: a case of the row was not measured), and how many of
+                # those are explained
                 "reachable": None if None in reach else sum(bool(x) for x in reach),
                 "explained_reachable": (
                     None

@@ -86,6 +86,12 @@ def open_case(case: Path, log: Callable[[str], None]) -> Case | None:
     return Case(ctx, spec, test, true_params, true_effects, J_true)
 
 
+def base_without_finding(case: Case) -> Fit | None:
+    """The diagnosis' base re-identified without a finding (its stage ``final-wW-base``; None
+    when the diagnosis did not get that far)."""
+    return case.ctx.store.load(f"{final_prefix(case.ctx)}-base", ())
+
+
 def refit_form(case: Case, before: Fit, name: str) -> tuple[float, float]:
     """(training J, test J2) of the case's base re-identified without a finding (``before``)
     refitted with the form ``name`` (a registered effect's name, or :data:`TRUTH`), the way the
@@ -106,13 +112,12 @@ def refit_form(case: Case, before: Fit, name: str) -> tuple[float, float]:
 def planted_reach(case_dir: Path, log: Callable[[str], None]) -> dict[str, float] | None:
     """What the planted form itself reaches from a diagnosed case's training windows
     (:func:`refit_form` with :data:`TRUTH`; one refit from one start, not a strict bound on what
-    a finding can reach): its training J, its
-    test J2 and the true model's; None when the case's parts or its stage of the base
-    re-identified without a finding are missing."""
+    a finding can reach): its training J, its test J2 and the true model's; None when a part of
+    the case or its base re-identified without a finding is missing."""
     opened = open_case(case_dir, log)
     if opened is None:
         return None
-    before = opened.ctx.store.load(f"{final_prefix(opened.ctx)}-base", ())
+    before = base_without_finding(opened)
     if before is None:
         return None
     J_train, J_test = refit_form(opened, before, TRUTH)
@@ -129,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     if opened is None:
         return 2
     ctx, spec, test, J_true = opened.ctx, opened.spec, opened.test, opened.J_true
-    before = ctx.store.load(f"{final_prefix(ctx)}-base", ())
+    before = base_without_finding(opened)
     if before is None:
         print(f"error: {case} has no stage {final_prefix(ctx)}-base", file=sys.stderr)
         return 2

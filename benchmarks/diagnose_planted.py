@@ -369,6 +369,15 @@ def band_scale(
     )
 
 
+#: families of the cases without an effect to explain (nothing planted; the paper's own form)
+NO_EFFECT = ("none", "in_form")
+
+
+def case_directory(out: Path, index: int, repeat: int) -> Path:
+    """Where case ``index`` (repeat ``repeat``) keeps its recordings, truth and diagnosis."""
+    return out / f"case-{index:02d}-{repeat}"
+
+
 def run_case(
     index: int,
     spec: PlantedSpec,
@@ -380,7 +389,7 @@ def run_case(
     phi: float | None = None,
 ) -> dict[str, Any]:
     ship, train, test, diverged = make_case(index, spec, repeat, runs, noise, phi)
-    case_dir = out / f"case-{index:02d}-{repeat}"
+    case_dir = case_directory(out, index, repeat)
     write_case(case_dir, train, test, spec, ship)
     blind_train = read_recordings(case_dir / "train")
     blind_test = read_recordings(case_dir / "test")
@@ -529,7 +538,7 @@ def case_harm(r: dict[str, Any], out: Path | None = None) -> Harm:
     recording J2 (results stored before they were kept: from the case's report.json in ``out``,
     else the total alone)."""
     before, after = r.get("J2_test_before_table"), r.get("J2_test_after_table")
-    report = None if out is None else out / f"case-{r['index']:02d}-{r['repeat']}"
+    report = None if out is None else case_directory(out, r["index"], r["repeat"])
     report = None if report is None else report / "diagnosis" / "report.json"
     if before is None and report is not None and report.exists():
         data = json.loads(report.read_text())
@@ -552,7 +561,7 @@ def row_figures(results: list[dict[str, Any]], out: Path | None = None) -> list[
         rows.setdefault(row_of(r), []).append(r)
     figures = []
     for row, rs in rows.items():
-        eff = [r for r in rs if r["family"] not in ("none", "in_form")]
+        eff = [r for r in rs if r["family"] not in NO_EFFECT]
         none = [r for r in rs if r["family"] == "none"]
         harm = total(case_harm(r, out) for r in rs)
         reach = [reachable(r) for r in eff]
@@ -650,7 +659,7 @@ def summarise(results: list[dict[str, Any]]) -> str:
             f"{before:10.1f} -> {after:8.1f} ({true:6.1f})   [{label}]"
         )
     # a form in the paper's model's own form plants nothing missing: its own line below
-    eff = [r for r in results if r["family"] not in ("none", "in_form")]
+    eff = [r for r in results if r["family"] not in NO_EFFECT]
     none = [r for r in results if r["family"] == "none"]
     if eff:
         lines.append(
@@ -843,10 +852,9 @@ def row_label(case: Case, args: argparse.Namespace) -> str:
 def with_reach(r: dict[str, Any], out: Path) -> bool:
     """Adds ``planted_reach`` (:func:`benchmarks.refit_forms.planted_reach`) to the result ``r``
     of an effect case whose directory is in ``out``, unless it has it; whether it was added."""
-    if "planted_reach" in r or FAMILY[r["form"]] in ("none", "in_form"):
+    if "planted_reach" in r or FAMILY[r["form"]] in NO_EFFECT:
         return False
-    case_dir = out / f"case-{r['index']:02d}-{r['repeat']}"
-    reach = planted_reach(case_dir, stderr_log)
+    reach = planted_reach(case_directory(out, r["index"], r["repeat"]), stderr_log)
     if reach is None:
         return False
     r["planted_reach"] = reach

@@ -523,6 +523,43 @@ def test_candidate_groups_span_the_recorded_ranges() -> None:
     assert by["ed", ""].components == "D" and by["ed", ""].lo == -by["ed", ""].hi
 
 
+def test_position_is_a_candidate_fixed_to_the_basin_and_with_the_speed_s_scaling() -> None:
+    """Of x0 and y0: a force on the ship's axes at rest (U_ref^2), one along the basin's axes,
+    and one on the ship's axes scaled by U^2 (a hull force that changes with where the ship
+    is, e.g. the water's depth), and the surface of both in U^2; time keeps the first two
+    alone, and one of x0 and y0 no surface."""
+    from sweep.diagnose.shapes import PAIR_BASIS, candidate_groups
+
+    p = efd_parameters()
+    k = np.arange(401)
+    x = np.zeros((401, 6))
+    x[:, 0] = 0.05 * k  # x0 [m]
+    x[:, 1] = 0.4
+    x[:, 2] = 1.0 + np.sin(k / 50.0)  # y0 [m]
+    c = np.column_stack([np.zeros(401), np.full(401, 10.0)])
+    t = np.asarray(0.1 * k, dtype=np.float64)
+    wins = [Recording("w", None, t, x, c, np.zeros((401, 2)))]
+    groups = candidate_groups(wins, p, variables=("x0", "y0", "t"), products=(), shares=())
+    kinds = [(g.variable, g.variable2, g.components, g.scale) for g in groups if g.variable != "1"]
+    assert sorted(kinds) == sorted(
+        [
+            *((v, "", "XYN", "") for v in ("x0", "y0", "t")),
+            *((v, "", "xy", "") for v in ("x0", "y0", "t")),
+            ("x0", "", "XYN", "U2"),
+            ("y0", "", "XYN", "U2"),
+            ("x0", "y0", "XYN", "U2"),
+        ]
+    )
+    (g,) = [g for g in groups if g.variable == "x0" and g.scale == "U2" and not g.variable2]
+    assert g.text.endswith("@U2") and g.scale_name == "U2"
+    (surface,) = [g for g in groups if g.variable2 == "y0"]
+    (g_y0,) = [g for g in groups if g.variable == "y0" and g.scale == "U2"]
+    assert surface.size == PAIR_BASIS**2 and surface.text.endswith(f"/{PAIR_BASIS}x{PAIR_BASIS}@U2")
+    assert (surface.lo, surface.hi, surface.lo2, surface.hi2) == (g.lo, g.hi, g_y0.lo, g_y0.hi)
+    alone = candidate_groups(wins, p, variables=("x0", "t"), products=(), shares=())
+    assert not any(g.variable2 for g in alone)
+
+
 def test_an_angle_recorded_over_most_of_a_turn_gets_knots_a_quarter_radian_apart() -> None:
     """Eight basis functions at least; an angle's knots at most 0.25 rad apart up to 24 basis
     functions (alpha_R ahead and astern), time's 10 s apart up to 40; other variables keep the

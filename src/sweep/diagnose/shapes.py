@@ -87,6 +87,17 @@ SHIP_VARIABLES = tuple(v for v in VARIABLES if v not in PLACE_AND_TIME)
 #: a seiche, a wind set-up) keeps its direction there while the ship turns under it, which no
 #: shape on the ship's axes of position or time alone can follow
 BASIN_VARIABLES = ("x0", "y0", "t")
+#: position also with the ship's speed's scaling, U^2 (beside the default U_ref^2 of a force
+#: that exists at rest, fixed to the basin): a hull force that changes with where the ship is
+#: (the water's depth over an uneven floor, a bank, weeds), which vanishes at rest as the
+#: hull's forces do; the term library holds both kinds (E_x0, E_y0; X_Ux, Y_Usy). On a planted
+#: patch of shallow water (a drag growing with u|u| and v_m|v_m| where the ship passes), a
+#: surge force in x0 took 71 % of the held-out J off with U^2, 1 % with U_ref^2, where a shape
+#: in time (the runs sail along the basin as time goes) had led with 55 %. With both, also the
+#: surface of x0 and y0 in U^2 (:data:`PAIR_BASIS` basis functions each way): a patch of the
+#: floor or a bank's stretch is local in both, where a shape of one of them spreads the force
+#: over the whole width or length of the basin
+SPEED_SCALED_PLACE = ("x0", "y0")
 #: varying-coefficient candidates: (shape variable, multiplier). The hull's derivatives
 #: varying with speed, Y_v(U) v_m U and Y_r(U) r' U^2, and with the propeller's loading,
 #: Y_v(n_p) (n_p D_p)^2 v_m / U_e and Y_r(n_p) (n_p D_p)^2 r' (a propeller in oblique inflow or
@@ -249,7 +260,8 @@ def candidate_groups(
 ) -> list[Group]:
     """The candidate groups, all three components each (one basis per variable in the hook):
     a shape of each variable that varies over ``windows`` (of position and time also a force
-    fixed to the basin, :data:`BASIN_VARIABLES`), the varying-coefficient
+    fixed to the basin, :data:`BASIN_VARIABLES`; of position also one with the speed's scaling,
+    :data:`SPEED_SCALED_PLACE`, and the surface of both in U^2), the varying-coefficient
     ``products``, the ``shares`` of sub-models' forces (one component, S) and a constant times
     each quadrant indicator; a control's gap gives the memory of that control (one component,
     :data:`N_MEMORY_BASIS` functions)."""
@@ -279,6 +291,27 @@ def _groups(
         if v in ranges
     ]
     groups += [spline("xy", v) for v in variables if v in ranges and v in BASIN_VARIABLES]
+    groups += [
+        replace(spline("XYN", v), scale="U2")
+        for v in variables
+        if v in ranges and v in SPEED_SCALED_PLACE
+    ]
+    place = [v for v in SPEED_SCALED_PLACE if v in variables and v in ranges]
+    if len(place) == 2:
+        (z, z2) = place
+        groups.append(
+            Group(
+                "XYN",
+                z,
+                *ranges[z],
+                PAIR_BASIS,
+                scale="U2",
+                variable2=z2,
+                lo2=ranges[z2][0],
+                hi2=ranges[z2][1],
+                n2=PAIR_BASIS,
+            )
+        )
     groups += [spline("XYN", v, m) for v, m in products if v in ranges]
     groups += [spline("S", v, m) for v, m in shares if v in ranges]
     groups += [Group("XYN", "1", multiplier=q) for q in quadrants]

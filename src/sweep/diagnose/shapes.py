@@ -291,26 +291,17 @@ def _groups(
         if v in ranges
     ]
     groups += [spline("xy", v) for v in variables if v in ranges and v in BASIN_VARIABLES]
-    groups += [
-        replace(spline("XYN", v), scale="U2")
+    speed = {
+        v: replace(spline("XYN", v), scale="U2")
         for v in variables
         if v in ranges and v in SPEED_SCALED_PLACE
-    ]
-    place = [v for v in SPEED_SCALED_PLACE if v in variables and v in ranges]
-    if len(place) == 2:
-        (z, z2) = place
+    }
+    groups += speed.values()
+    if len(speed) == len(SPEED_SCALED_PLACE):  # the surface, as pair_groups draws one
+        z, z2 = SPEED_SCALED_PLACE
+        lo2, hi2 = ranges[z2]
         groups.append(
-            Group(
-                "XYN",
-                z,
-                *ranges[z],
-                PAIR_BASIS,
-                scale="U2",
-                variable2=z2,
-                lo2=ranges[z2][0],
-                hi2=ranges[z2][1],
-                n2=PAIR_BASIS,
-            )
+            replace(speed[z], n=PAIR_BASIS, variable2=z2, lo2=lo2, hi2=hi2, n2=PAIR_BASIS)
         )
     groups += [spline("XYN", v, m) for v, m in products if v in ranges]
     groups += [spline("S", v, m) for v, m in shares if v in ranges]

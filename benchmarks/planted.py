@@ -905,6 +905,313 @@ UNFORESEEN: dict[str, Unforeseen] = {
 }
 
 
+# ------------------------------------------------------------------ the fresh set
+#
+# Forms written after the method was tuned on the set above, and run once on the method as it
+# stood (a holdout of the forms, not only of the magnitude): one per kind, none expressed by a
+# library term, a catalog effect or a form of the set above.
+
+
+class TurningCurrentParams(NamedTuple):
+    """The parameters of the planted form ``turning_current`` (unit of each after its field)."""
+
+    C_tc: float  # strength of the push [-]
+    T_tc: float  # the time its direction takes to turn once round [s]
+    phi_tc: float  # its direction at t = 0, from the x0 axis [rad]
+
+
+@subfunction
+def turning_current_force_at(
+    t: float,
+    x0: float,
+    y0: float,
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    e: TurningCurrentParams,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float]:
+    """A push of constant size whose direction over the basin turns steadily (a tidal stream
+    turning with the tide): F = 0.5 rho L d C_tc U_ref^2 along the direction
+    theta = 2 pi t / T_tc + phi_tc from x0, on the ship's axes X = F cos(theta - psi),
+    Y = F sin(theta - psi) (time).
+
+    Nearest: the library's E_x0 and E_y0 (a steady force along x0 or y0) and its time terms
+    (monotone over a run); the first set's seiche (a push along x0 whose size oscillates): this
+    one keeps its size, and its direction turns by 2 pi 100 s / T_tc within a window."""
+    q = 0.5 * sh.rho * sh.L_pp * sh.d * e.C_tc * U_REF * U_REF
+    s, c = sincos(2.0 * math.pi * t / e.T_tc + e.phi_tc - psi)
+    return q * c, q * s, 0.0
+
+
+class YawHingeParams(NamedTuple):
+    """The parameters of the planted form ``yaw_hinge`` (unit of each after its field)."""
+
+    C_y: float  # the yaw damping's growth beyond the hinge [-]
+    r_h: float  # the hinge's non-dimensional yaw rate r L_pp / U [-]
+
+
+@subfunction
+def yaw_hinge_force(
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    e: YawHingeParams,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float]:
+    """Extra yaw damping once the turn is tight (the flow separates along the bilges):
+    N = -0.5 rho L^2 d C_y U^2 sign(r') max(|r'| - r_h, 0), r' = r L_pp / U (state).
+
+    Nearest: the model's N'_r r' and N'_rrr r'^3 (Eq. (11): smooth in r') and the library's
+    r L |r L|, (r L)^3 / U_e: smooth, none has the kink at |r'| = r_h."""
+    U2 = u * u + v_m * v_m
+    if U2 <= 0.0:
+        return 0.0, 0.0, 0.0
+    U = math.sqrt(U2)
+    rp = r * sh.L_pp / U
+    excess = abs(rp) - e.r_h
+    if excess <= 0.0:
+        return 0.0, 0.0, 0.0
+    q = 0.5 * sh.rho * sh.L_pp * sh.L_pp * sh.d * e.C_y
+    return 0.0, 0.0, -q * math.copysign(U2 * excess, rp)
+
+
+@subfunction
+def _rudder_normal_force(
+    u: float, v_m: float, r: float, delta: float, n_p: float, th: Theta, sh: Ship
+) -> tuple[float, float, float]:
+    """(F_N [N], u_R^2 / U_R^2, U_R [m/s]) of the model's rudder (Eqs. (17)-(20)), as
+    rudder_collapse computes it; (0, 0, 0) where the inflow comes from astern."""
+    u_R, v_R = rudder_inflow_at(u, v_m, r, n_p, th, sh)
+    if u_R <= 0.0:
+        return 0.0, 0.0, 0.0
+    sin_d, cos_d = sincos(delta)
+    U_R2 = u_R * u_R + v_R * v_R
+    U_R = math.sqrt(U_R2)
+    F_N = 0.5 * sh.rho * sh.A_R * lift_gradient(sh) * U_R * (u_R * sin_d - v_R * cos_d)
+    return F_N, u_R * u_R / U_R2, U_R
+
+
+class LowReynoldsParams(NamedTuple):
+    """The parameters of the planted form ``rudder_low_reynolds`` (unit of each after its field)."""
+
+    k_l: float  # share of the rudder normal force lost at zero inflow speed [-]
+    U_l: float  # the inflow speed over which the loss fades [m/s]
+
+
+@subfunction
+def rudder_low_reynolds_force(
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    e: LowReynoldsParams,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float]:
+    """A model's rudder in slow water: at a low Reynolds number the flow over it separates
+    early and it gives less lift, F_N -> F_N (1 - k_l exp(-U_R / U_l)), faded by u_R^2 / U_R^2,
+    distributed as in Eqs. (14)-(16) (a change of a force component of the model: a scale
+    effect of free-running models).
+
+    Nearest: the library's rudder terms (delta, delta^3, sin(delta) cos(delta) times u|u| or
+    (n_p D_p)^2: their share of the force is the same at every speed) and the catalog's
+    rudder_stall (a cut in alpha_R): this one takes a share that depends on the rudder's inflow
+    speed alone."""
+    F_N, fade, U_R = _rudder_normal_force(u, v_m, r, delta, n_p, th, sh)
+    dF_N = -e.k_l * math.exp(-U_R / e.U_l) * fade * F_N
+    sin_d, cos_d = sincos(delta)
+    L = sh.L_pp
+    return (
+        -(1.0 - th.t_R) * dF_N * sin_d,  # Eq. (14)
+        -(1.0 + th.a_H) * dF_N * cos_d,  # Eq. (15)
+        -(sh.x_R_nd * L + th.a_H * th.x_H * L) * dF_N * cos_d,  # Eq. (16)
+    )
+
+
+class RudderAsymmetryParams(NamedTuple):
+    """The parameters of the planted form ``rudder_asymmetry`` (unit of each after its field)."""
+
+    k_a: float  # the rudder's normal force is 1 + k_a times as large to port as ... [-]
+    w_a: float  # ... 1 - k_a to starboard, changing over within w_a of midships [rad]
+
+
+@subfunction
+def rudder_asymmetry_force(
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    e: RudderAsymmetryParams,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float]:
+    """The rudder works better to one side (the propeller's swirl meets it at different angles
+    on either side, or a bent stock): F_N -> F_N (1 + k_a tanh(delta / w_a)), faded by
+    u_R^2 / U_R^2, distributed as in Eqs. (14)-(16) (controls: the rudder angle's sign).
+
+    Nearest: the catalog's rudder_offset (delta shifted by delta_0: the same shift on both
+    sides) and the library's rudder terms (delta, delta^3, sin(delta) cos(delta) times u|u| or
+    (n_p D_p)^2 in Y and N: odd in delta). The change here is even in delta, |F_N| k_a to one
+    side whichever way the rudder is put."""
+    F_N, fade, _ = _rudder_normal_force(u, v_m, r, delta, n_p, th, sh)
+    dF_N = e.k_a * math.tanh(delta / e.w_a) * fade * F_N
+    sin_d, cos_d = sincos(delta)
+    L = sh.L_pp
+    return (
+        -(1.0 - th.t_R) * dF_N * sin_d,  # Eq. (14)
+        -(1.0 + th.a_H) * dF_N * cos_d,  # Eq. (15)
+        -(sh.x_R_nd * L + th.a_H * th.x_H * L) * dF_N * cos_d,  # Eq. (16)
+    )
+
+
+class LoadedSteeringParams(NamedTuple):
+    """The parameters of the planted form ``loaded_steering`` (unit of each after its field)."""
+
+    R_a: float  # the steering gear's largest rate away from midships [rad/s]
+    m_l: float  # how many times faster it turns back towards midships [-]
+
+
+@subfunction
+def loaded_steering_inputs(
+    delta_log: float,
+    n_log: float,
+    delta_prev: float,
+    n_prev: float,
+    dt: float,
+    e: LoadedSteeringParams,
+) -> tuple[float, float]:
+    """A steering gear working against the rudder's load: it turns the rudder away from
+    midships at most at R_a and back towards it, helped by the load, at m_l R_a (a memory of the
+    controls).
+
+    Nearest: the catalog's actuator_lag (a first-order lag, alike both ways) and the first set's
+    rudder_rate (one rate both ways): here the rate depends on whether the rudder moves away
+    from midships or back."""
+    d = delta_log - delta_prev
+    away = d * delta_prev > 0.0 or (delta_prev == 0.0 and d != 0.0)
+    step = (e.R_a if away else e.m_l * e.R_a) * dt
+    return delta_prev + max(-step, min(step, d)), n_log
+
+
+class WindGapParams(NamedTuple):
+    """The parameters of the planted form ``wind_gap`` (unit of each after its field)."""
+
+    C_g: float  # side-force coefficient of the wind in the gap [-]
+    y_g: float  # where the gap begins across the basin [m]
+    w_g: float  # the width of its edge [m]
+
+
+@subfunction
+def wind_gap_force_at(
+    t: float,
+    x0: float,
+    y0: float,
+    u: float,
+    v_m: float,
+    r: float,
+    psi: float,
+    delta: float,
+    n_p: float,
+    U_T: float,
+    gamma_T: float,
+    e: WindGapParams,
+    th: Theta,
+    sh: Ship,
+) -> tuple[float, float, float]:
+    """The wind funnels through a gap between buildings on one side of the basin: beyond y_g
+    the apparent wind's cross component pushes harder, Y = 0.5 rho_A A_L C_g v_A|v_A| s,
+    s = 1 / (1 + exp(-(y0 - y_g) / w_g)), N = 0.1 L_pp Y (an interaction of the wind and the
+    position).
+
+    Nearest: the library's Y_wvv (v_A|v_A| everywhere) and Y_sy, Y_Usy (a step across y0, at
+    U_ref^2 or U^2): each of one variable; this force is their product."""
+    sin_psi, cos_psi = sincos(psi)
+    sin_g, cos_g = sincos(gamma_T)
+    v_A = apparent_wind(u, v_m, sin_psi, cos_psi, U_T, sin_g, cos_g)[1]
+    s = 1.0 / (1.0 + math.exp(min(-(y0 - e.y_g) / e.w_g, 50.0)))
+    Y = 0.5 * sh.rho_A * sh.A_L * e.C_g * v_A * abs(v_A) * s
+    return 0.0, Y, 0.1 * sh.L_pp * Y
+
+
+#: the fresh forms, by name (nominal strengths near the strong magnitude; the bands set each
+#: case's own). The hinge at the 75th percentile of |r'| (0.64 at U > 0.05 m/s), the gap's edge
+#: at the median y0 of the real runs (1.5 m).
+FRESH: dict[str, Unforeseen] = {
+    f.effect.name: f
+    for f in (
+        _unforeseen(
+            "turning_current",
+            "time",
+            TurningCurrentParams,
+            {"C_tc": (3e-4, "-"), "T_tc": (300.0, "s"), "phi_tc": (0.5, "rad")},
+            strength=("C_tc",),
+            force_at=turning_current_force_at,
+        ),
+        _unforeseen(
+            "yaw_hinge",
+            "state",
+            YawHingeParams,
+            {"C_y": (0.05, "-"), "r_h": (0.64, "-")},
+            strength=("C_y",),
+            force=yaw_hinge_force,
+        ),
+        _unforeseen(
+            "rudder_low_reynolds",
+            "component",
+            LowReynoldsParams,
+            {"k_l": (0.5, "-"), "U_l": (0.3, "m/s")},
+            strength=("k_l",),
+            force=rudder_low_reynolds_force,
+        ),
+        _unforeseen(
+            "rudder_asymmetry",
+            "controls",
+            RudderAsymmetryParams,
+            {"k_a": (0.2, "-"), "w_a": (0.02, "rad")},
+            strength=("k_a",),
+            force=rudder_asymmetry_force,
+        ),
+        _unforeseen(
+            "loaded_steering",
+            "memory",
+            LoadedSteeringParams,
+            {"R_a": (math.radians(30.0), "rad/s"), "m_l": (3.0, "-")},
+            onset=("R_a",),
+            inputs=loaded_steering_inputs,
+        ),
+        _unforeseen(
+            "wind_gap",
+            "interaction",
+            WindGapParams,
+            {"C_g": (1.0, "-"), "y_g": (1.5, "m"), "w_g": (1.0, "m")},
+            strength=("C_g",),
+            force_at=wind_gap_force_at,
+        ),
+    )
+}
+
+
 #: planted forms that are not in the catalog (not registered: the diagnosis never sees them)
 OTHER_FORMS: dict[str, Effect] = {
     "stall_tanh": _form(
@@ -959,6 +1266,7 @@ FAMILY: dict[str, str] = {
     **{name: "discovered" for name in UNLISTED if name not in IN_FORM},
     **{name: "in_form" for name in IN_FORM},
     **{name: "discovered" for name in UNFORESEEN},
+    **{name: "discovered" for name in FRESH},
 }
 
 # --------------------------------------------------------------------------- noise
@@ -1076,8 +1384,8 @@ def truth_effects(spec: PlantedSpec) -> tuple[tuple[Effect, ...], Parameters | N
         return (eff,), Parameters(
             efd_parameters().theta, effects=(("heading_bias", tuple(vals.items())),)
         )
-    if spec.form in UNFORESEEN:
-        eff = UNFORESEEN[spec.form].effect
+    if spec.form in UNFORESEEN or spec.form in FRESH:
+        eff = unforeseen_form(spec.form).effect
     else:
         eff = OTHER_FORMS.get(spec.form) or UNLISTED.get(spec.form) or get_effect(spec.form)
     values = tuple((q.name, float(spec.values.get(q.name, q.neutral))) for q in eff.params)
@@ -1203,11 +1511,38 @@ def _unforeseen_cases() -> tuple[UnforeseenCase, ...]:
 UNFORESEEN_CASES: tuple[UnforeseenCase, ...] = _unforeseen_cases()
 
 
+def _fresh_cases() -> tuple[UnforeseenCase, ...]:
+    cases: list[UnforeseenCase] = []
+    for start, label, band in (
+        (160, "fresh_strong", STRONG_BAND),
+        (170, "fresh_medium", MEDIUM_BAND),
+    ):
+        for j, form in enumerate(FRESH):
+            phi = 0.6 if j % 2 else 0.0
+            cases.append(UnforeseenCase(f"{form}/{label}", start + j, form, band, phi))
+        for j in range(2):
+            index = start + len(FRESH) + j
+            cases.append(
+                UnforeseenCase(f"none/{label}-{j + 1}", index, "none", (0.0, 0.0), 0.6 * j)
+            )
+    return tuple(cases)
+
+
+#: the fresh set (:data:`FRESH`): each form at the strong and the medium magnitude, and two
+#: no-effect cases with their own seeds in each row (cases 160-167 and 170-177)
+FRESH_CASES: tuple[UnforeseenCase, ...] = _fresh_cases()
+
+
+def unforeseen_form(name: str) -> Unforeseen:
+    """A form of :data:`UNFORESEEN` or :data:`FRESH` by name."""
+    return UNFORESEEN[name] if name in UNFORESEEN else FRESH[name]
+
+
 def unforeseen_spec(form: str, scale: float = 1.0) -> PlantedSpec:
     """The spec of a form of :data:`UNFORESEEN` at a magnitude ``scale`` (1: nominal)."""
     if form == "none":
         return PlantedSpec("none")
-    f = UNFORESEEN[form]
+    f = unforeseen_form(form)
     values = dict(f.nominal)
     for name in f.strength:
         values[name] *= scale

@@ -20,6 +20,8 @@ from benchmarks.diagnose_planted import (
 from benchmarks.harm import Harm, finding_harm, report_harm, total
 from benchmarks.planted import (
     FAMILY,
+    FRESH,
+    FRESH_CASES,
     MEDIUM_BAND,
     STRONG_BAND,
     UNFORESEEN,
@@ -27,12 +29,15 @@ from benchmarks.planted import (
     WEAK_BAND,
     DeadBandParams,
     DriftHingeParams,
+    LoadedSteeringParams,
     RudderPlayParams,
     RudderRateParams,
     dead_band_inputs,
     drift_hinge_force,
+    loaded_steering_inputs,
     rudder_play_inputs,
     rudder_rate_inputs,
+    truth_effects,
     unforeseen_spec,
 )
 
@@ -62,6 +67,46 @@ def test_the_unforeseen_set_covers_every_kind_at_three_magnitudes_with_its_own_s
     assert unforeseen_spec("seiche", 2.0).values["C_s"] == 2.0 * UNFORESEEN["seiche"].nominal["C_s"]
     rate = UNFORESEEN["rudder_rate"].nominal["R_d"]
     assert unforeseen_spec("rudder_rate", 2.0).values["R_d"] == rate / 2.0
+
+
+def test_the_fresh_set_holds_new_forms_of_every_kind_with_seeds_of_its_own():
+    kinds = {f.kind for f in FRESH.values()}
+    assert {"time", "state", "component", "controls", "memory", "interaction"} <= kinds
+    for name in FRESH:
+        assert name not in UNFORESEEN and name not in TERMS and name not in catalog()
+        assert FAMILY[name] == "discovered"
+        bands = sorted(c.band for c in FRESH_CASES if c.form == name)
+        assert bands == sorted([STRONG_BAND, MEDIUM_BAND])
+    indices = [c.index for c in (*UNFORESEEN_CASES, *FRESH_CASES)]
+    assert len(set(indices)) == len(indices)
+    assert not set(indices) & set(range(len(SPECS)))
+    assert sum(c.form == "none" for c in FRESH_CASES) == 4
+    fresh = select_cases("fresh", "all")
+    assert [c.index for c in fresh] == [c.index for c in FRESH_CASES]
+    assert {c.row for c in fresh} == {ROWS["fresh"] + ", strong", ROWS["fresh"] + ", medium"}
+
+
+def test_each_fresh_force_vanishes_at_its_neutral_values_and_acts_at_its_nominal_ones():
+    p = efd_parameters()
+    # a tight turn with the rudder over, the propeller astern, a beam wind, beyond y0 = 1.5 m:
+    # u, v_m, r, psi, delta, n_p, U_T, gamma_T
+    state = (0.2, -0.05, -0.06, 0.4, -0.3, -6.0, 2.0, 1.2)
+    for name, form in FRESH.items():
+        if form.effect.inputs is not None:
+            continue
+        (effect,), _ = truth_effects(unforeseen_spec(name))
+        fn = (effect.force_at or effect.force).py_func  # type: ignore[union-attr]  # (numba's)
+        values = unforeseen_spec(name).values
+        on = effect.param_type(**{q.name: values.get(q.name, q.neutral) for q in effect.params})
+        off = effect.param_type(**{q.name: q.neutral for q in effect.params})
+        where = (50.0, 10.0, 3.0) if effect.force_at is not None else ()
+        assert fn(*where, *state, off, p.theta, p.ship) == pytest.approx((0.0, 0.0, 0.0)), name
+        assert any(abs(f) > 0.0 for f in fn(*where, *state, on, p.theta, p.ship)), name
+    steer = loaded_steering_inputs.py_func  # type: ignore[attr-defined]  # (numba's)
+    e = LoadedSteeringParams(R_a=0.5, m_l=3.0)
+    assert steer(0.4, 5.0, 0.1, 5.0, 0.1, e) == (pytest.approx(0.15), 5.0)  # away: R_a
+    assert steer(-0.4, 5.0, 0.3, 5.0, 0.1, e) == (pytest.approx(0.15), 5.0)  # back: 3 R_a
+    assert steer(0.12, 5.0, 0.1, 5.0, 0.1, e) == (pytest.approx(0.12), 5.0)  # slow: followed
 
 
 def test_the_memory_and_controls_forms_act_on_the_rudder_as_documented():
@@ -170,7 +215,7 @@ def test_a_row_counts_what_the_planted_form_itself_reaches_only_where_measured()
 
 
 def test_cases_are_selected_by_set_index_or_name():
-    assert len(all_cases("all")) == len(SPECS) + len(UNFORESEEN_CASES)
+    assert len(all_cases("all")) == len(SPECS) + len(UNFORESEEN_CASES) + len(FRESH_CASES)
     (case,) = select_cases("twin", "seiche/strong")
     assert case.set == "unforeseen" and case.band == STRONG_BAND and case.phi is not None
     assert [c.index for c in select_cases("unforeseen", "3,100")] == [3, 100]

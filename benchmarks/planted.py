@@ -1004,6 +1004,21 @@ def _rudder_normal_force(
     return F_N, u_R * u_R / U_R2, U_R
 
 
+@subfunction
+def _rudder_force_change(
+    dF_N: float, delta: float, th: Theta, sh: Ship
+) -> tuple[float, float, float]:
+    """(X, Y, N) of a change dF_N [N] of the rudder normal force, distributed as the force
+    itself (Eqs. (14)-(16))."""
+    sin_d, cos_d = sincos(delta)
+    L = sh.L_pp
+    return (
+        -(1.0 - th.t_R) * dF_N * sin_d,  # Eq. (14)
+        -(1.0 + th.a_H) * dF_N * cos_d,  # Eq. (15)
+        -(sh.x_R_nd * L + th.a_H * th.x_H * L) * dF_N * cos_d,  # Eq. (16)
+    )
+
+
 class LowReynoldsParams(NamedTuple):
     """The parameters of the planted form ``rudder_low_reynolds`` (unit of each after its field)."""
 
@@ -1035,14 +1050,7 @@ def rudder_low_reynolds_force(
     rudder_stall (a cut in alpha_R): this one takes a share that depends on the rudder's inflow
     speed alone."""
     F_N, fade, U_R = _rudder_normal_force(u, v_m, r, delta, n_p, th, sh)
-    dF_N = -e.k_l * math.exp(-U_R / e.U_l) * fade * F_N
-    sin_d, cos_d = sincos(delta)
-    L = sh.L_pp
-    return (
-        -(1.0 - th.t_R) * dF_N * sin_d,  # Eq. (14)
-        -(1.0 + th.a_H) * dF_N * cos_d,  # Eq. (15)
-        -(sh.x_R_nd * L + th.a_H * th.x_H * L) * dF_N * cos_d,  # Eq. (16)
-    )
+    return _rudder_force_change(-e.k_l * math.exp(-U_R / e.U_l) * fade * F_N, delta, th, sh)
 
 
 class RudderAsymmetryParams(NamedTuple):
@@ -1075,14 +1083,7 @@ def rudder_asymmetry_force(
     (n_p D_p)^2 in Y and N: odd in delta). The change here is even in delta, |F_N| k_a to one
     side whichever way the rudder is put."""
     F_N, fade, _ = _rudder_normal_force(u, v_m, r, delta, n_p, th, sh)
-    dF_N = e.k_a * math.tanh(delta / e.w_a) * fade * F_N
-    sin_d, cos_d = sincos(delta)
-    L = sh.L_pp
-    return (
-        -(1.0 - th.t_R) * dF_N * sin_d,  # Eq. (14)
-        -(1.0 + th.a_H) * dF_N * cos_d,  # Eq. (15)
-        -(sh.x_R_nd * L + th.a_H * th.x_H * L) * dF_N * cos_d,  # Eq. (16)
-    )
+    return _rudder_force_change(e.k_a * math.tanh(delta / e.w_a) * fade * F_N, delta, th, sh)
 
 
 class LoadedSteeringParams(NamedTuple):

@@ -839,8 +839,8 @@ def magnitude(
     noise: dict[str, float],
     args: argparse.Namespace,
 ) -> tuple[PlantedSpec, float, float]:
-    """(spec, scale, excess) of a case: the unforeseen set's by its band; the twin set's by
-    ``--weak`` or ``--scale``."""
+    """(spec, scale, excess) of a case: the unforeseen and fresh sets' by their band; the twin
+    set's by ``--weak`` or ``--scale``."""
     if case.set != "twin":
         scale, e = band_scale(case, repeat, runs, noise)
         return unforeseen_spec(case.spec.form, scale), scale, e

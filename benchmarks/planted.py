@@ -26,7 +26,9 @@ that set measures the choice among known forms. A second set (:data:`UNFORESEEN`
 kind (time, position, controls, state, a change of one of the model's force components, an
 interaction, a memory of the controls, the apparent wind), each at a strong, a weak and a medium
 magnitude set by a stated rule (:data:`STRONG_BAND`, :data:`WEAK_BAND`, :data:`MEDIUM_BAND`),
-with no-effect cases of their own.
+with no-effect cases of their own. A third set (:data:`FRESH`, :data:`FRESH_CASES`), written
+after the diagnosis was tuned on the first two and run once, holds six more such forms at the
+strong and the medium magnitude: a holdout of the forms.
 """
 
 from __future__ import annotations

@@ -108,30 +108,6 @@ def test_the_verdict_stage_accepts_ranks_and_names_the_verdict(tmp_path: Path) -
     assert lines[2].endswith("-> verdict: current")
 
 
-def test_a_candidate_carrying_over_by_its_own_held_out_runs_comes_before_a_transferred_one(
-    tmp_path: Path,
-) -> None:
-    """Of two accepted candidates, the one the transfer check let through after its held-out
-    runs refused it ranks first by dBIC, but the verdict names the one that carries over by its
-    own held-out runs; alone, the transferred one is named."""
-    lines: list[str] = []
-    ctx = _context(tmp_path, lines)
-    null = _null(-10.0, heldout=0.5)
-    rescued = _score("discovered:N_rar", -56.0, 0.09, gain=0.9)
-    rescued.run_losses = {"run1": -0.5, "run2": 1.9, "run3": -0.1}  # refused by run2
-    rescued.transfer_checked = True
-    rescued.transfer_gain, rescued.transfer_run_changes = 0.9, {"a": -0.3, "b": -0.2, "c": 0.1}
-    direct = _score("shape:YN~rp[-0.9:1.4]:down(0.614)", -35.0, 0.2, gain=1.2)
-    leaders = [rescued.effect, direct.effect]
-    v = decide(ctx, [rescued, direct], leaders, null, significant=True)
-    assert v.scores[0].effect == rescued.effect
-    assert all(c.accepted for c in v.scores)
-    assert v.effect == direct.effect
-    assert "carries over by the transfer check" in lines[-1]
-    v = decide(ctx, [rescued], leaders[:1], null, significant=True)
-    assert v.effect == rescued.effect
-
-
 def test_a_candidate_that_does_not_carry_over_to_held_out_runs_is_not_accepted(
     tmp_path: Path,
 ) -> None:

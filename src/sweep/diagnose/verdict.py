@@ -92,9 +92,7 @@ def decide(
     """Mark the accepted candidates (refined when the refinement ran, dBIC at most the
     threshold, a held-out gain above the null's, typical held-out window at least
     ``min_improvement``), rank the leaders (:func:`rank`) before the others (by dBIC), and name
-    the verdict after the first accepted candidate in that order that carries over by its own
-    held-out runs, else after the first accepted one (let through by the transfer check,
-    :mod:`sweep.diagnose.transfer`); logged.
+    the verdict after the first accepted candidate in that order; logged.
 
     A catalog effect's worst held-out run is judged relative to the control's J of that run
     only when the misfit test finds the base beyond the noise floor (``significant``): that
@@ -126,11 +124,8 @@ def decide(
     top = rank([c for c in scores if c.effect in leaders], s.tie_margin)
     ranked = top + sorted([c for c in scores if c.effect not in leaders], key=lambda c: c.delta_bic)
     # the first accepted in that order: a better fit that does not carry over to the held-out
-    # runs does not hide one that does; and one that carries over by its own held-out runs
-    # comes before one that was refused by them and let through by the transfer check
-    accepted = [c for c in ranked if c.accepted]
-    direct = [c for c in accepted if not c.transfer_checked]
-    effect = (direct or accepted)[0].effect if accepted else ""
+    # runs does not hide one that does
+    effect = next((c.effect for c in ranked if c.accepted), "")
     effect = _named(ctx, ranked, effect)
     verdict = verdict_name(effect, significant)
     ctx.log(

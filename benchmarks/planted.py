@@ -1494,16 +1494,21 @@ class UnforeseenCase:
     phi: float
 
 
-def _unforeseen_cases() -> tuple[UnforeseenCase, ...]:
+def _cases_of(
+    forms: Mapping[str, Unforeseen],
+    rows: Sequence[tuple[int, str, tuple[float, float]]],
+    nones: int,
+) -> tuple[UnforeseenCase, ...]:
+    """The cases of a set: per row (first index, label, band) each form, every second with
+    coloured noise, then ``nones`` no-effect cases with their own seeds."""
     cases: list[UnforeseenCase] = []
-    rows = ((100, "strong", STRONG_BAND), (120, "weak", WEAK_BAND), (140, "medium", MEDIUM_BAND))
     for start, label, band in rows:
-        for j, form in enumerate(UNFORESEEN):
+        for j, form in enumerate(forms):
             phi = 0.6 if j % 2 else 0.0  # every second case with coloured noise
             cases.append(UnforeseenCase(f"{form}/{label}", start + j, form, band, phi))
         # no-effect cases with their own seeds in each magnitude's row
-        for j in range(3):
-            index = start + len(UNFORESEEN) + j
+        for j in range(nones):
+            index = start + len(forms) + j
             phi = 0.6 if j == 1 else 0.0
             cases.append(UnforeseenCase(f"none/{label}-{j + 1}", index, "none", (0.0, 0.0), phi))
     return tuple(cases)
@@ -1511,29 +1516,18 @@ def _unforeseen_cases() -> tuple[UnforeseenCase, ...]:
 
 #: the set: each form at a strong, a weak and a medium magnitude, and three no-effect cases in
 #: each
-UNFORESEEN_CASES: tuple[UnforeseenCase, ...] = _unforeseen_cases()
-
-
-def _fresh_cases() -> tuple[UnforeseenCase, ...]:
-    cases: list[UnforeseenCase] = []
-    for start, label, band in (
-        (160, "fresh_strong", STRONG_BAND),
-        (170, "fresh_medium", MEDIUM_BAND),
-    ):
-        for j, form in enumerate(FRESH):
-            phi = 0.6 if j % 2 else 0.0
-            cases.append(UnforeseenCase(f"{form}/{label}", start + j, form, band, phi))
-        for j in range(2):
-            index = start + len(FRESH) + j
-            cases.append(
-                UnforeseenCase(f"none/{label}-{j + 1}", index, "none", (0.0, 0.0), 0.6 * j)
-            )
-    return tuple(cases)
+UNFORESEEN_CASES: tuple[UnforeseenCase, ...] = _cases_of(
+    UNFORESEEN,
+    ((100, "strong", STRONG_BAND), (120, "weak", WEAK_BAND), (140, "medium", MEDIUM_BAND)),
+    nones=3,
+)
 
 
 #: the fresh set (:data:`FRESH`): each form at the strong and the medium magnitude, and two
 #: no-effect cases with their own seeds in each row (cases 160-167 and 170-177)
-FRESH_CASES: tuple[UnforeseenCase, ...] = _fresh_cases()
+FRESH_CASES: tuple[UnforeseenCase, ...] = _cases_of(
+    FRESH, ((160, "fresh_strong", STRONG_BAND), (170, "fresh_medium", MEDIUM_BAND)), nones=2
+)
 
 
 def unforeseen_form(name: str) -> Unforeseen:

@@ -557,6 +557,37 @@ def drift_hinge_force(
     return 0.0, Y, e.x_h * sh.L_pp * Y
 
 
+@subfunction
+def _rudder_normal_force(
+    u: float, v_m: float, r: float, delta: float, n_p: float, th: Theta, sh: Ship
+) -> tuple[float, float, float]:
+    """(F_N [N], u_R^2 / U_R^2, U_R [m/s]) of the model's rudder (Eqs. (17)-(20)), as
+    rudder_collapse computes it; (0, 0, 0) where the inflow comes from astern."""
+    u_R, v_R = rudder_inflow_at(u, v_m, r, n_p, th, sh)
+    if u_R <= 0.0:
+        return 0.0, 0.0, 0.0
+    sin_d, cos_d = sincos(delta)
+    U_R2 = u_R * u_R + v_R * v_R
+    U_R = math.sqrt(U_R2)
+    F_N = 0.5 * sh.rho * sh.A_R * lift_gradient(sh) * U_R * (u_R * sin_d - v_R * cos_d)  # Eq. (17)
+    return F_N, u_R * u_R / U_R2, U_R
+
+
+@subfunction
+def _rudder_force_change(
+    dF_N: float, delta: float, th: Theta, sh: Ship
+) -> tuple[float, float, float]:
+    """(X, Y, N) of a change dF_N [N] of the rudder normal force, distributed as the force
+    itself (Eqs. (14)-(16))."""
+    sin_d, cos_d = sincos(delta)
+    L = sh.L_pp
+    return (
+        -(1.0 - th.t_R) * dF_N * sin_d,  # Eq. (14)
+        -(1.0 + th.a_H) * dF_N * cos_d,  # Eq. (15)
+        -(sh.x_R_nd * L + th.a_H * th.x_H * L) * dF_N * cos_d,  # Eq. (16)
+    )
+
+
 class RudderCollapseParams(NamedTuple):
     """The parameters of the planted form ``rudder_collapse`` (unit of each after its field)."""
 
@@ -599,13 +630,7 @@ def rudder_collapse_force(
     U_R2 = u_R * u_R + v_R * v_R
     U_R = math.sqrt(U_R2)
     F_N = 0.5 * sh.rho * sh.A_R * f_alpha * U_R * (u_R * sin_d - v_R * cos_d)  # Eqs. (17), (20)
-    dF_N = -e.k_c * S * (u_R * u_R / U_R2) * F_N
-    L = sh.L_pp
-    return (
-        -(1.0 - th.t_R) * dF_N * sin_d,  # Eq. (14)
-        -(1.0 + th.a_H) * dF_N * cos_d,  # Eq. (15)
-        -(sh.x_R_nd * L + th.a_H * th.x_H * L) * dF_N * cos_d,  # Eq. (16)
-    )
+    return _rudder_force_change(-e.k_c * S * (u_R * u_R / U_R2) * F_N, delta, th, sh)
 
 
 class ObliquePropellerParams(NamedTuple):
@@ -988,37 +1013,6 @@ def yaw_hinge_force(
         return 0.0, 0.0, 0.0
     q = 0.5 * sh.rho * sh.L_pp * sh.L_pp * sh.d * e.C_y
     return 0.0, 0.0, -q * math.copysign(U2 * excess, rp)
-
-
-@subfunction
-def _rudder_normal_force(
-    u: float, v_m: float, r: float, delta: float, n_p: float, th: Theta, sh: Ship
-) -> tuple[float, float, float]:
-    """(F_N [N], u_R^2 / U_R^2, U_R [m/s]) of the model's rudder (Eqs. (17)-(20)), as
-    rudder_collapse computes it; (0, 0, 0) where the inflow comes from astern."""
-    u_R, v_R = rudder_inflow_at(u, v_m, r, n_p, th, sh)
-    if u_R <= 0.0:
-        return 0.0, 0.0, 0.0
-    sin_d, cos_d = sincos(delta)
-    U_R2 = u_R * u_R + v_R * v_R
-    U_R = math.sqrt(U_R2)
-    F_N = 0.5 * sh.rho * sh.A_R * lift_gradient(sh) * U_R * (u_R * sin_d - v_R * cos_d)
-    return F_N, u_R * u_R / U_R2, U_R
-
-
-@subfunction
-def _rudder_force_change(
-    dF_N: float, delta: float, th: Theta, sh: Ship
-) -> tuple[float, float, float]:
-    """(X, Y, N) of a change dF_N [N] of the rudder normal force, distributed as the force
-    itself (Eqs. (14)-(16))."""
-    sin_d, cos_d = sincos(delta)
-    L = sh.L_pp
-    return (
-        -(1.0 - th.t_R) * dF_N * sin_d,  # Eq. (14)
-        -(1.0 + th.a_H) * dF_N * cos_d,  # Eq. (15)
-        -(sh.x_R_nd * L + th.a_H * th.x_H * L) * dF_N * cos_d,  # Eq. (16)
-    )
 
 
 class LowReynoldsParams(NamedTuple):

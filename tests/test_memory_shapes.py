@@ -310,7 +310,8 @@ def test_a_learned_memory_becomes_its_closed_form_candidate() -> None:
 def test_the_probe_s_sizes_are_powers_of_two_of_the_control_s_quantum() -> None:
     """Play b = c e_max and a rate limit's largest step (1 - c) e_max run over the quantum times
     2^-4 ... 2^4 (1 deg of rudder, 0.5 rev/s of propeller), those within the range's largest
-    gap; the groups are the two forms of each control whose log moves."""
+    gap; the groups are the two forms of each gap (plain, and signed away from the control's
+    zero) of a control whose log moves."""
     from sweep.diagnose.memory import FORMS, GRID_EXPONENTS, grid_values, memory_groups
 
     g = Group("D", "ed", -4.0, 4.0, 1, form="play")
@@ -328,7 +329,9 @@ def test_the_probe_s_sizes_are_powers_of_two_of_the_control_s_quantum() -> None:
     t = np.asarray(0.1 * k, dtype=np.float64)
     wins = [Recording("w", None, t, x, c, np.zeros((300, 2)))]
     groups = memory_groups(wins, p)
-    assert [(g.components, g.form) for g in groups] == [("D", f) for f in FORMS]
+    assert [(g.components, g.variable, g.form) for g in groups] == [
+        ("D", v, f) for v in ("ed", "eda") for f in FORMS
+    ]  # the plain gap's forms, and those acting away from midships alone
     assert groups[0].hi == pytest.approx(math.asinh(0.2 / math.radians(1.0)), rel=1e-5)
 
 
@@ -377,3 +380,97 @@ def test_the_probe_runs_only_where_the_base_misses_beyond_the_noise_floor() -> N
     off = SimpleNamespace(settings=DiagnoseSettings(shapes=False), log=lines.append)
     assert propose_memory(off, None, cal) is None  # type: ignore[arg-type]
     assert len(lines) == 1
+
+
+def test_a_gap_signed_away_from_midships_tells_the_moves_away_from_those_back() -> None:
+    """``eda``: +|e| where the rudder moves away from midships (or leaves it), -|e| where it
+    moves back, in the log's gaps and in the hook; a spline of it leaves its own share open
+    each way, and a closed form acts on the moves away alone."""
+    from mmg.shapes import away_sign, memory_steps
+
+    gaps, prev = [0.1, -0.1, 0.1, -0.1, 0.2, -0.2], [0.2, 0.2, -0.2, -0.2, 0.0, 0.0]
+    assert away_sign(gaps, prev).tolist() == [0.1, -0.1, -0.1, 0.1, 0.2, 0.2]
+    p = efd_parameters()
+    delta = np.array([0.0, 0.1, 0.3, 0.2, -0.1, -0.2, -0.1])
+    c = np.column_stack([delta, np.full(7, 10.0)])
+    z = variable_values(
+        "eda", np.arange(7.0), np.zeros((7, 6)), c, np.zeros((7, 2)), p.theta, p.ship
+    )
+    q = math.radians(1.0)
+    want = [0.0, 0.1, 0.2, -0.1, -0.3, 0.1, -0.1]
+    assert z == pytest.approx(np.arcsinh(np.array(want) / q), rel=1e-12)
+    g = Group("D", "eda", -4.0, 4.0, 8)
+    eff = shape_effect([g])
+    assert eff.inputs is not None
+    values = np.random.default_rng(5).uniform(0.0, 1.0, 8)
+    e = eff.param_type(*values)
+    for d_log, d_prev in (
+        (0.3, 0.1),
+        (0.05, 0.1),
+        (-0.2, 0.1),
+        (-0.3, -0.1),
+        (0.2, 0.0),
+        (-0.1, 0.0),
+    ):
+        gap = d_log - d_prev
+        z_a = math.asinh(float(away_sign([gap], [d_prev])[0]) / q)
+        want_d = d_log - gap * float(basis(g, [z_a])[0] @ values)
+        assert eff.inputs(d_log, 10.0, d_prev, 10.0, DT, e)[0] == pytest.approx(want_d, rel=1e-12)
+    rate = Group("D", "eda", -4.0, 4.0, 1, form="rate")
+    closed = shape_effect([rate])
+    assert closed.inputs is not None
+    e_max = q * math.sinh(4.0)
+    cc = 0.95
+    for d_log, d_prev in ((0.3, 0.1), (-0.2, 0.1), (0.4, 0.0), (-0.4, -0.35), (-0.1, -0.35)):
+        gap = d_log - d_prev
+        got = closed.inputs(d_log, 10.0, d_prev, 10.0, DT, closed.param_type(cc))[0]
+        e_a = float(away_sign([gap], [d_prev])[0])
+        step = math.copysign(min(abs(gap), (1.0 - cc) * e_max), gap) if e_a > 0 else gap
+        assert got == pytest.approx(d_prev + step, abs=1e-12), (d_log, d_prev)
+        assert abs(memory_steps(rate, [cc], [e_a])[1][0]) == pytest.approx(abs(step), abs=1e-12)
+    assert rate.memory_closed(cc, DT).endswith("moving away from midships (as logged moving back)")
+    assert "moves delta away from 0" in closed.params[0].description
+
+
+def test_a_steering_gear_slower_away_from_midships_is_learnt_by_the_signed_gap() -> None:
+    """A gear turning the rudder away from midships at 15 deg/s and back, helped by its load, at
+    45 deg/s: a spline of the gap signed away from midships learns it to a tenth of the error
+    that one of the plain gap leaves, and is named a rate limit away from midships of 15 deg/s
+    (:func:`sweep.diagnose.naming.memory_forms`)."""
+    from sweep.diagnose.naming import memory_forms
+
+    rng = np.random.default_rng(1)
+    holds: list[float] = []
+    while len(holds) < 1500:
+        holds += [rng.uniform(-0.61, 0.61)] * int(rng.integers(30, 150))
+    log = np.round(np.array(holds[:1500]) / 0.0098) * 0.0098
+    away, back = math.radians(15.0) * DT, math.radians(45.0) * DT
+
+    def gear(lg: float, pv: float) -> float:
+        d = lg - pv
+        m = away if d * (pv if pv != 0.0 else d) > 0.0 else back
+        return pv + float(np.clip(d, -m, m))
+
+    truth = _acting(log, gear)
+    z_max = math.asinh(0.7 / math.radians(1.0))
+
+    def fitted(variable: str) -> tuple[Group, np.ndarray, float]:
+        g = Group("D", variable, -z_max, z_max, 16)
+        eff = shape_effect([g])
+        hook = eff.inputs
+        assert hook is not None
+
+        def residual(c: np.ndarray) -> np.ndarray:
+            e = eff.param_type(*c)
+            return _acting(log, lambda lg, pv: hook(lg, 10.0, pv, 10.0, DT, e)[0]) - truth
+
+        fit = least_squares(residual, np.full(16, 0.5), bounds=eff.bounds, max_nfev=100)
+        return g, fit.x, math.degrees(float(np.sqrt(np.mean(fit.fun**2))))
+
+    _, _, rms_plain = fitted("ed")
+    g, coef, rms_away = fitted("eda")
+    assert rms_away < 0.1 * rms_plain and rms_away < 0.2, (rms_away, rms_plain)
+    forms = memory_forms(g, list(coef))
+    assert forms[0].form == "rate", forms
+    named = Group("D", "eda", -z_max, z_max, 1, form="rate")
+    assert named.memory_closed(forms[0].a, DT).startswith("a rate limit of the rudder angle: 1")

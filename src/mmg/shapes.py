@@ -107,7 +107,9 @@ class Variable:
     ``code``: its value in the generated hook [``unit``]; ``factor``: its dimensionless value as
     a multiplier ("" if it cannot multiply); ``scale``: the default scaling of its shapes
     (a key of :data:`SCALES`, "" for a gap); ``control``: for the gap of a control, the
-    control's letter (a key of :data:`CONTROLS`): its shapes are memories of that control."""
+    control's letter (a key of :data:`CONTROLS`): its shapes are memories of that control;
+    ``away``: the gap is signed away from the control's zero (positive where the control moves
+    away from midships or from rest, negative where it moves back: :func:`away_sign`)."""
 
     symbol: str
     unit: str
@@ -117,6 +119,7 @@ class Variable:
     scale: str
     factor_formula: str = ""
     control: str = ""
+    away: bool = False
 
 
 #: the speed below which v'_m = v_m / U is taken at this U [m/s] (v_m is as small: v'_m -> 0
@@ -181,6 +184,30 @@ VARIABLES: dict[str, Variable] = {
         "",
         control="P",
     ),
+    "eda": Variable(
+        "z_delta,a",
+        "-",
+        "gap of the rudder signed away from midships: e_delta as above, positive where the rudder "
+        "moves away from midships (e_delta and delta_prev of one sign, or delta_prev = 0), "
+        "negative where it moves back, as z = asinh(+-|e_delta| / 1 deg)",
+        "z_eda",
+        "",
+        "",
+        control="D",
+        away=True,
+    ),
+    "ena": Variable(
+        "z_n,a",
+        "-",
+        "gap of the propeller signed away from rest: e_n as above, positive where the propeller "
+        "speeds up (e_n and n_prev of one sign, or n_prev = 0), negative where it slows down, "
+        "as z = asinh(+-|e_n| / 0.5 rev/s)",
+        "z_ena",
+        "",
+        "",
+        control="P",
+        away=True,
+    ),
 }
 
 
@@ -226,7 +253,10 @@ CONTROLS: dict[str, Control] = {
 #: saturation, s = clip(e, -m, m), m = (1 - c) e_max (a rate limit m / dt); ``play``: a dead
 #: zone, s = sign(e) max(|e| - b, 0), b = c e_max (play of b). In the formulas {x} is the
 #: control, {prev} its acting value of the step before, {e} the gap, {c} the coefficient; in the
-#: code ``gap``, ``c`` and ``emax``.
+#: code ``gap``, ``c`` and ``emax``. Of a gap signed away from the control's zero (``eda``,
+#: ``ena``) a closed form acts on the moves away alone and leaves the moves back as logged: a
+#: steering gear working against the rudder's load, slower away from midships than back, is
+#: that rate limit, or a symmetric one with it.
 MEMORY_FORMS: dict[str, tuple[str, str, str]] = {
     "lag": (
         "a first-order lag",
@@ -808,6 +838,11 @@ class Group:
                 body = MEMORY_FORMS[self.form][1].format(
                     x=k.symbol, prev=k.prev, e=e, c=f"s{g}_{component}0"
                 )
+                if VARIABLES[self.variable].away:
+                    body += (
+                        f" where {e} moves {k.symbol} away from 0 ({e} {k.prev} > 0, or "
+                        f"{k.prev} = 0), else {k.symbol} = {k.log}"
+                    )
                 return f"{body},  e_max = {_num(memory_range(self))} {k.unit}  [{k.unit}]"
             return f"{k.symbol} = {k.log} - {e} {f}  [{k.unit}]"
         unit = "N m" if component == "N" else "N"
@@ -848,6 +883,17 @@ class Group:
         unit = "deg" if deg else k.unit
         size = math.degrees(memory_range(self)) if deg else memory_range(self)
         what = k.meaning
+        if VARIABLES[self.variable].away:
+            zero = "midships" if self.control == "D" else "rest"
+            return (
+                f"{self._memory_closed(c, dt, what, size, unit).removesuffix(' either way')}"
+                f" moving away from {zero} "
+                "(as logged moving back)"
+            )
+        return self._memory_closed(c, dt, what, size, unit)
+
+    def _memory_closed(self, c: float, dt: float, what: str, size: float, unit: str) -> str:
+        """:meth:`memory_closed` of either sign of the gap."""
         if self.form == "lag":
             if c <= 0.0:
                 return f"no lag of the {what} (c = 0)"
@@ -1028,6 +1074,15 @@ def curve(group: Group, coefficients: Any, z: Any) -> FloatArray:
     return np.asarray(basis(group, z) @ np.asarray(coefficients, dtype=np.float64))
 
 
+def away_sign(gaps: Any, prev: Any) -> FloatArray:
+    """Gaps e of a control signed away from its zero: +|e| where the control moves away from
+    it (e and the acting value of the step before, ``prev``, of one sign, or ``prev`` = 0),
+    -|e| where it moves back (the same arithmetic as the hook's)."""
+    e = np.asarray(gaps, dtype=np.float64)
+    side = np.where(np.asarray(prev, dtype=np.float64) != 0.0, prev, e)
+    return np.asarray(np.copysign(np.abs(e), e * side), dtype=np.float64)
+
+
 def memory_range(group: Group) -> float:
     """The largest gap of a memory group's range, e_max = quantum sinh(max(-lo, hi)) [the
     control's unit]: the scale of a memory's closed form (:data:`MEMORY_FORMS`)."""
@@ -1038,7 +1093,9 @@ def memory_steps(group: Group, coefficients: Any, gaps: Any) -> tuple[FloatArray
     """(share f, step e (1 - f)) of a memory group (:data:`CONTROLS`) at gaps e [the control's
     unit]: the share of the gap left open in one time step, and how far the control moves in
     it (the same arithmetic as the hook's). A closed form's share at a gap of 0 is its limit
-    (play: 1, held; a rate limit: 0)."""
+    (play: 1, held; a rate limit: 0). Of a gap signed away from the control's zero
+    (:attr:`Variable.away`) e is signed so (:func:`away_sign`), and a closed form acts where
+    e > 0 alone (f = 0, the whole step, where the control moves back)."""
     if not group.control:
         raise ValueError(f"{group.text} is a force, not a memory of a control")
     e = np.asarray(gaps, dtype=np.float64)
@@ -1054,12 +1111,16 @@ def memory_steps(group: Group, coefficients: Any, gaps: Any) -> tuple[FloatArray
         step = np.clip(e, -m, m)
     else:
         step = np.copysign(np.maximum(np.abs(e) - c * emax, 0.0), e)
+    if VARIABLES[group.variable].away:
+        step = np.where(e > 0.0, step, e)
     with np.errstate(divide="ignore", invalid="ignore"):
         f = np.where(e != 0.0, 1.0 - step / np.where(e != 0.0, e, 1.0), 0.0)
     if group.form == "lag":
         f = np.where(e != 0.0, f, c)
     elif group.form == "play":
         f = np.where(e != 0.0, f, 1.0 if c > 0.0 else 0.0)
+    if VARIABLES[group.variable].away:
+        f = np.where(e < 0.0, 0.0, f)
     return np.asarray(f, dtype=np.float64), np.asarray(step, dtype=np.float64)
 
 
@@ -1112,7 +1173,9 @@ def variable_values(
     if var is not None and var.control:  # the log's own gaps: the acting control is the logged
         k = CONTROLS[var.control]  # one where no memory acts
         log = c[:, k.column]
-        return np.asarray(np.arcsinh(np.diff(log, prepend=log[:1]) / k.quantum))
+        prev = np.concatenate([log[:1], log[:-1]])
+        gaps = away_sign(log - prev, prev) if var.away else log - prev
+        return np.asarray(np.arcsinh(gaps / k.quantum))
     if name == "JP":
         return np.array(
             [advance_ratio(a, n, ship) * wake_factor(a, b, q, theta, ship) for a, b, q, n in rows]
@@ -1347,6 +1410,12 @@ def _gap_lines(group: Group) -> list[str]:
     """The gap of a memory group's control and the gap's variable z (:data:`CONTROLS`)."""
     k = CONTROLS[group.control]
     code = VARIABLES[group.variable].code
+    if VARIABLES[group.variable].away:  # signed away from the control's zero: away_sign
+        return [
+            f"    gap = {k.log} - {k.prev}",
+            f"    side = {k.prev} if {k.prev} != 0.0 else gap",
+            f"    {code} = math.asinh(math.copysign(abs(gap), gap * side) * {1.0 / k.quantum!r})",
+        ]
     return [
         f"    gap = {k.log} - {k.prev}",
         f"    {code} = math.asinh(gap * {1.0 / k.quantum!r})",
@@ -1358,12 +1427,21 @@ def _memory_lines(g: int, group: Group) -> list[str]:
     c = group.control
     if group.form:  # the step of the closed form; e_max is the group's number k<g>_em
         k = CONTROLS[c]
+        step = MEMORY_FORMS[group.form][2]
+        away = []
+        if VARIABLES[group.variable].away:  # the moves away from the control's zero alone
+            away = [
+                f"    side = {k.prev} if {k.prev} != 0.0 else gap",
+                "    away = 1.0 if gap * side > 0.0 else 0.0",
+            ]
+            step = f"away * ({step})"
         return [
             f"    # {structure_text(group)}",
             f"    gap = {k.log} - {k.prev}",
+            *away,
             f"    emax = e.k{g}_em",
             f"    c = e.s{g}_{c}0",
-            f"    {k.symbol} -= {MEMORY_FORMS[group.form][2]}",
+            f"    {k.symbol} -= {step}",
         ]
     lines = [f"    # {structure_text(group)}", *_gap_lines(group), *_basis_lines(g, group)]
     terms = " + ".join(f"e.s{g}_{c}{j} * b{j}" for j in range(group.n))
@@ -1831,6 +1909,7 @@ __all__ = [
     "Form",
     "Group",
     "ShapeEffect",
+    "away_sign",
     "basis",
     "basis2",
     "by_name",

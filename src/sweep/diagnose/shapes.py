@@ -72,6 +72,8 @@ VARIABLES = (
     "t",
     "ed",
     "en",
+    "eda",
+    "ena",
 )
 #: heading, position and time: where and when a run was recorded
 PLACE_AND_TIME_KINDS = {"heading": ("psi",), "position": ("x0", "y0"), "time": ("t",)}

@@ -513,7 +513,7 @@ def test_candidate_groups_span_the_recorded_ranges() -> None:
     )
     assert by["U", "v"].n == 6 and by["1", "ast"].components == "XYN"
     assert by["delta", "F_R"].components == "S"
-    forces = [g for g in groups if g.variable != "ed" and g.multiplier != "F_R"]
+    forces = [g for g in groups if not g.control and g.multiplier != "F_R"]
     assert all(g.components == "XYN" for g in forces if g.components != "xy")
     # a force fixed to the basin of position and time, a knot every 10 s of time at most
     basin = [g.variable for g in forces if g.components == "xy"]
@@ -521,6 +521,7 @@ def test_candidate_groups_span_the_recorded_ranges() -> None:
     times = [g for g in groups if g.variable == "t"]
     assert [g.n for g in times] == [17, 17]  # 14 knot intervals over [0.4, 139.6] s
     assert by["ed", ""].components == "D" and by["ed", ""].lo == -by["ed", ""].hi
+    assert by["eda", ""].components == "D" and by["eda", ""].lo == -by["eda", ""].hi
 
 
 def test_position_is_a_candidate_fixed_to_the_basin_and_with_the_speed_s_scaling() -> None:

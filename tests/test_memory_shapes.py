@@ -385,7 +385,8 @@ def test_the_probe_runs_only_where_the_base_misses_beyond_the_noise_floor() -> N
 def test_a_gap_signed_away_from_midships_tells_the_moves_away_from_those_back() -> None:
     """``eda``: +|e| where the rudder moves away from midships (or leaves it), -|e| where it
     moves back, in the log's gaps and in the hook; a spline of it leaves its own share open
-    each way, and a closed form acts on the moves away alone."""
+    each way, and a closed form takes one coefficient moving away and another moving back
+    (0: as logged)."""
     from mmg.shapes import away_sign, memory_steps
 
     gaps, prev = [0.1, -0.1, 0.1, -0.1, 0.2, -0.2], [0.2, 0.2, -0.2, -0.2, 0.0, 0.0]
@@ -416,27 +417,35 @@ def test_a_gap_signed_away_from_midships_tells_the_moves_away_from_those_back() 
         z_a = math.asinh(float(away_sign([gap], [d_prev])[0]) / q)
         want_d = d_log - gap * float(basis(g, [z_a])[0] @ values)
         assert eff.inputs(d_log, 10.0, d_prev, 10.0, DT, e)[0] == pytest.approx(want_d, rel=1e-12)
-    rate = Group("D", "eda", -4.0, 4.0, 1, form="rate")
+    rate = Group("D", "eda", -4.0, 4.0, 2, form="rate")
     closed = shape_effect([rate])
-    assert closed.inputs is not None
+    assert closed.inputs is not None and len(closed.params) == 2
     e_max = q * math.sinh(4.0)
-    cc = 0.95
-    for d_log, d_prev in ((0.3, 0.1), (-0.2, 0.1), (0.4, 0.0), (-0.4, -0.35), (-0.1, -0.35)):
-        gap = d_log - d_prev
-        got = closed.inputs(d_log, 10.0, d_prev, 10.0, DT, closed.param_type(cc))[0]
-        e_a = float(away_sign([gap], [d_prev])[0])
-        step = math.copysign(min(abs(gap), (1.0 - cc) * e_max), gap) if e_a > 0 else gap
-        assert got == pytest.approx(d_prev + step, abs=1e-12), (d_log, d_prev)
-        assert abs(memory_steps(rate, [cc], [e_a])[1][0]) == pytest.approx(abs(step), abs=1e-12)
-    assert rate.memory_closed(cc, DT).endswith("moving away from midships (as logged moving back)")
+    for away, back in ((0.95, 0.0), (0.95, 0.8)):
+        for d_log, d_prev in ((0.3, 0.1), (-0.2, 0.1), (0.4, 0.0), (-0.4, -0.35), (-0.1, -0.35)):
+            gap = d_log - d_prev
+            got = closed.inputs(d_log, 10.0, d_prev, 10.0, DT, closed.param_type(away, back))[0]
+            e_a = float(away_sign([gap], [d_prev])[0])
+            m = (1.0 - (away if e_a > 0 else back)) * e_max
+            step = math.copysign(min(abs(gap), m), gap)
+            assert got == pytest.approx(d_prev + step, abs=1e-12), (d_log, d_prev)
+            steps = memory_steps(rate, [away, back], [e_a])[1]
+            assert abs(steps[0]) == pytest.approx(abs(step), abs=1e-12)
+    said = rate.memory_closed(0.95, DT)
+    assert said.endswith("moving away from midships (as logged moving back)")
+    assert "; moving back, a rate limit of the rudder angle" in rate.memory_closed(0.95, DT, 0.8)
     assert "moves delta away from 0" in closed.params[0].description
+    with pytest.raises(ValueError, match="2 coefficient"):
+        Group("D", "eda", -4.0, 4.0, 1, form="rate")
+    assert get_effect("shape:D~eda[-4:4]:rate").params[1].name == "s0_D1"
 
 
 def test_a_steering_gear_slower_away_from_midships_is_learnt_by_the_signed_gap() -> None:
     """A gear turning the rudder away from midships at 15 deg/s and back, helped by its load, at
     45 deg/s: a spline of the gap signed away from midships learns it to a tenth of the error
-    that one of the plain gap leaves, and is named a rate limit away from midships of 15 deg/s
-    (:func:`sweep.diagnose.naming.memory_forms`)."""
+    that one of the plain gap leaves, and is named a rate limit of 15 deg/s away from midships
+    and 45 deg/s back (:func:`sweep.diagnose.naming.memory_forms`); refitted through its own
+    hook, both rates come out within a thousandth of their coefficient."""
     from sweep.diagnose.naming import memory_forms
 
     rng = np.random.default_rng(1)
@@ -472,5 +481,22 @@ def test_a_steering_gear_slower_away_from_midships_is_learnt_by_the_signed_gap()
     assert rms_away < 0.1 * rms_plain and rms_away < 0.2, (rms_away, rms_plain)
     forms = memory_forms(g, list(coef))
     assert forms[0].form == "rate", forms
-    named = Group("D", "eda", -z_max, z_max, 1, form="rate")
-    assert named.memory_closed(forms[0].a, DT).startswith("a rate limit of the rudder angle: 1")
+    e_max = 0.7
+    assert forms[0].a == pytest.approx(1.0 - away / e_max, abs=0.03)
+    assert forms[0].b == pytest.approx(1.0 - back / e_max, abs=0.05)
+    named = Group("D", "eda", -z_max, z_max, 2, form="rate")
+    closed = shape_effect([named])
+    hook = closed.inputs
+    assert hook is not None
+
+    def acting(c: np.ndarray) -> np.ndarray:
+        e = closed.param_type(*c)
+        return _acting(log, lambda lg, pv: hook(lg, 10.0, pv, 10.0, DT, e)[0]) - truth
+
+    refit = least_squares(acting, [forms[0].a, forms[0].b], bounds=closed.bounds, max_nfev=50)
+    assert refit.x == pytest.approx([1.0 - away / e_max, 1.0 - back / e_max], abs=1e-3)
+    before = math.degrees(float(np.sqrt(np.mean((log - truth) ** 2))))
+    assert math.degrees(float(np.sqrt(np.mean(refit.fun**2)))) < min(0.2, before / 8.0)
+    said = named.memory_closed(float(refit.x[0]), DT, float(refit.x[1]))
+    assert said.startswith("a rate limit of the rudder angle: 15 deg/s"), said
+    assert "moving away from midships; moving back, a rate limit of the rudder angle: 4" in said

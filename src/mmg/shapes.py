@@ -254,9 +254,9 @@ CONTROLS: dict[str, Control] = {
 #: zone, s = sign(e) max(|e| - b, 0), b = c e_max (play of b). In the formulas {x} is the
 #: control, {prev} its acting value of the step before, {e} the gap, {c} the coefficient; in the
 #: code ``gap``, ``c`` and ``emax``. Of a gap signed away from the control's zero (``eda``,
-#: ``ena``) a closed form acts on the moves away alone and leaves the moves back as logged: a
-#: steering gear working against the rudder's load, slower away from midships than back, is
-#: that rate limit, or a symmetric one with it.
+#: ``ena``) a closed form has two coefficients, c for the moves away from the zero and another
+#: for the moves back (:func:`memory_coefficients`): a steering gear working against the
+#: rudder's load, slower away from midships than back, is a rate limit of two rates.
 MEMORY_FORMS: dict[str, tuple[str, str, str]] = {
     "lag": (
         "a first-order lag",
@@ -675,8 +675,11 @@ class Group:
             if not (math.isfinite(self.lo) and math.isfinite(self.hi) and self.lo < self.hi):
                 raise ValueError(f"{self.variable}: knot range [{self.lo}, {self.hi}] is empty")
             if self.form and self.control:
-                if self.n != 1:
-                    raise ValueError(f"{self.variable}: a memory's closed form has 1 coefficient")
+                k = memory_coefficients(self.variable)
+                if self.n != k:
+                    raise ValueError(
+                        f"{self.variable}: a memory's closed form has {k} coefficient(s)"
+                    )
             elif self.form:
                 forms = parse_forms(self.form)
                 if len(forms) != (2 if self.variable2 else 1):
@@ -835,13 +838,14 @@ class Group:
             k = CONTROLS[self.control]
             e = f"e_{k.log.removesuffix('_log')}"
             if self.form:
+                away = VARIABLES[self.variable].away
                 body = MEMORY_FORMS[self.form][1].format(
-                    x=k.symbol, prev=k.prev, e=e, c=f"s{g}_{component}0"
+                    x=k.symbol, prev=k.prev, e=e, c="c" if away else f"s{g}_{component}0"
                 )
-                if VARIABLES[self.variable].away:
+                if away:
                     body += (
-                        f" where {e} moves {k.symbol} away from 0 ({e} {k.prev} > 0, or "
-                        f"{k.prev} = 0), else {k.symbol} = {k.log}"
+                        f",  c = s{g}_{component}0 where {e} moves {k.symbol} away from 0 "
+                        f"({e} {k.prev} > 0, or {k.prev} = 0), else s{g}_{component}1"
                     )
                 return f"{body},  e_max = {_num(memory_range(self))} {k.unit}  [{k.unit}]"
             return f"{k.symbol} = {k.log} - {e} {f}  [{k.unit}]"
@@ -872,10 +876,11 @@ class Group:
         scale = SCALES[self.scale_name][0 if component in ("X", "F_x0") else 1]
         return f"{component} += {q} {scale} {f}{mult}  [{unit}]{turned}"
 
-    def memory_closed(self, c: float, dt: float) -> str:
+    def memory_closed(self, c: float, dt: float, back: float = 0.0) -> str:
         """A memory's closed form for its coefficient ``c`` in the control's terms, at time
         steps of ``dt`` [s]: the lag's time constant, the rate limit or the play (a rudder's in
-        degrees)."""
+        degrees); of a gap signed away from the control's zero ``c`` moving away and ``back``
+        moving back (0: as logged)."""
         if not (self.control and self.form):
             raise ValueError(f"{self.text} is not a memory's closed form")
         k = CONTROLS[self.control]
@@ -885,11 +890,11 @@ class Group:
         what = k.meaning
         if VARIABLES[self.variable].away:
             zero = "midships" if self.control == "D" else "rest"
-            return (
-                f"{self._memory_closed(c, dt, what, size, unit).removesuffix(' either way')}"
-                f" moving away from {zero} "
-                "(as logged moving back)"
-            )
+            out = self._memory_closed(c, dt, what, size, unit).removesuffix(" either way")
+            if back <= 0.0:
+                return f"{out} moving away from {zero} (as logged moving back)"
+            then = self._memory_closed(back, dt, what, size, unit).removesuffix(" either way")
+            return f"{out} moving away from {zero}; moving back, {then}"
         return self._memory_closed(c, dt, what, size, unit)
 
     def _memory_closed(self, c: float, dt: float, what: str, size: float, unit: str) -> str:
@@ -953,7 +958,8 @@ def parse(spec: str) -> tuple[Group, ...]:
         except ValueError:
             raise ValueError(f"shape group {part!r}: the knot range is not two numbers") from None
         var = VARIABLES.get(m["v"] or "")
-        n = (1 if var is not None and var.control else 2) if m["f"] else int(m["n"] or 1)
+        memory = var is not None and bool(var.control)
+        n = (memory_coefficients(m["v"]) if memory else 2) if m["f"] else int(m["n"] or 1)
         # two variables take two ranges and, unless named, n x n2 basis functions
         basis_of_two = bool(m["n2"]) if m["f"] is None else bool(m["v2"])
         if bool(m["v2"]) != bool(m["lo2"]) or bool(m["v2"]) != basis_of_two:
@@ -1083,6 +1089,12 @@ def away_sign(gaps: Any, prev: Any) -> FloatArray:
     return np.asarray(np.copysign(np.abs(e), e * side), dtype=np.float64)
 
 
+def memory_coefficients(variable: str) -> int:
+    """Coefficients of a memory's closed form of the gap ``variable``: 1, or 2 of a gap signed
+    away from the control's zero (the moves away, the moves back)."""
+    return 2 if VARIABLES[variable].away else 1
+
+
 def memory_range(group: Group) -> float:
     """The largest gap of a memory group's range, e_max = quantum sinh(max(-lo, hi)) [the
     control's unit]: the scale of a memory's closed form (:data:`MEMORY_FORMS`)."""
@@ -1094,15 +1106,18 @@ def memory_steps(group: Group, coefficients: Any, gaps: Any) -> tuple[FloatArray
     unit]: the share of the gap left open in one time step, and how far the control moves in
     it (the same arithmetic as the hook's). A closed form's share at a gap of 0 is its limit
     (play: 1, held; a rate limit: 0). Of a gap signed away from the control's zero
-    (:attr:`Variable.away`) e is signed so (:func:`away_sign`), and a closed form acts where
-    e > 0 alone (f = 0, the whole step, where the control moves back)."""
+    (:attr:`Variable.away`) e is signed so (:func:`away_sign`), and a closed form takes its
+    first coefficient where e > 0 (moving away), its second elsewhere (moving back)."""
     if not group.control:
         raise ValueError(f"{group.text} is a force, not a memory of a control")
     e = np.asarray(gaps, dtype=np.float64)
     if not group.form:
         f = curve(group, coefficients, np.arcsinh(e / CONTROLS[group.control].quantum))
         return f, np.asarray(e * (1.0 - f))
-    c = float(np.asarray(coefficients, dtype=np.float64).reshape(-1)[0])
+    cs = np.asarray(coefficients, dtype=np.float64).reshape(-1)
+    c: Any = float(cs[0])
+    if VARIABLES[group.variable].away:  # e signed away: the first moving away, the second back
+        c = np.where(e > 0.0, cs[0], cs[1] if cs.size > 1 else 0.0)
     emax = memory_range(group)
     if group.form == "lag":
         step = (1.0 - c) * e
@@ -1111,16 +1126,12 @@ def memory_steps(group: Group, coefficients: Any, gaps: Any) -> tuple[FloatArray
         step = np.clip(e, -m, m)
     else:
         step = np.copysign(np.maximum(np.abs(e) - c * emax, 0.0), e)
-    if VARIABLES[group.variable].away:
-        step = np.where(e > 0.0, step, e)
     with np.errstate(divide="ignore", invalid="ignore"):
         f = np.where(e != 0.0, 1.0 - step / np.where(e != 0.0, e, 1.0), 0.0)
     if group.form == "lag":
         f = np.where(e != 0.0, f, c)
     elif group.form == "play":
-        f = np.where(e != 0.0, f, 1.0 if c > 0.0 else 0.0)
-    if VARIABLES[group.variable].away:
-        f = np.where(e < 0.0, 0.0, f)
+        f = np.where(e != 0.0, f, np.where(np.asarray(c) > 0.0, 1.0, 0.0))
     return np.asarray(f, dtype=np.float64), np.asarray(step, dtype=np.float64)
 
 
@@ -1427,21 +1438,18 @@ def _memory_lines(g: int, group: Group) -> list[str]:
     c = group.control
     if group.form:  # the step of the closed form; e_max is the group's number k<g>_em
         k = CONTROLS[c]
-        step = MEMORY_FORMS[group.form][2]
-        away = []
-        if VARIABLES[group.variable].away:  # the moves away from the control's zero alone
-            away = [
+        coefficient = [f"    c = e.s{g}_{c}0"]
+        if VARIABLES[group.variable].away:  # one coefficient moving away, one moving back
+            coefficient = [
                 f"    side = {k.prev} if {k.prev} != 0.0 else gap",
-                "    away = 1.0 if gap * side > 0.0 else 0.0",
+                f"    c = e.s{g}_{c}0 if gap * side > 0.0 else e.s{g}_{c}1",
             ]
-            step = f"away * ({step})"
         return [
             f"    # {structure_text(group)}",
             f"    gap = {k.log} - {k.prev}",
-            *away,
             f"    emax = e.k{g}_em",
-            f"    c = e.s{g}_{c}0",
-            f"    {k.symbol} -= {step}",
+            *coefficient,
+            f"    {k.symbol} -= {MEMORY_FORMS[group.form][2]}",
         ]
     lines = [f"    # {structure_text(group)}", *_gap_lines(group), *_basis_lines(g, group)]
     terms = " + ".join(f"e.s{g}_{c}{j} * b{j}" for j in range(group.n))
@@ -1920,6 +1928,7 @@ __all__ = [
     "groups_of",
     "hook_names",
     "is_closed_form",
+    "memory_coefficients",
     "memory_steps",
     "numbers",
     "on_circle",

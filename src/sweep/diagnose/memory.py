@@ -43,7 +43,7 @@ from numpy.typing import NDArray
 
 from mmg import Effect, Parameters
 from mmg.precompile import tasks
-from mmg.shapes import CONTROLS, Group, memory_range, shape_effect
+from mmg.shapes import CONTROLS, Group, memory_coefficients, memory_range, shape_effect
 from mmg.shapes import VARIABLES as SHAPE_VARIABLES
 from sweep.data.objective import Objective
 from sweep.data.recordings import Recording
@@ -73,7 +73,7 @@ def memory_groups(windows: Sequence[Recording], params: Parameters) -> list[Grou
     ``windows``, over the range of its gap there (the range the learned memory shapes take)."""
     ranges = variable_ranges(windows, params, GAPS)
     return [
-        Group(SHAPE_VARIABLES[v].control, v, lo, hi, 1, form=form)
+        Group(SHAPE_VARIABLES[v].control, v, lo, hi, memory_coefficients(v), form=form)
         for v, (lo, hi) in ranges.items()
         for form in FORMS
     ]
@@ -170,10 +170,13 @@ def _directions(
             ctx.windows, lin.objective, effects=(*lin.base_effects, eff), ship=params.ship
         )
         rows: list[FloatArray] = []
+        # each group's first coefficient (of a gap signed away from the control's zero, the
+        # moves away: the moves back as logged)
+        first = np.cumsum([0] + [g.size for g in members])
         for j, g in enumerate(members):
             for c in grid_values(g):
                 th = np.concatenate([lin.theta, np.zeros(len(eff.params))])
-                th[lin.theta.size + j] = c
+                th[lin.theta.size + first[j]] = c
                 rows.append(th)
                 where.append((g, c))
         if rows:
@@ -233,9 +236,10 @@ def propose_memory(ctx: Context, base: Fit, cal: Calibration) -> MemoryProposal 
     group, c = where[i]
     proposed = float(dbic[i, 0]) <= threshold
     effect = shape_effect([group])
+    start = [c] + [0.0] * (group.size - 1)
     out = MemoryProposal(
         effect,
-        [c],
+        start,
         float(dbic[i, 0]),
         threshold,
         proposed,
@@ -251,7 +255,7 @@ def propose_memory(ctx: Context, base: Fit, cal: Calibration) -> MemoryProposal 
     )
     if proposed:
         # (a rate limit the learned shapes named already starts where its fit put it)
-        ctx.starts.setdefault(effect.name, [c])
+        ctx.starts.setdefault(effect.name, start)
     return out
 
 

@@ -44,6 +44,7 @@ from mmg.shapes import (
     basis2,
     curve,
     form_scale,
+    memory_coefficients,
     memory_steps,
     surface,
 )
@@ -444,15 +445,23 @@ def memory_forms(group: Group, coefficients: Sequence[float]) -> list[ClosedForm
         return []
     e = np.sinh(z) * CONTROLS[group.control].quantum
     trials = np.linspace(0.0, 1.0, MEMORY_GRID)
+    k = memory_coefficients(group.variable)
+    # of a gap signed away from the control's zero, the moves away (e > 0) and back apart
+    sides = [e > 0.0, e <= 0.0] if k == 2 else [np.ones(e.size, dtype=bool)]
     out = []
     for key, (meaning, _, _) in MEMORY_FORMS.items():
-        named = replace(group, n=1, form=key)
-        sse = [float(((f - memory_steps(named, [c], e)[0]) ** 2).sum()) for c in trials]
-        c = float(trials[int(np.argmin(sse))])
-        if min(sse) >= total:
+        named = replace(group, n=k, form=key)
+        sse = np.array(
+            [((f - memory_steps(named, [c] * k, e)[0]) ** 2) for c in trials]
+        )  # (trials, points)
+        per_side = [sse[:, m].sum(axis=1) for m in sides]
+        cs = [float(trials[int(np.argmin(v))]) for v in per_side]
+        least = float(sum(v.min() for v in per_side))
+        if least >= total:
             continue
+        b = cs[1] if k == 2 else 0.0
         out.append(
-            ClosedForm(meaning, named.formula(group.control), c, 0.0, 1.0 - min(sse) / total, key)
+            ClosedForm(meaning, named.formula(group.control), cs[0], b, 1.0 - least / total, key)
         )
     out.sort(key=lambda c: -c.r2)
     return out

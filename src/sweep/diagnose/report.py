@@ -183,7 +183,8 @@ def shape_entry(d: Diagnosis) -> dict[str, Any]:
                 groups.append(_surface_entry(group, comp, g, coef))
                 continue
             if group.form and group.control:
-                formula = f"{group.memory_closed(coef[0], dt)}: {group.formula(comp, g)}"
+                said = group.memory_closed(coef[0], dt, *coef[1:2])
+                formula = f"{said}: {group.formula(comp, g)}"
             elif group.form:
                 formula = group.closed(comp, coef[0], coef[1], g)
             else:

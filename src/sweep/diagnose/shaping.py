@@ -26,6 +26,7 @@ from mmg.shapes import (
     Group,
     form_scale,
     groups_of,
+    memory_coefficients,
     parse_form,
     shape_effect,
 )
@@ -327,8 +328,9 @@ def _named_forms(
             best = memory_forms(g, selection.coefficients[i])[:1]
             named.append(best[0] if best else None)
             if best:
-                out.append(replace(g, n=1, form=best[0].form))
-                start.append(best[0].a)
+                k = memory_coefficients(g.variable)
+                out.append(replace(g, n=k, form=best[0].form))
+                start += [best[0].a, best[0].b][:k]
             continue
         if i not in forms:
             named.append(None)
@@ -395,8 +397,9 @@ def closest_form(
         if group.control:  # a memory: its closed form closest to the spline
             memory = memory_forms(group, coef)[:1]
             if memory:
-                groups.append(replace(group, n=1, form=memory[0].form))
-                start.append(memory[0].a)
+                k = memory_coefficients(group.variable)
+                groups.append(replace(group, n=k, form=memory[0].form))
+                start += [memory[0].a, memory[0].b][:k]
             continue
         if group.tensor:  # a surface: the product of closed forms closest to it
             at2 = None if joint is None else joint.get((group.variable, group.variable2))

@@ -280,6 +280,12 @@ def test_the_report_states_a_memory_as_the_steps_it_lets_the_control_take() -> N
     rate = _memory_entry(Group("D", "ed", -4.0, 4.0, 1, form="rate"), [0.9], 0.1)
     assert rate["gap"] == m["gap"]
     np.testing.assert_allclose(np.abs(rate["rate"]), np.minimum(np.abs(gaps), 0.1 * gaps[-1]) / 0.1)
+    assert not m["away"] and "signed away" not in md
+    # of the gap signed away from midships: two rate limits, a tenth moving away, a fifth back
+    two = _memory_entry(Group("D", "eda", -4.0, 4.0, 2, form="rate"), [0.9, 0.8], 0.1)
+    limit = np.where(gaps > 0, 0.1, 0.2) * gaps[-1]
+    np.testing.assert_allclose(np.abs(two["step"]), np.minimum(np.abs(gaps), limit))
+    assert two["away"] and "+ where the delta moves away from 0" in "\n".join(_memory_md(two))
 
 
 def test_a_learned_memory_becomes_its_closed_form_candidate() -> None:

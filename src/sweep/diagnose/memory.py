@@ -12,7 +12,10 @@ controls, and the closed form ``D~ed:play`` fitted by output error took the trai
 to 0.562, the planted form's own.
 
 So each closed form of a memory the catalog does not hold (:data:`FORMS`: a rate limit and play;
-the catalog's ``actuator_lag`` is a first-order lag of both controls) is probed at finite sizes,
+the catalog's ``actuator_lag`` is a first-order lag of both controls), of each control's gap and
+of its gap signed away from its zero (there with the moves back as logged: a steering gear
+slower away from midships than back; the candidate's fit then frees the moves back's
+coefficient, :func:`mmg.shapes.memory_coefficients`), is probed at finite sizes,
 as the catalog's candidates are by their grid directions (:mod:`sweep.diagnose.linearised`): the
 base model simulated with the form at each size of a geometric grid (:data:`GRID_EXPONENTS`,
 quanta of the control: play b = q 2^k, a rate limit's largest step per time step m = q 2^k), the

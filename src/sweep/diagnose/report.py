@@ -267,8 +267,9 @@ def _surface_entry(group: Any, comp: str, g: int, coef: list[float]) -> dict[str
 def _memory_entry(group: Any, coef: list[float], dt: float) -> dict[str, Any]:
     """A memory of a control in the control's terms: at gaps over the range it was learnt on
     (both signs), the share f left open in one time step of ``dt`` [s], the step the control
-    takes and that step as a rate; a rudder's in degrees."""
-    from mmg.shapes import CONTROLS, memory_steps
+    takes and that step as a rate; a rudder's in degrees. ``away``: the gaps are signed away
+    from the control's zero (+ moving away, - moving back)."""
+    from mmg.shapes import CONTROLS, VARIABLES, memory_steps
 
     k = CONTROLS[group.control]
     z = np.linspace(0.0, max(abs(group.lo), abs(group.hi)), 7)[1:]
@@ -279,6 +280,7 @@ def _memory_entry(group: Any, coef: list[float], dt: float) -> dict[str, Any]:
         "control": k.symbol,
         "unit": "deg" if k.unit == "rad" else k.unit,
         "time_step": dt,
+        "away": VARIABLES[group.variable].away,
         "gap": [float(v) for v in to(gaps)],
         "share": [float(v) for v in share],
         "step": [float(v) for v in to(step)],
@@ -1314,7 +1316,13 @@ def _memory_md(m: dict[str, Any]) -> list[str]:
     md = [
         f"A memory of the {c}: in each time step of {dt:.3g} s the acting {c} closes the gap "
         f"to the logged one except for the share f. A constant share is a first-order lag; a "
-        f"step that stops growing with the gap is a rate limit; no step below a gap is play.",
+        f"step that stops growing with the gap is a rate limit; no step below a gap is play."
+        + (
+            f" The gap is signed away from zero: + where the {c} moves away from 0 (midships, "
+            "rest), - where it moves back."
+            if m.get("away")
+            else ""
+        ),
         "",
         f"| gap [{u}] | share left open f | step in {dt:.3g} s [{u}] | as a rate [{u}/s] |",
         "|---:|---:|---:|---:|",

@@ -39,14 +39,16 @@ def probe_kernels(library: bool = True) -> tuple[tuple[tuple[str, ...], str], ..
     searched term in one generated effect; not with ``library`` False) and the shapes' columns
     (one probe for every candidate group), as :func:`sweep.diagnose.run.probe_tasks` compiles
     them."""
-    from mmg.shapes import Group
+    from mmg.shapes import Group, memory_coefficients
     from sweep.diagnose.memory import FORMS, by_form
     from sweep.diagnose.run import probes
 
-    # the memories' closed forms of both controls (a kernel is of the groups' structure: any
-    # range names it)
-    gaps = (("D", "ed"), ("P", "en"))
-    memory = [Group(c, v, -4.0, 4.0, 1, form=f) for c, v in gaps for f in FORMS]
+    # the memories' closed forms of both controls, of the plain gap and of the gap signed away
+    # from the control's zero (a kernel is of the groups' structure: any range names it)
+    gaps = (("D", "ed"), ("P", "en"), ("D", "eda"), ("P", "ena"))
+    memory = [
+        Group(c, v, -4.0, 4.0, memory_coefficients(v), form=f) for c, v in gaps for f in FORMS
+    ]
     return tuple(
         kernel
         for probe, entries in probes(discover=library)

@@ -318,7 +318,7 @@ def test_the_probe_s_sizes_are_powers_of_two_of_the_control_s_quantum() -> None:
     2^-4 ... 2^4 (1 deg of rudder, 0.5 rev/s of propeller), those within the range's largest
     gap; the groups are the two forms of each gap (plain, and signed away from the control's
     zero) of a control whose log moves."""
-    from sweep.diagnose.memory import FORMS, GRID_EXPONENTS, grid_values, memory_groups
+    from sweep.diagnose.memory import FORMS, GRID_EXPONENTS, by_form, grid_values, memory_groups
 
     g = Group("D", "ed", -4.0, 4.0, 1, form="play")
     e_max = math.radians(1.0) * math.sinh(4.0)
@@ -339,6 +339,11 @@ def test_the_probe_s_sizes_are_powers_of_two_of_the_control_s_quantum() -> None:
         ("D", v, f) for v in ("ed", "eda") for f in FORMS
     ]  # the plain gap's forms, and those acting away from midships alone
     assert groups[0].hi == pytest.approx(math.asinh(0.2 / math.radians(1.0)), rel=1e-5)
+    # one effect per form and kind of gap: never two groups of one control in one probe (a form
+    # at 0 acts on gaps beyond its range, and a memory probed beside it makes such gaps)
+    for _, members in by_form(groups):
+        assert len({g.control for g in members}) == len(members)
+    assert len(by_form(groups)) == 2 * len(FORMS)
 
 
 def test_the_probe_counts_only_a_change_that_takes_the_residual_away() -> None:

@@ -84,11 +84,13 @@ def memory_groups(windows: Sequence[Recording], params: Parameters) -> list[Grou
 
 def by_form(groups: Sequence[Group]) -> list[tuple[Effect, list[Group]]]:
     """The effects that probe ``groups``, each with its groups in the order of its parameters:
-    one effect per form, with that form's group of each control (a coefficient at 0 leaves its
-    control as logged)."""
-    forms: dict[str, list[Group]] = {}
+    one effect per form and kind of gap (the plain gap, the gap signed away from the control's
+    zero), with that form's group of each control. One group per control: a form at 0 leaves
+    its control as logged only for gaps within its range, and a memory probed beside it lets
+    the gap grow beyond (a rate limit's accumulated lag), where the form at 0 would act too."""
+    forms: dict[tuple[str, bool], list[Group]] = {}
     for g in groups:
-        forms.setdefault(g.form, []).append(g)
+        forms.setdefault((g.form, SHAPE_VARIABLES[g.variable].away), []).append(g)
     return [(shape_effect(gs), gs) for gs in forms.values()]
 
 

@@ -474,8 +474,9 @@ def test_a_steering_gear_slower_away_from_midships_is_learnt_by_the_signed_gap()
     truth = _acting(log, gear)
     z_max = math.asinh(0.7 / math.radians(1.0))
 
-    def fitted(variable: str) -> tuple[Group, np.ndarray, float]:
-        g = Group("D", variable, -z_max, z_max, 16)
+    def through_hook(g: Group, start: list[float], nfev: int) -> tuple[np.ndarray, float]:
+        """The group's coefficients fitted through its own hook to the acting rudder, and the
+        error left [deg rms]."""
         eff = shape_effect([g])
         hook = eff.inputs
         assert hook is not None
@@ -484,8 +485,12 @@ def test_a_steering_gear_slower_away_from_midships_is_learnt_by_the_signed_gap()
             e = eff.param_type(*c)
             return _acting(log, lambda lg, pv: hook(lg, 10.0, pv, 10.0, DT, e)[0]) - truth
 
-        fit = least_squares(residual, np.full(16, 0.5), bounds=eff.bounds, max_nfev=100)
-        return g, fit.x, math.degrees(float(np.sqrt(np.mean(fit.fun**2))))
+        fit = least_squares(residual, start, bounds=eff.bounds, max_nfev=nfev)
+        return fit.x, math.degrees(float(np.sqrt(np.mean(fit.fun**2))))
+
+    def fitted(variable: str) -> tuple[Group, np.ndarray, float]:
+        g = Group("D", variable, -z_max, z_max, 16)
+        return (g, *through_hook(g, [0.5] * 16, 100))
 
     _, _, rms_plain = fitted("ed")
     g, coef, rms_away = fitted("eda")
@@ -496,18 +501,10 @@ def test_a_steering_gear_slower_away_from_midships_is_learnt_by_the_signed_gap()
     assert forms[0].a == pytest.approx(1.0 - away / e_max, abs=0.03)
     assert forms[0].b == pytest.approx(1.0 - back / e_max, abs=0.05)
     named = Group("D", "eda", -z_max, z_max, 2, form="rate")
-    closed = shape_effect([named])
-    hook = closed.inputs
-    assert hook is not None
-
-    def acting(c: np.ndarray) -> np.ndarray:
-        e = closed.param_type(*c)
-        return _acting(log, lambda lg, pv: hook(lg, 10.0, pv, 10.0, DT, e)[0]) - truth
-
-    refit = least_squares(acting, [forms[0].a, forms[0].b], bounds=closed.bounds, max_nfev=50)
-    assert refit.x == pytest.approx([1.0 - away / e_max, 1.0 - back / e_max], abs=1e-3)
+    refit, rms = through_hook(named, [forms[0].a, forms[0].b], 50)
+    assert refit == pytest.approx([1.0 - away / e_max, 1.0 - back / e_max], abs=1e-3)
     before = math.degrees(float(np.sqrt(np.mean((log - truth) ** 2))))
-    assert math.degrees(float(np.sqrt(np.mean(refit.fun**2)))) < min(0.2, before / 8.0)
-    said = named.memory_closed(float(refit.x[0]), DT, float(refit.x[1]))
+    assert rms < min(0.2, before / 8.0)
+    said = named.memory_closed(float(refit[0]), DT, float(refit[1]))
     assert said.startswith("a rate limit of the rudder angle: 15 deg/s"), said
     assert "moving away from midships; moving back, a rate limit of the rudder angle: 4" in said

@@ -1417,6 +1417,12 @@ def _basis_lines(g: int, group: Group) -> list[str]:
     return _spline_lines(_clamped(g, group), "b", group.n)
 
 
+def _side(control: Control) -> str:
+    """The hook's line of the side a gap is signed against (:func:`away_sign`): the acting value
+    of the step before, or at 0 the gap itself."""
+    return f"    side = {control.prev} if {control.prev} != 0.0 else gap"
+
+
 def _gap_lines(group: Group) -> list[str]:
     """The gap of a memory group's control and the gap's variable z (:data:`CONTROLS`)."""
     k = CONTROLS[group.control]
@@ -1424,7 +1430,7 @@ def _gap_lines(group: Group) -> list[str]:
     if VARIABLES[group.variable].away:  # signed away from the control's zero: away_sign
         return [
             f"    gap = {k.log} - {k.prev}",
-            f"    side = {k.prev} if {k.prev} != 0.0 else gap",
+            _side(k),
             f"    {code} = math.asinh(math.copysign(abs(gap), gap * side) * {1.0 / k.quantum!r})",
         ]
     return [
@@ -1440,10 +1446,7 @@ def _memory_lines(g: int, group: Group) -> list[str]:
         k = CONTROLS[c]
         coefficient = [f"    c = e.s{g}_{c}0"]
         if VARIABLES[group.variable].away:  # one coefficient moving away, one moving back
-            coefficient = [
-                f"    side = {k.prev} if {k.prev} != 0.0 else gap",
-                f"    c = e.s{g}_{c}0 if gap * side > 0.0 else e.s{g}_{c}1",
-            ]
+            coefficient = [_side(k), f"    c = e.s{g}_{c}0 if gap * side > 0.0 else e.s{g}_{c}1"]
         return [
             f"    # {structure_text(group)}",
             f"    gap = {k.log} - {k.prev}",

@@ -433,7 +433,9 @@ def memory_forms(group: Group, coefficients: Sequence[float]) -> list[ClosedForm
     play) fitted to a memory group's spline share f(z), best first: each form's coefficient c
     in [0, 1] chosen on a grid of :data:`MEMORY_GRID` values to match f at an even grid of z
     over the range (the asinh scale of the gap: small gaps as densely as large ones), and the
-    share of the memory it keeps, 1 - sum (f - f_form)^2 / sum f^2 (``r2``; ``a`` is c). A
+    share of the memory it keeps, 1 - sum (f - f_form)^2 / sum f^2 (``r2``; ``a`` is c; of a
+    gap signed away from the control's zero ``a`` is the moves away's c, ``b`` the moves back's,
+    each chosen on its own side of the gap). A
     form that keeps none of it (its best c is 0, the paper's model) names nothing and is left
     out; none for a spline that leaves no gap open."""
     if not group.control or group.form:
@@ -465,6 +467,14 @@ def memory_forms(group: Group, coefficients: Sequence[float]) -> list[ClosedForm
         )
     out.sort(key=lambda c: -c.r2)
     return out
+
+
+def memory_named(group: Group, form: ClosedForm) -> tuple[Group, list[float]]:
+    """The memory ``group``'s closed form ``form`` (of :func:`memory_forms`) as a group, and
+    its coefficients as a start: c, and of a gap signed away from the control's zero the
+    moves back's c too."""
+    k = memory_coefficients(group.variable)
+    return replace(group, n=k, form=form.form), [form.a, form.b][:k]
 
 
 def form_transform(
@@ -520,6 +530,7 @@ __all__ = [
     "form_transform",
     "group_families",
     "memory_forms",
+    "memory_named",
     "product_r2",
     "product_transform",
     "products",

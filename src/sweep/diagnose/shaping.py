@@ -26,7 +26,6 @@ from mmg.shapes import (
     Group,
     form_scale,
     groups_of,
-    memory_coefficients,
     parse_form,
     shape_effect,
 )
@@ -53,6 +52,7 @@ from sweep.diagnose.naming import (
     form_transform,
     group_families,
     memory_forms,
+    memory_named,
     product_r2,
     product_transform,
     products,
@@ -328,9 +328,9 @@ def _named_forms(
             best = memory_forms(g, selection.coefficients[i])[:1]
             named.append(best[0] if best else None)
             if best:
-                k = memory_coefficients(g.variable)
-                out.append(replace(g, n=k, form=best[0].form))
-                start += [best[0].a, best[0].b][:k]
+                memory_group, values = memory_named(g, best[0])
+                out.append(memory_group)
+                start += values
             continue
         if i not in forms:
             named.append(None)
@@ -397,9 +397,9 @@ def closest_form(
         if group.control:  # a memory: its closed form closest to the spline
             memory = memory_forms(group, coef)[:1]
             if memory:
-                k = memory_coefficients(group.variable)
-                groups.append(replace(group, n=k, form=memory[0].form))
-                start += [memory[0].a, memory[0].b][:k]
+                memory_group, values = memory_named(group, memory[0])
+                groups.append(memory_group)
+                start += values
             continue
         if group.tensor:  # a surface: the product of closed forms closest to it
             at2 = None if joint is None else joint.get((group.variable, group.variable2))

@@ -82,6 +82,8 @@ class EquationData:
     term_ids: list[str]  # (T,) the term of each column (a term with a shape has several)
     scale: FloatArray  # (3,) channel weights applied (1 / RMS of the residual)
     columns: list[Column] = field(default_factory=list)  # (T,) term and shape grid point
+    t: FloatArray = field(default_factory=lambda: np.zeros(0))  # (M,) time of each sample [s]
+    psi: FloatArray = field(default_factory=lambda: np.zeros(0))  # (M,) its heading [rad]
 
     @property
     def labels(self) -> list[str]:
@@ -115,7 +117,7 @@ def equation_data(
     lib = discovered_effect(ids)
     base_effects = tuple(get_effect(n) for n, _ in params.effects)
     effects = (*base_effects, lib)
-    ys, Cs, Bs, gs = [], [], [], []
+    ys, Cs, Bs, gs, ts, psis = [], [], [], [], [], []
     lo, hi = bounds()
     steps = 1e-3 * (hi - lo)
     theta0 = params.vector()
@@ -153,6 +155,8 @@ def equation_data(
         Bs.append((db[:, 1:] - base[:, None]) / steps[None, :, None])
         Cs.append(np.moveaxis(dl, 1, 0))  # (n, T, 3)
         gs.append(np.full(ys[-1].shape[0], g))
+        ts.append(tt)
+        psis.append(xs[:, 4])
     if not ys:
         raise ValueError("no window is long enough for the equation-level residuals")
     y = np.concatenate(ys)  # (M, 3)
@@ -172,6 +176,8 @@ def equation_data(
         term_ids=[c.term for c in columns],
         scale=scale,
         columns=columns,
+        t=np.concatenate(ts),
+        psi=np.concatenate(psis),
     )
 
 

@@ -701,6 +701,7 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
         "shapes": d.shape.as_dict() if d.shape is not None else None,
         "explainable": explainable(d),
         "memory": d.extra.get("memory"),
+        "waves": d.extra.get("waves"),
         "misfit": asdict(d.misfit) if d.misfit is not None else None,
         "generalisation": _generalisation_dict(d.generalisation),
         "generalisation_after": _generalisation_dict(d.generalisation_after),
@@ -1195,6 +1196,31 @@ def _memory_probe_md(memory: dict[str, Any] | None) -> list[str]:
     ]
 
 
+def _waves_probe_md(waves: dict[str, Any] | None) -> list[str]:
+    """The probe of forces periodic in the recording's time (:mod:`sweep.diagnose.waves`), a
+    paragraph; none where it did not run."""
+    if not waves or not waves.get("effect"):
+        return []
+    text = (
+        "Forces periodic in the recording's time, probed by their closed forms (a spline of time "
+        "learnt on some runs says nothing of the times only other runs cover; a period does): "
+        f"{waves['periods']} periods, the best linearised dBIC {waves['dbic']:.1f} against the "
+        f"null's quantile {waves['threshold']:.1f} ({len(waves['null'])} noise-only copies): "
+    )
+    if not waves["proposed"]:
+        return [text + "not proposed.", ""]
+    scan = waves.get("scan") or []
+    best = min(scan, key=lambda row: row["J"]) if scan else None
+    text += (
+        f"proposed; the basin's components fitted by output error at {len(scan)} periods, "
+        f"the lowest training J {best['J']:.4g} at {best['period']:.1f} s: candidate "
+        f"`{waves['effect']}`."
+        if best is not None
+        else "proposed."
+    )
+    return [text, ""]
+
+
 def _shape_md(d: Diagnosis) -> list[str]:
     """The learned shape: formula, table and plot (verdict ``shape``), or the selection's
     result otherwise."""
@@ -1217,6 +1243,7 @@ def _shape_md(d: Diagnosis) -> list[str]:
         "",
     ]
     md += _memory_probe_md(d.extra.get("memory"))
+    md += _waves_probe_md(d.extra.get("waves"))
     if sp.pairs is not None:
         pr = sp.pairs
         verdict = "taken" if pr["taken"] else "not taken"

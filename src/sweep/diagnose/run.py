@@ -55,6 +55,7 @@ from sweep.diagnose.shaping import ShapeProposal, propose_shape
 from sweep.diagnose.transfer import check_transfer
 from sweep.diagnose.trust import trust_of
 from sweep.diagnose.verdict import acceptance_threshold, decide
+from sweep.diagnose.waves import propose_waves
 
 
 @dataclass
@@ -285,6 +286,10 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
     if memory is not None and memory.proposed and memory.name not in {e.name for e in extra}:
         extra = (*extra, memory.proposal)
         precompile(tasks([ctx.with_base((memory.proposal,))]), log=ctx.log)
+    waves = propose_waves(ctx, base, cal)
+    if waves is not None and waves.proposed and waves.name not in {e.name for e in extra}:
+        extra = (*extra, waves.proposal)
+        precompile(tasks([ctx.with_base((waves.proposal,))]), log=ctx.log)
     clock.lap("shapes")
     threshold = acceptance_threshold(s, cal.null)
     cands = refine(ctx, base, fit_candidates(ctx, base, extra), threshold)
@@ -310,6 +315,7 @@ def run_stages(ctx: Context, t0: float) -> Diagnosis:
     out = report(ctx, t0, base, cal, base_retry, location, proposals, cands, tested)
     out.shape = shape
     out.extra["memory"] = memory.as_dict() if memory is not None else None
+    out.extra["waves"] = waves.as_dict() if waves is not None else None
     out.extra["stage_seconds"] = clock.seconds
     out.extra["trust"] = trust
     out.extra["time_step"] = float(np.median(np.concatenate([np.diff(w.t) for w in ctx.windows])))

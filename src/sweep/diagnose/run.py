@@ -55,7 +55,7 @@ from sweep.diagnose.shaping import ShapeProposal, propose_shape
 from sweep.diagnose.transfer import check_transfer
 from sweep.diagnose.trust import trust_of
 from sweep.diagnose.verdict import acceptance_threshold, decide
-from sweep.diagnose.waves import propose_waves
+from sweep.diagnose.waves import PEAK_TERMS, propose_waves
 
 
 @dataclass
@@ -229,12 +229,15 @@ class StageClock:
 def probes(discover: bool = True, shapes: bool = True) -> list[tuple[Effect, tuple[str, ...]]]:
     """(effect, kernel entry points) of the probes that the discovery's library columns (every
     searched term, through one generated effect) and the shapes' columns (one probe for every
-    candidate group: its knots come with the lanes) simulate and evaluate."""
+    candidate group: its knots come with the lanes) simulate and evaluate, and of the equation
+    data of the waves' periodogram (:mod:`sweep.diagnose.waves`)."""
     out: list[tuple[Effect, tuple[str, ...]]] = []
     if discover:
         out.append((discovered_effect(list(SEARCHED)), ("simulate", "accelerations")))
     if shapes:
         out.append((probe_effect(probe_groups([])), ("simulate",)))
+        # the equation data of the waves' periodogram (its residual and the base's regressors)
+        out.append((discovered_effect(list(PEAK_TERMS)), ("accelerations",)))
     return out
 
 

@@ -82,9 +82,9 @@ PEAK_STEPS = 8
 SHORTEST = 30.0
 #: the periodogram's peaks refitted by output error
 PEAKS = 3
-#: the library terms the periodogram's equation data are built with (all, as the discovery's
-#: are: the same compiled kernel; the periodogram uses the residual and the base's regressors)
-PEAK_TERMS: tuple[str, ...] = ()
+#: the library term the periodogram's equation data are built with: any (it uses their residual
+#: and the base's regressors alone), one for a small kernel (:func:`sweep.diagnose.run.probes`)
+PEAK_TERMS = ("E_x0",)
 _TWO_PI = 2.0 * math.pi
 #: a quarter of a cycle [rad]: the phase of a cosine
 HALF_PI = 0.5 * math.pi

@@ -106,9 +106,12 @@ class WaveTrial:
 
 @dataclass
 class WaveProposal:
-    """The probe's result: the best wave (its effect with its numbers fitted by output error,
-    and the coefficients it starts from), its linearised dBIC, the null's quantile it is
-    compared with, whether it is proposed; the best trial of each set of components."""
+    """The probe's result: the wave (where proposed, the basin's fitted by output error at the
+    periodogram's peaks, else the gate's best), the coefficients it starts from, the gate's
+    linearised dBIC and the null's quantile it is compared with, whether it is proposed, the
+    number of the gate's periods; the gate's best trial of each set of components, the
+    training J at each period fitted by output error (``scan``) and the periodogram's peaks
+    with the share of the equation residual each explains."""
 
     effect: Effect | None
     start: list[float]

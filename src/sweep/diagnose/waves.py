@@ -59,7 +59,7 @@ from sweep.diagnose.discover import DiscoverySettings, equation_data, null_sets
 from sweep.diagnose.fit import Fit
 from sweep.diagnose.naming import WAVE_KNOTS, form_transform
 from sweep.diagnose.scoring import delta_bic
-from sweep.diagnose.shapes import ShapeColumns, _tmul, candidate_groups
+from sweep.diagnose.shapes import ShapeColumns, _block_diag, _tmul, candidate_groups
 from sweep.diagnose.shaping import default_variables
 from sweep.diagnose.threshold import CEILING
 from sweep.identification.polish import PolishSettings
@@ -226,7 +226,7 @@ def _scan(
             if any(Ws[u] is None for u in members):
                 continue
             idx = np.concatenate([cols.units[u].columns for u in members]).astype(int)
-            Z = _block([Ws[u] for u in members])  # type: ignore[misc]
+            Z = _block_diag([Ws[u] for u in members])  # type: ignore[misc]
             H = Z.T @ part.LL[np.ix_(idx, idx)] @ Z
             H[np.diag_indices_from(H)] += 1e-12 * max(float(np.trace(H)), 1e-300) / len(H)
             cz = Z.T @ C[idx]  # (k, D)
@@ -366,19 +366,6 @@ def _by_output_error(
         + f"; the base alone {base.f:.4g})"
     )
     return effect, start, record
-
-
-def _block(blocks: list[FloatArray]) -> FloatArray:
-    """The block-diagonal matrix of ``blocks``."""
-    rows = sum(b.shape[0] for b in blocks)
-    cols = sum(b.shape[1] for b in blocks)
-    out = np.zeros((rows, cols))
-    i = j = 0
-    for b in blocks:
-        out[i : i + b.shape[0], j : j + b.shape[1]] = b
-        i += b.shape[0]
-        j += b.shape[1]
-    return out
 
 
 def propose_waves(ctx: Context, base: Fit, cal: Calibration) -> WaveProposal | None:

@@ -54,6 +54,7 @@ from sweep.diagnose.calibration import Calibration
 from sweep.diagnose.context import Context
 from sweep.diagnose.discover import null_sets
 from sweep.diagnose.fit import Fit
+from sweep.diagnose.proposals import ProbeProposal
 from sweep.diagnose.shapes import variable_ranges
 from sweep.diagnose.threshold import CEILING
 from sweep.identification.polish import residual_vectors
@@ -124,41 +125,16 @@ class Trial:
 
 
 @dataclass
-class MemoryProposal:
+class MemoryProposal(ProbeProposal):
     """The probe's result: the best form (its single-group effect and start), its dBIC, the
     null's quantile it is compared with, whether it is proposed; every probed size's dBIC."""
 
-    effect: Effect | None
-    start: list[float]
-    dbic: float
-    threshold: float
-    proposed: bool
-    seconds: float
-    null: list[float] = field(default_factory=list)
     trials: list[Trial] = field(default_factory=list)
 
-    @property
-    def name(self) -> str:
-        return self.effect.name if self.effect is not None else ""
-
-    @property
-    def proposal(self) -> Effect:
-        """The proposed effect (ValueError when there is none)."""
-        if self.effect is None:
-            raise ValueError("no closed form of a memory was probed")
-        return self.effect
+    what = "closed form of a memory"
 
     def as_dict(self) -> dict[str, Any]:
-        return {
-            "effect": self.effect.name if self.effect is not None else None,
-            "start": self.start,
-            "dbic": self.dbic,
-            "threshold": self.threshold,
-            "proposed": self.proposed,
-            "seconds": self.seconds,
-            "null": self.null,
-            "trials": [asdict(t) for t in self.trials],
-        }
+        return {**super().as_dict(), "trials": [asdict(t) for t in self.trials]}
 
 
 def _directions(

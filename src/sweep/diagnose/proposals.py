@@ -7,7 +7,8 @@ The procedure is described in the user guide (docs/guide/diagnosis.md).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -29,6 +30,48 @@ class Proposals:
     proposal: Proposal | None
     trajectory: TrajectorySelection | None
     effects: tuple[Effect, ...]
+
+
+@dataclass
+class ProbeProposal:
+    """What a probe beside the learned shapes proposes (the memories' closed forms,
+    :mod:`sweep.diagnose.memory`; the waves in time, :mod:`sweep.diagnose.waves`): its best
+    effect (None where nothing was probed) and the coefficients it starts from, its linearised
+    dBIC, the null's quantile it is compared with, whether it is proposed, the seconds it took
+    and the null's draws."""
+
+    effect: Effect | None
+    start: list[float]
+    dbic: float
+    threshold: float
+    proposed: bool
+    seconds: float
+    null: list[float] = field(default_factory=list)
+
+    #: what the probe looks for, in "no ... was probed"
+    what = "effect"
+
+    @property
+    def name(self) -> str:
+        return self.effect.name if self.effect is not None else ""
+
+    @property
+    def proposal(self) -> Effect:
+        """The proposed effect (ValueError when there is none)."""
+        if self.effect is None:
+            raise ValueError(f"no {self.what} was probed")
+        return self.effect
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "effect": self.name or None,
+            "start": self.start,
+            "dbic": self.dbic,
+            "threshold": self.threshold,
+            "proposed": self.proposed,
+            "seconds": self.seconds,
+            "null": self.null,
+        }
 
 
 def _add(effects: list[Effect], eff: Effect) -> None:

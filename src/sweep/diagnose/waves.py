@@ -58,6 +58,7 @@ from sweep.diagnose.corners import ITERATIONS as CORNER_ITERATIONS
 from sweep.diagnose.discover import DiscoverySettings, equation_data, null_sets
 from sweep.diagnose.fit import Fit
 from sweep.diagnose.naming import WAVE_KNOTS, form_transform
+from sweep.diagnose.proposals import ProbeProposal
 from sweep.diagnose.scoring import delta_bic
 from sweep.diagnose.shapes import ShapeColumns, _block_diag, _tmul, candidate_groups
 from sweep.diagnose.shaping import default_variables
@@ -106,7 +107,7 @@ class WaveTrial:
 
 
 @dataclass
-class WaveProposal:
+class WaveProposal(ProbeProposal):
     """The probe's result: the wave (where proposed, the basin's fitted by output error at the
     periodogram's peaks, else the gate's best), the coefficients it starts from, the gate's
     linearised dBIC and the null's quantile it is compared with, whether it is proposed, the
@@ -114,39 +115,17 @@ class WaveProposal:
     training J at each period fitted by output error (``scan``) and the periodogram's peaks
     with the share of the equation residual each explains."""
 
-    effect: Effect | None
-    start: list[float]
-    dbic: float
-    threshold: float
-    proposed: bool
-    seconds: float
-    periods: int
-    null: list[float] = field(default_factory=list)
+    periods: int = 0
     trials: list[WaveTrial] = field(default_factory=list)
     scan: list[dict[str, float]] = field(default_factory=list)
     peaks: list[dict[str, float]] = field(default_factory=list)
 
-    @property
-    def name(self) -> str:
-        return self.effect.name if self.effect is not None else ""
-
-    @property
-    def proposal(self) -> Effect:
-        """The proposed effect (ValueError when there is none)."""
-        if self.effect is None:
-            raise ValueError("no wave in time was probed")
-        return self.effect
+    what = "wave in time"
 
     def as_dict(self) -> dict[str, Any]:
         return {
-            "effect": self.name or None,
-            "start": self.start,
-            "dbic": self.dbic,
-            "threshold": self.threshold,
-            "proposed": self.proposed,
-            "seconds": self.seconds,
+            **super().as_dict(),
             "periods": self.periods,
-            "null": self.null,
             "trials": [asdict(t) for t in self.trials],
             "scan": self.scan,
             "peaks": self.peaks,
@@ -413,9 +392,9 @@ def propose_waves(ctx: Context, base: Fit, cal: Calibration) -> WaveProposal | N
         threshold,
         proposed,
         0.0,
-        len(grid),
-        [float(v) for v in null],
-        sorted(trials.values(), key=lambda t: t.dbic),
+        null=[float(v) for v in null],
+        periods=len(grid),
+        trials=sorted(trials.values(), key=lambda t: t.dbic),
     )
     ctx.log(
         f"waves in time: {effect.name} (of {len(where)} trials over {len(grid)} periods), "

@@ -369,40 +369,6 @@ def test_a_closed_form_chosen_ahead_of_the_shape_keeps_its_place_before_a_weaker
     assert (v.verdict, v.effect) == ("shape", FORM)
 
 
-@pytest.mark.parametrize(
-    ("term_gain", "shape_fit", "chosen", "verdict"),
-    [
-        # the term keeps 70 % of the shape's held-out gain: the shape is the finding, stated by
-        # the closed form that keeps most of it
-        (0.70, 1.0, FORM, "shape"),
-        (0.95, 1.0, "discovered:N_rar", "discovered"),  # the term keeps 95 %: it is the name
-        # the shape gains more held out but fits the training windows far worse: the term
-        (0.70, 5.0, "discovered:N_rar", "discovered"),
-    ],
-)
-def test_a_library_term_first_by_dbic_must_keep_the_learned_shape_s_gain(
-    tmp_path: Path, term_gain: float, shape_fit: float, chosen: str, verdict: str
-) -> None:
-    """A name states the missing force when it keeps 90 % of the learned shape's held-out gain,
-    whether it comes before the shape by dBIC or after it (a term of one coefficient passes the
-    shape's dBIC at the same training J)."""
-    lines: list[str] = []
-    ctx = _context(tmp_path, lines)
-    scores = [
-        _score("discovered:N_rar", -120.0, 0.4, gain=term_gain),
-        _score(SHAPE, -80.0, 0.45, gain=0.95),
-        _score(FORM, -75.0, 0.5, gain=1.0),
-    ]
-    for c in scores[1:]:
-        c.J_fit = shape_fit
-    v = decide(ctx, scores, [c.effect for c in scores], _null(-10.0), significant=True)
-    assert (v.verdict, v.effect) == (verdict, chosen)
-    said = "\n".join(lines)
-    assert ("of the learned shape" in said and "the shape is the finding" in said) == (
-        verdict == "shape"
-    )
-
-
 def test_the_report_says_which_learned_shape_a_library_term_names() -> None:
     term = _score("discovered:X_uuuau", -98.0, 0.44, gain=0.95)
     shape = _score(SHAPE, -100.0, 0.5, gain=1.0)

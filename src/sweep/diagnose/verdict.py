@@ -24,10 +24,6 @@ from sweep.diagnose.sessions import tie_text
 from sweep.diagnose.settings import DiagnoseSettings
 from sweep.diagnose.threshold import CEILING, NEGLIGIBLE, AcceptanceNull, more_better
 
-#: a learned shape fits the training windows as well as a name when its training J is within
-#: this share of the name's (:func:`_keeps_the_shape`)
-FIT_TIE = 0.01
-
 
 @dataclass(frozen=True)
 class Verdict:
@@ -130,7 +126,6 @@ def decide(
     # the first accepted in that order: a better fit that does not carry over to the held-out
     # runs does not hide one that does
     effect = next((c.effect for c in ranked if c.accepted), "")
-    effect = _keeps_the_shape(ctx, ranked, effect)
     effect = _named(ctx, ranked, effect)
     verdict = verdict_name(effect, significant)
     ctx.log(
@@ -245,36 +240,6 @@ def shape_name(
     if best is None or best.effect == effect or best.heldout_gain < KEEP * gain:
         return None
     return best, best.heldout_gain / gain
-
-
-def _keeps_the_shape(ctx: Context, scores: Sequence[CandidateScore], effect: str) -> str:
-    """The chosen ``effect``, or the accepted learned shape (spline or closed form) that fits
-    the training windows as well (training J within :data:`FIT_TIE` of the effect's) and of
-    whose held-out gain the chosen library term or catalog effect keeps less than
-    :data:`KEEP`: a name states the missing force when it keeps that share of the shape's
-    gain (:func:`shape_name`), whether it was found before the shape or after; logged. On the
-    medium planted yaw hinge (fresh set) the library's N_rar r L |r L| was first by dBIC
-    (-55.8 against -35.2) and kept 70 % of the held-out gain of the learned hinge in r'."""
-    if not effect or effect.startswith(SHAPE_PREFIX):
-        return effect
-    chosen = next(c for c in scores if c.effect == effect)
-    shapes = [
-        c
-        for c in scores
-        if c.accepted
-        and c.effect.startswith(SHAPE_PREFIX)
-        and c.J_fit <= (1.0 + FIT_TIE) * chosen.J_fit
-    ]
-    best = max(shapes, key=lambda c: c.heldout_gain, default=None)
-    if best is None or best.heldout_gain <= 0.0 or chosen.heldout_gain >= KEEP * best.heldout_gain:
-        return effect
-    ctx.log(
-        f"{effect} keeps {100 * chosen.heldout_gain / best.heldout_gain:.0f} % of the held-out "
-        f"gain of the learned shape {best.effect}, which fits the training windows as well "
-        f"(J {best.J_fit:.4g} against {chosen.J_fit:.4g}): the shape is the finding, to be "
-        "named"
-    )
-    return best.effect
 
 
 def _named(ctx: Context, scores: Sequence[CandidateScore], effect: str) -> str:

@@ -105,14 +105,16 @@ def _sweep(specs, tracker, root: Path, executor=None, stream=None):
 def test_a_live_lease_is_respected_a_released_or_expired_one_taken(tmp_path, uri):
     where = f"file://{tmp_path}/lease" if uri else str(tmp_path / "lease")
     a, b = Driver.this(), Driver("h", 1, "b")
-    mine, theirs = Lease(where, a, seconds=0.6), Lease(where, b, seconds=0.6)
+    # (a lease of 3 s: one of 0.6 s expired between two calls on a CI machine whose other core
+    # compiled kernels)
+    mine, theirs = Lease(where, a, seconds=3.0), Lease(where, b, seconds=3.0)
     assert mine.acquire() is None and mine.generation == 0
     held = theirs.acquire()
     assert isinstance(held, Holder) and held.driver == a and held.live()
     assert mine.renew()
     mine.release()
     assert theirs.acquire() is None and theirs.generation == 1  # released: a new generation
-    time.sleep(0.8)  # b's heartbeat stopped: expired
+    time.sleep(3.2)  # b's heartbeat stopped: expired
     assert mine.acquire() is None and mine.generation == 2
     assert not theirs.renew()  # b stalled past its expiry and learns it lost the job
     assert storage.list_names(where) == ["00000002.json"]  # older generations cleared

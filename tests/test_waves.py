@@ -20,10 +20,32 @@ from sweep.diagnose.waves import (
     period_peaks,
     periods,
     phase_form,
+    refined_frequency,
     wave_basis,
 )
 from sweep.diagnose.windows import cut_windows
 from tests.conftest import kernels, probe_kernels
+
+
+def test_the_period_moves_from_the_peak_while_the_fit_improves_then_is_refined() -> None:
+    """A minimum 2.3 grid steps from the periodogram's peak is reached (the J still falling
+    where a fixed search of a half and a quarter step stopped), to an eighth of a step; a peak
+    at the minimum stays there; each frequency is evaluated once by the caller's cache."""
+    grid = 1.0 / (8 * 3700.0)
+    calls: list[float] = []
+
+    def J(f: float) -> float:
+        calls.append(f)
+        return 1.0 + ((f - f_min) / grid) ** 2
+
+    for f_min, f_peak in ((1.0 / 300.0, 1.0 / 300.0 + 2.3 * grid), (1.0 / 40.0, 1.0 / 40.0)):
+        calls.clear()
+        f = refined_frequency(J, f_peak, grid)
+        assert abs(f - f_min) <= grid / 8 + 1e-15
+        assert len(set(calls)) <= 3 + 6 + 4
+    # a J that falls without end stops after the walk's steps
+    f = refined_frequency(lambda f: -f, 0.01, grid, walk=3, halvings=0)
+    assert f == pytest.approx(0.01 + 3 * grid / 2, rel=0, abs=1e-12)
 
 
 def test_the_periods_run_from_a_few_knot_intervals_to_twice_the_range() -> None:

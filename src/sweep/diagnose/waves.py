@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
@@ -84,6 +84,14 @@ PEAK_STEPS = 8
 SHORTEST = 30.0
 #: the periodogram's peaks refitted by output error
 PEAKS = 3
+#: the most half-steps of the periodogram's grid that the period moves from the best peak while
+#: the training J falls: on the planted turning push at the medium magnitude the peak lay at
+#: 303.8 s, and a search that stopped three quarters of a step away left it at 301.5 s (planted
+#: 300 s, the J still falling), a wave whose phase drifts by 0.4 rad over the hour of the clock
+WALK = 6
+#: ... then halvings of that step either side of the best (an eighth of the grid's step: 0.02
+#: of a cycle over the span)
+HALVINGS = 2
 #: the library term the periodogram's equation data are built with: any (it uses their residual
 #: and the base's regressors alone), one for a small kernel (:func:`sweep.diagnose.run.probes`)
 PEAK_TERMS = ("E_x0",)
@@ -282,20 +290,41 @@ def period_peaks(
     return peaks
 
 
+def refined_frequency(
+    J: Callable[[float], float], f: float, grid: float, walk: int = WALK, halvings: int = HALVINGS
+) -> float:
+    """The frequency of the lowest ``J`` near ``f`` [1/s]: from half the periodogram's ``grid``
+    step, one step at a time towards the lower side while ``J`` falls (at most ``walk``
+    steps: a peak of the equation residual can lie a few steps from the output error's
+    minimum), then ``halvings`` times a step half as long either side of the best."""
+    step = 0.5 * grid
+    below, above = J(f - step), J(f + step)
+    if min(below, above) < J(f):
+        way = -step if below < above else step
+        for _ in range(walk):
+            if J(f + way) >= J(f):
+                break
+            f += way
+    for _ in range(halvings):
+        step /= 2.0
+        f = min((f - step, f, f + step), key=J)
+    return f
+
+
 def _by_output_error(
     ctx: Context, base: Fit, units: list[Group], peaks: list[tuple[float, float]], span: float
 ) -> tuple[Effect, list[float], list[dict[str, float]]] | None:
     """The waves of the basin's components ``units`` (x and y, each over the clock's whole
     range) at the period of the lowest training J by output error: at each of the
-    periodogram's ``peaks`` (:func:`period_peaks`), then a half and a quarter of its grid's
-    step (one cycle in :data:`PEAK_STEPS` ``span``) either side of the best, the base and each
-    component's sine and cosine fitted from none (a short joint fit, as a closed form's
-    numbers are fitted: the phase, linear in them, free); its effect (one wave of its phase per
-    component), start and the J of each period tried; None where at no peak the waves lower
-    the training J by more than their parameters' BIC allows (nothing to refine, no candidate:
-    on the real Train-TZR, 28 windows, the seven fits left the training J at the base's 1524).
-    A wave's period must be right to a few
-    per cent of a cycle over the span: on the strong planted turning push (300 s) J was 0.709
+    periodogram's ``peaks`` (:func:`period_peaks`), then where :func:`refined_frequency`
+    moves the best (in steps of the grid's, one cycle in :data:`PEAK_STEPS` ``span``), the
+    base and each component's sine and cosine fitted from none (a short joint fit, as a closed
+    form's numbers are fitted: the phase, linear in them, free); its effect (one wave of its
+    phase per component), start and the J of each period tried; None where at no peak the
+    waves lower the training J by more than their parameters' BIC allows (nothing to refine,
+    no candidate: on the real Train-TZR, 28 windows, the fits at the three peaks left the
+    training J at the base's 1524). A wave's period must be right to a few per cent of a
+    cycle over the span: on the strong planted turning push (300 s) J was 0.709
     at 300 s, 1.08 at 310 s and 1.22 at 316 s (the planted form's 0.682, the base's 1.55)."""
     settings = replace(
         candidate_settings(ctx),
@@ -329,10 +358,7 @@ def _by_output_error(
             "proposed"
         )
         return None
-    step = 1.0 / (PEAK_STEPS * span)
-    for _ in range(2):
-        step /= 2.0
-        best = min((best - step, best, best + step), key=fitted)
+    best = refined_frequency(fitted, best, 1.0 / (PEAK_STEPS * span))
     J, coefficients = done[best]
     effect, start = _wave_effect(units, tuple(range(len(units))), 1.0 / best, coefficients.ravel())
     # the coefficients, each component's phase and the period, as fitted numbers

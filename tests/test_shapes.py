@@ -524,26 +524,6 @@ def test_candidate_groups_span_the_recorded_ranges() -> None:
     assert by["eda", ""].components == "D" and by["eda", ""].lo == -by["eda", ""].hi
 
 
-def test_a_session_s_clock_past_1000_s_is_in_the_time_shapes_range() -> None:
-    """The guard of a sub-model (an advance ratio of 1e4 at n_p = 0) is not applied to time: a
-    window recorded at 3,000 s on the session's clock is inside the time shapes' range, where
-    the advance ratio's guard values are still left out."""
-    from sweep.diagnose.shapes import kept, variable_ranges
-
-    p = efd_parameters()
-    k = np.arange(401)
-    x = np.zeros((401, 6))
-    x[:, 1] = 0.5 + 0.1 * np.sin(k / 30.0)
-    c = np.column_stack([np.zeros(401), 10.0 + np.sin(k / 40.0)])
-    w = np.zeros((401, 2))
-    t = np.asarray(0.1 * k, dtype=np.float64)
-    wins = [Recording(f"w{i}", None, s + t, x, c, w) for i, s in enumerate((100.0, 3000.0))]
-    lo, hi = variable_ranges(wins, p, ("t",))["t"]
-    assert lo < 110.0 and hi > 3030.0
-    assert kept("t", np.array([5.0, 3.0e3, np.nan])).tolist() == [True, True, False]
-    assert kept("JP", np.array([0.3, 1.0e4, -np.inf])).tolist() == [True, False, False]
-
-
 def test_position_is_a_candidate_fixed_to_the_basin_and_with_the_speed_s_scaling() -> None:
     """Of x0 and y0: a force on the ship's axes at rest (U_ref^2), one along the basin's axes,
     and one on the ship's axes scaled by U^2 (a hull force that changes with where the ship

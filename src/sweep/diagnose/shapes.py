@@ -160,9 +160,7 @@ TIME_KNOT_SPACING = 10.0
 N_MEMORY_BASIS = 16
 #: the knots span these quantiles of a variable over the training windows
 RANGE_QUANTILES = (0.005, 0.995)
-#: values at least this large are a sub-model's guard, not a state (J_s = 1e4 at n_p = 0); not
-#: applied to heading, position and time (:data:`PLACE_AND_TIME`), which no sub-model computes:
-#: a session's clock runs past 1000 s (the real random runs' to 3,900 s)
+#: values at least this large are a sub-model's guard, not a state (J_s = 1e4 at n_p = 0)
 GUARD = 1e3
 #: smoothing grid: lambda = kappa x the mean diagonal of the group's projected Gram matrix
 KAPPAS = (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)
@@ -187,15 +185,6 @@ MEMORY_STEP = 1.0
 BATCH_BYTES = 2**28
 
 
-def kept(variable: str, z: FloatArray) -> NDArray[np.bool_]:
-    """Where the values ``z`` of ``variable`` are a state: finite, and below :data:`GUARD` in
-    size unless the variable is heading, position or time."""
-    ok = np.isfinite(z)
-    if variable not in PLACE_AND_TIME:
-        ok &= np.abs(z) < GUARD
-    return ok
-
-
 def variable_ranges(
     windows: Sequence[Recording],
     params: Parameters,
@@ -204,10 +193,10 @@ def variable_ranges(
 ) -> dict[str, tuple[float, float]]:
     """{variable: (lo, hi)}: the ``quantiles`` of each variable over the recorded samples of
     ``windows`` (with the base ``params`` for the rudder inflow and the wake), leaving out
-    values that are not a state (:func:`kept`: the advance ratio where the propeller stands
-    still); a variable that does not vary there (a constant propeller speed; a range narrower
-    than 1e-4 of the variable's size) is left out. A control's gap spans [-m, m], m its
-    largest size: the log's steps are few, and the largest matter."""
+    values beyond :data:`GUARD` (the advance ratio where the propeller stands still); a
+    variable that does not vary there (a constant propeller speed; a range narrower than 1e-4
+    of the variable's size) is left out. A control's gap spans [-m, m], m its largest size:
+    the log's steps are few, and the largest matter."""
     out: dict[str, tuple[float, float]] = {}
     for n, z in sampled(windows, params, names).items():
         if z.size == 0:
@@ -226,14 +215,14 @@ def sampled(
     windows: Sequence[Recording], params: Parameters, names: Sequence[str]
 ) -> dict[str, FloatArray]:
     """{variable: its values on the recorded samples of ``windows``} (with the base ``params``
-    for the rudder inflow and the wake), leaving out values that are not a state
-    (:func:`kept`: not finite, or a sub-model's guard)."""
+    for the rudder inflow and the wake), leaving out values that are not finite or beyond
+    :data:`GUARD` (a sub-model's guard, not a state)."""
     out: dict[str, FloatArray] = {}
     for n in names:
         z = np.concatenate(
             [variable_values(n, w.t, w.x, w.u, w.w, params.theta, params.ship) for w in windows]
         )
-        out[n] = z[kept(n, z)]
+        out[n] = z[np.isfinite(z) & (np.abs(z) < GUARD)]
     return out
 
 
@@ -245,8 +234,8 @@ def jointly_sampled(
     windows: Sequence[Recording], params: Parameters, first: str, second: str
 ) -> tuple[FloatArray, FloatArray]:
     """(z, z2) of the variables ``first`` and ``second`` on the same recorded samples of
-    ``windows`` (as :func:`sampled`, a sample left out where either is not a state,
-    :func:`kept`), at most :data:`JOINT_MOST` of them evenly spaced: where the training runs
+    ``windows`` (as :func:`sampled`, a sample left out where either is not finite or beyond
+    :data:`GUARD`), at most :data:`JOINT_MOST` of them evenly spaced: where the training runs
     went in the plane of the two, where a surface is compared with closed forms."""
     th, sh = params.theta, params.ship
     pairs = [
@@ -254,7 +243,7 @@ def jointly_sampled(
         for w in windows
     ]
     zz = np.concatenate(pairs, axis=1) if pairs else np.zeros((2, 0))
-    keep = kept(first, zz[0]) & kept(second, zz[1])
+    keep = np.all(np.isfinite(zz) & (np.abs(zz) < GUARD), axis=0)
     zz = zz[:, keep]
     if zz.shape[1] > JOINT_MOST:
         zz = zz[:, np.linspace(0, zz.shape[1] - 1, JOINT_MOST).astype(int)]
@@ -370,7 +359,8 @@ def support(group: Group, windows: Sequence[Recording], params: Parameters) -> F
         )
         for v in (group.variable, group.variable2)
     ]
-    ok = kept(group.variable, zs[0]) & kept(group.variable2, zs[1])
+    ok = np.isfinite(zs[0]) & np.isfinite(zs[1]) & (np.abs(zs[0]) < GUARD)
+    ok &= np.abs(zs[1]) < GUARD
     if not ok.any():
         return np.zeros(group.size)
     mass = basis2(group, zs[0][ok], zs[1][ok]).mean(axis=0)

@@ -30,7 +30,8 @@ from tests.conftest import kernels, probe_kernels
 def test_the_period_moves_from_the_peak_while_the_fit_improves_then_is_refined() -> None:
     """A minimum 2.3 grid steps from the periodogram's peak is reached (the J still falling
     where a fixed search of a half and a quarter step stopped), to an eighth of a step; a peak
-    at the minimum stays there; each frequency is evaluated once by the caller's cache."""
+    at the minimum stays there; at most 13 distinct frequencies are tried (the caller caches
+    each fit)."""
     grid = 1.0 / (8 * 3700.0)
     calls: list[float] = []
 

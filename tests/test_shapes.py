@@ -10,7 +10,6 @@ import sys
 import warnings
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -562,41 +561,6 @@ def test_position_is_a_candidate_fixed_to_the_basin_and_with_the_speed_s_scaling
     assert not any(g.variable2 for g in alone)
 
 
-def test_the_wind_s_side_force_in_position_is_a_candidate_only_where_position_is() -> None:
-    """The products of position (the wind's side force sheltered or funnelled where the ship
-    is) join the candidates with position among the variables (several sessions), not with the
-    ship's state and controls alone (one session); the other products join either way."""
-    from sweep.diagnose.shapes import PRODUCTS, SHIP_VARIABLES, VARIABLES, candidate_groups
-
-    p = efd_parameters()
-    k = np.arange(401)
-    x = np.zeros((401, 6))
-    x[:, 0] = 0.05 * k
-    x[:, 1] = 0.4 + 0.05 * np.sin(k / 30.0)
-    x[:, 2] = 1.0 + np.sin(k / 50.0)
-    x[:, 3] = 0.03 * np.sin(k / 20.0)
-    c = np.column_stack([0.3 * np.sin(k / 40.0), 10.0 + np.sin(k / 35.0)])
-    w = np.column_stack([np.full(401, 2.0), np.linspace(-3.0, 3.0, 401)])
-    t = np.asarray(0.1 * k, dtype=np.float64)
-    wins = [Recording("w", None, t, x, c, w)]
-    assert ("y0", "Y_A") in PRODUCTS and ("x0", "Y_A") in PRODUCTS
-
-    def products(variables: tuple[str, ...]) -> set[tuple[str, str]]:
-        groups = candidate_groups(wins, p, variables=variables, shares=(), quadrants=())
-        return {(g.variable, g.multiplier) for g in groups if g.multiplier}
-
-    several, one = products(VARIABLES), products(SHIP_VARIABLES)
-    assert {("x0", "Y_A"), ("y0", "Y_A")} <= several
-    assert not {("x0", "Y_A"), ("y0", "Y_A")} & one
-    assert ("U", "v") in one and ("U", "v") in several
-    (g,) = [
-        g
-        for g in candidate_groups(wins, p, variables=VARIABLES, shares=(), quadrants=())
-        if g.multiplier == "Y_A" and g.variable == "y0"
-    ]
-    assert g.components == "XYN" and g.force == "Y_A" and g.scale_name == ""
-
-
 def test_an_angle_recorded_over_most_of_a_turn_gets_knots_a_quarter_radian_apart() -> None:
     """Eight basis functions at least; an angle's knots at most 0.25 rad apart up to 24 basis
     functions (alpha_R ahead and astern), time's 10 s apart up to 40; other variables keep the
@@ -889,68 +853,6 @@ def test_the_backward_check_drops_a_group_that_adds_less_than_its_share() -> Non
     assert group_to_drop(5.0, []) is None
     assert group_to_drop(5.0, [float("nan"), 4.5]) == 1  # a failed fit without a group: it stays
     assert group_to_drop(float("nan"), [1.0, 0.5]) == 0  # the whole shape's fit failed
-
-
-class _ScriptedColumns:
-    """A test double of :class:`sweep.diagnose.shapes.ShapeColumns` for its forward selection:
-    each set of units has a scripted held-out gain and in-sample gain (the fits themselves are
-    tested with the real columns above)."""
-
-    def __init__(self, groups: list[Any], heldout: dict[Any, float], insample: dict[Any, float]):
-        from sweep.diagnose.shapes import Unit
-
-        self.units = [Unit(g, (i,)) for i, g in enumerate(groups)]
-        self.heldout, self.insample = heldout, insample
-
-    def _candidates(self) -> list[int]:
-        return list(range(len(self.units)))
-
-    def _kappas(self, u: int, kappas: Any) -> list[float]:
-        return [1.0]
-
-    def _heldout(self, cs: Any, ehs: Any, EEs: Any, chosen: list[tuple[int, float]]) -> float:
-        return self.heldout[frozenset(u for u, _ in chosen)]
-
-    def _insample(self, cs: Any, chosen: list[tuple[int, float]]) -> tuple[float, list[float]]:
-        return self.insample[frozenset(u for u, _ in chosen)], [4.0] * len(chosen)
-
-
-def test_the_first_group_is_the_best_held_out_one_that_pays_for_its_freedom() -> None:
-    """The first group to enter is the one of the best held-out gain among those whose
-    in-sample fit lowers the dBIC (a leader whose held-out gain repairs the control's poor fold
-    fits but whose fit takes little off the training J no longer ends the selection); after it,
-    only the held-out leader may enter (the next best took stand-ins along with it)."""
-    from mmg.shapes import Group
-    from sweep.diagnose.shapes import MIN_GAIN, ShapeColumns, _dbic, _Options, _Sides
-
-    groups = [
-        Group("X", "u", 0.0, 1.0, 8),
-        Group("Y", "y0", 0.0, 9.0, 8, "Y_A"),
-        Group("N", "U", 0.0, 1.0, 8),
-    ]
-    J0, n_eff = 100.0, 840.0
-    a, b, c = (frozenset(x) for x in ({0}, {1}, {2}))
-    heldout = {a: 25.0, b: 22.0, c: 12.0, a | b: 30.0, b | c: 40.0, a | c: 26.0, a | b | c: 41.0}
-    # the leader u takes 3 % off the training J with 4 edf: dBIC > 0; y0 * Y_A takes 14 %
-    insample = {a: 3.0, b: 14.0, c: 2.0, a | b: 16.0, b | c: 20.0, a | c: 4.0}
-    assert _dbic(J0, 3.0, [4.0], n_eff) > 0.0 > _dbic(J0, 14.0, [4.0], n_eff)
-    cols = _ScriptedColumns(groups, heldout, insample)
-    sides = _Sides([np.zeros((1, 1))], [np.zeros((1, 1))], np.array([J0]), np.array([100.0]))
-    opts = _Options(5, MIN_GAIN, (1.0,))
-    chosen, path, _, dbic = ShapeColumns._entered(cols, sides, 0, [], n_eff, opts, None, None)  # type: ignore[arg-type]
-    assert [u for u, _ in chosen] == [1, 2] and path == [0.22, 0.40]
-    assert dbic == pytest.approx(_dbic(J0, 20.0, [4.0, 4.0], n_eff))
-    # after the first, the held-out leader alone: u leads and does not lower the dBIC, so
-    # nothing more enters, though N in U, second on the held-out gain, would have
-    heldout[a | b] = 22.0 * (1.0 + MIN_GAIN) + 0.2
-    heldout[b | c] = 22.0 * (1.0 + MIN_GAIN) + 0.1
-    assert _dbic(J0, 16.0, [4.0] * 2, n_eff) > _dbic(J0, 14.0, [4.0], n_eff)
-    assert _dbic(J0, 20.0, [4.0] * 2, n_eff) < _dbic(J0, 14.0, [4.0], n_eff)
-    chosen, _, _, _ = ShapeColumns._entered(cols, sides, 0, [], n_eff, opts, None, None)  # type: ignore[arg-type]
-    assert [u for u, _ in chosen] == [1]
-    # no trial pays: nothing
-    cols.insample = {k: 0.5 for k in insample}
-    assert ShapeColumns._entered(cols, sides, 0, [], n_eff, opts, None, None)[0] == []  # type: ignore[arg-type]
 
 
 def test_the_lead_goes_to_a_single_group_that_gains_its_share_more_by_output_error() -> None:

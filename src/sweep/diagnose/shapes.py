@@ -111,14 +111,7 @@ SPEED_SCALED_PLACE = ("x0", "y0")
 #: propeller model alone, the reversed propeller's thrust is another formula (Eq. (11)); on the
 #: planted thrust deduction growing with drift, its named form a + b cos 2 beta refitted by output
 #: error as a share of both branches to a training J of 3.56, as a share of Eq. (5)'s to 0.858,
-#: the planted form's own (benchmarks/refit_forms.py). The wind's side force varying with
-#: position, f(x0) Y_A and f(y0) Y_A in X, Y and N: a quay wall, a shore or a building shelters
-#: part of a basin or a harbour from the wind, or a gap between them funnels it, so the wind's
-#: force changes with where the ship is, a product of the wind and the place that no shape of
-#: one of them holds (on a planted wind stronger beyond a line across the basin, the side force
-#: in y0 times Y_A refitted to 1.30 x the true model's test J2, the share of all three wind
-#: forces in y0 to 3.16 x, a force in y0 at the wind's pressure to 4.07 x); a candidate only
-#: where position is (:data:`PLACE_AND_TIME`: recordings of several sessions)
+#: the planted form's own (benchmarks/refit_forms.py)
 PRODUCTS = (
     ("U", "v"),
     ("U", "rp"),
@@ -129,8 +122,6 @@ PRODUCTS = (
     ("JP", "X_P*pos"),
     ("delta", "F_N"),
     ("alphaR", "F_N"),
-    ("x0", "Y_A"),
-    ("y0", "Y_A"),
 )
 #: share candidates (component S): one shape scaling a sub-model's whole force (its surge force,
 #: sway force and yaw moment alike), a change of that force component of the model: the hull's
@@ -273,8 +264,7 @@ def candidate_groups(
     a shape of each variable that varies over ``windows`` (of position and time also a force
     fixed to the basin, :data:`BASIN_VARIABLES`; of position also one with the speed's scaling,
     :data:`SPEED_SCALED_PLACE`, and the surface of both in U^2), the varying-coefficient
-    ``products`` (of heading, position or time only where that variable is among
-    ``variables``), the ``shares`` of sub-models' forces (one component, S) and a constant times
+    ``products``, the ``shares`` of sub-models' forces (one component, S) and a constant times
     each quadrant indicator; a control's gap gives the memory of that control (one component,
     :data:`N_MEMORY_BASIS` functions)."""
     used = {*variables, *(v for v, _ in products), *(v for v, _ in shares)}
@@ -315,11 +305,7 @@ def _groups(
         groups.append(
             replace(speed[z], n=PAIR_BASIS, variable2=z2, lo2=lo2, hi2=hi2, n2=PAIR_BASIS)
         )
-    groups += [
-        spline("XYN", v, m)
-        for v, m in products
-        if v in ranges and (v in variables or v not in PLACE_AND_TIME)
-    ]
+    groups += [spline("XYN", v, m) for v, m in products if v in ranges]
     groups += [spline("S", v, m) for v, m in shares if v in ranges]
     groups += [Group("XYN", "1", multiplier=q) for q in quadrants]
     return groups
@@ -806,17 +792,11 @@ class ShapeColumns:
             ]
             if not trials:
                 break
-            # the first group: the best held-out gain among the trials whose in-sample fit
-            # pays for its degrees of freedom; after it, the leader alone (else stand-ins)
-            order = sorted(trials, reverse=True) if not chosen else [max(trials)]
-            for g, u, kap in order:
-                if not np.isfinite(g) or g <= 0.0 or g <= best * (1.0 + opts.min_gain):
-                    new = np.inf
-                    break
-                gain, dof = self._insample(cs, [*chosen, (u, kap)])
-                new = _dbic(J0, gain, dof, n_eff)
-                if new < dbic:
-                    break
+            g, u, kap = max(trials)
+            if not np.isfinite(g) or g <= 0.0 or g <= best * (1.0 + opts.min_gain):
+                break
+            gain, dof = self._insample(cs, [*chosen, (u, kap)])
+            new = _dbic(J0, gain, dof, n_eff)
             if new >= dbic:
                 break
             chosen.append((u, kap))

@@ -72,6 +72,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.harm import Harm, finding_harm, total
+from benchmarks.machine import machine
 from benchmarks.planted import (
     FAMILY,
     FRESH_CASES,
@@ -897,6 +898,7 @@ def write_results(path: Path, command: str, results: list[dict[str, Any]], out: 
     data = {
         "command": command,
         "commit": _commit(),
+        "machine": machine(),
         "rows": row_figures(results, out),
         "cases": results,
     }
@@ -955,7 +957,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"case {case.index:2d}.{repeat}: scale {scale:.3g} -> excess {100 * e:.0f} %")
             r = run_case(case.index, spec, repeat, runs, noise, settings, out, case.phi)
             r |= {"set": case.set, "name": case.name, "row": row_label(case, args)}
-            r |= {"scale": scale, "excess": e, "command": command}
+            r |= {"scale": scale, "excess": e, "command": command, "machine": machine()}
             if args.reach:
                 with_reach(r, out)
             path.write_text(json.dumps(r, indent=2, default=float) + "\n")

@@ -41,7 +41,6 @@ import contextlib
 import json
 import os
 import pickle
-import platform
 import re
 import secrets
 import shutil
@@ -56,6 +55,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from benchmarks.machine import machine
 
 #: the faults, in the order they run: (name in the table, what is injected)
 FAULTS = {
@@ -611,17 +612,6 @@ def table(clean: dict[str, Any], rows: list[dict[str, Any]]) -> str:
             f"{row['lost_seconds']:+.1f} | {notes_of(row)} |"
         )
     return "\n".join(out)
-
-
-def machine() -> str:
-    """The CPU model and count."""
-    model = platform.processor() or "unknown CPU"
-    with contextlib.suppress(OSError):
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    return f"{model}, {os.cpu_count()} CPUs"
 
 
 def main() -> int:

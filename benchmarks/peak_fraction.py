@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import os
-import platform
 import statistics
 import sys
 import time
@@ -36,6 +35,7 @@ from types import ModuleType
 import numba
 import numpy as np
 
+from benchmarks.machine import cpu_name, has_avx512
 from benchmarks.throughput import workload
 from mmg import efd_parameters, simulate_batch
 from mmg.integrate import Segments, segment_moments
@@ -106,23 +106,6 @@ def moments_rate(B: int, K: int, repeat: int) -> float:
         segment_moments(seg, cand)
         rates.append(CANDIDATES * S * K / (time.perf_counter() - t0))
     return statistics.median(rates)
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
-
-
-def has_avx512() -> bool:
-    try:
-        return " avx512f" in Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return False
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -221,3 +221,21 @@ def test_cases_are_selected_by_set_index_or_name():
     assert [c.index for c in select_cases("unforeseen", "3,100")] == [3, 100]
     with pytest.raises(SystemExit, match="unknown case"):
         select_cases("all", "seiche/huge")
+
+
+def test_results_name_the_machine_they_were_measured_on(tmp_path) -> None:
+    """The same code gives other bases on another CPU (the kernels are compiled for it): the
+    results file names the CPU model, its count and whether it has AVX-512."""
+    import json
+    import os
+
+    from benchmarks.diagnose_planted import write_results
+    from benchmarks.machine import cpu_name, has_avx512, machine
+
+    line = machine()
+    assert line.startswith(cpu_name()) and f"{os.cpu_count()} CPUs" in line
+    assert line.endswith(", AVX-512") == has_avx512()
+    path = tmp_path / "res.json"
+    write_results(path, "python benchmarks/diagnose_planted.py", [], tmp_path)
+    data = json.loads(path.read_text())
+    assert data["machine"] == line and data["cases"] == [] and data["rows"] == []

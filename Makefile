@@ -53,7 +53,7 @@ bench-grid-fit:  ## the grid at 3,000 and 30,000 evaluations per job, a fixed + 
 	$(PY) benchmarks/sweep_grid.py --evaluations 3000,30000
 
 bench-faults:  ## what each fault the sweep survives costs: jobs lost or run twice, results, wall time (6 min)
-	$(PY) benchmarks/faults.py --out benchmarks/out/faults.json
+	PYTHONPATH=. $(PY) benchmarks/faults.py --out benchmarks/out/faults.json
 
 bench-diagnose:  ## planted-effect benchmark of the diagnosis (36 cases: catalog, unlisted forms, none; 1-2 h on 2 cores)
 	PYTHONPATH=. $(PY) benchmarks/diagnose_planted.py --out benchmarks/out/diagnose

@@ -1,8 +1,9 @@
 """What each fault the sweep service survives costs: jobs lost, jobs run twice, results, wall time.
 
-Usage: ``python benchmarks/faults.py [--faults damaged,forged,second-driver,before-logging,outage]
-[--out FILE.json] [--clean-runs N] [--outage-seconds S] [--workdir DIR]`` (recordings from
-$MMG_DATA_DIR, else ../shared/data/frt-ds-esso; about 6 min on 2 cores).
+Usage: ``PYTHONPATH=. python benchmarks/faults.py
+[--faults damaged,forged,second-driver,before-logging,outage] [--out FILE.json]
+[--clean-runs N] [--outage-seconds S] [--workdir DIR]`` (recordings from $MMG_DATA_DIR, else
+../shared/data/frt-ds-esso; about 6 min on 2 cores).
 
 Runs the CI smoke sweep, ``python -m sweep -m objective=J1,J2 train=R seed=0 budget=smoke
 ray.num_cpus=2``, each time in a fresh working directory of its own (its own ``sweep.name``,

@@ -4,6 +4,7 @@ numbers on another CPU (the kernels are compiled for the machine they run on).""
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import platform
 from pathlib import Path
@@ -27,7 +28,9 @@ def has_avx512() -> bool:
     return False
 
 
+@functools.cache
 def machine() -> str:
-    """The CPU's model, its count and whether it has AVX-512, in one line."""
+    """The CPU's model, its count and whether it has AVX-512, in one line (read once per
+    process: the planted benchmark names it in every case and every results file)."""
     avx = ", AVX-512" if has_avx512() else ""
     return f"{cpu_name()}, {os.cpu_count()} CPUs{avx}"

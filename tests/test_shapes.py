@@ -524,6 +524,33 @@ def test_candidate_groups_span_the_recorded_ranges() -> None:
     assert by["eda", ""].components == "D" and by["eda", ""].lo == -by["eda", ""].hi
 
 
+def test_a_time_shape_spans_a_session_s_clock_beyond_the_guard_the_advance_ratio_gets() -> None:
+    """A session's split logs go on counting (the real random runs' last logs start at
+    1176-3224 s): time's knots span every window, while an advance ratio of 1e4 (the
+    propeller at rest) is still a guard, not a state."""
+    from sweep.diagnose.shapes import GUARD, sampled, variable_ranges
+
+    p = efd_parameters()
+    k = np.arange(201)
+    x = np.zeros((201, 6))
+    x[:, 1] = 0.5
+    c = np.column_stack([np.zeros(201), np.where(k < 100, 10.0, 0.0)])
+    w = np.zeros((201, 2))
+    clocks = [np.asarray(t0 + 0.1 * k, dtype=np.float64) for t0 in (5.0, 3000.0)]
+    wins = [Recording(f"w{i}", None, t, x, c, w) for i, t in enumerate(clocks)]
+    lo, hi = variable_ranges(wins, p, ["t"])["t"]
+    assert lo < 10.0 and hi > 3000.0
+    z = sampled(wins, p, ["JP", "t"])
+    assert z["t"].size == 402 and z["JP"].size < 402 and np.all(np.abs(z["JP"]) < GUARD)
+    # the waves' gate keeps its knots where they resolve a 40-s wave: the session's first runs
+    from sweep.diagnose.waves import gate_groups
+
+    gate = gate_groups(wins, p)
+    assert [g.components for g in gate] == ["XYN", "xy"]
+    assert all(g.lo < 10.0 and 20.0 < g.hi < 30.0 for g in gate)
+    assert gate_groups(wins[1:], p) == []
+
+
 def test_position_is_a_candidate_fixed_to_the_basin_and_with_the_speed_s_scaling() -> None:
     """Of x0 and y0: a force on the ship's axes at rest (U_ref^2), one along the basin's axes,
     and one on the ship's axes scaled by U^2 (a hull force that changes with where the ship

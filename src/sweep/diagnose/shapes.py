@@ -162,6 +162,10 @@ N_MEMORY_BASIS = 16
 RANGE_QUANTILES = (0.005, 0.995)
 #: values at least this large are a sub-model's guard, not a state (J_s = 1e4 at n_p = 0)
 GUARD = 1e3
+#: variables on a clock [s], never a sub-model's guard: a session's split logs go on counting
+#: (the real random runs' last logs start at 1176-3224 s), and a guard on them held every
+#: window after 1000 s at the shape's value there
+CLOCKS = ("t",)
 #: smoothing grid: lambda = kappa x the mean diagonal of the group's projected Gram matrix
 KAPPAS = (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)
 #: weight of the centring of a shape whose level another chosen group carries: the penalty
@@ -193,7 +197,7 @@ def variable_ranges(
 ) -> dict[str, tuple[float, float]]:
     """{variable: (lo, hi)}: the ``quantiles`` of each variable over the recorded samples of
     ``windows`` (with the base ``params`` for the rudder inflow and the wake), leaving out
-    values beyond :data:`GUARD` (the advance ratio where the propeller stands still); a
+    a sub-model's guard (:func:`usable`: the advance ratio where the propeller stands still); a
     variable that does not vary there (a constant propeller speed; a range narrower than 1e-4
     of the variable's size) is left out. A control's gap spans [-m, m], m its largest size:
     the log's steps are few, and the largest matter."""
@@ -215,15 +219,22 @@ def sampled(
     windows: Sequence[Recording], params: Parameters, names: Sequence[str]
 ) -> dict[str, FloatArray]:
     """{variable: its values on the recorded samples of ``windows``} (with the base ``params``
-    for the rudder inflow and the wake), leaving out values that are not finite or beyond
-    :data:`GUARD` (a sub-model's guard, not a state)."""
+    for the rudder inflow and the wake), leaving out values that are not a state
+    (:func:`usable`)."""
     out: dict[str, FloatArray] = {}
     for n in names:
         z = np.concatenate(
             [variable_values(n, w.t, w.x, w.u, w.w, params.theta, params.ship) for w in windows]
         )
-        out[n] = z[np.isfinite(z) & (np.abs(z) < GUARD)]
+        out[n] = z[usable(n, z)]
     return out
+
+
+def usable(variable: str, z: FloatArray) -> NDArray[np.bool_]:
+    """Where the values ``z`` of ``variable`` are a state: finite, and below :data:`GUARD`
+    unless the variable is a clock (:data:`CLOCKS`)."""
+    ok = np.isfinite(z)
+    return ok if variable in CLOCKS else ok & (np.abs(z) < GUARD)
 
 
 #: at most this many samples, evenly spaced, of a pair of variables (:func:`jointly_sampled`)
@@ -234,8 +245,8 @@ def jointly_sampled(
     windows: Sequence[Recording], params: Parameters, first: str, second: str
 ) -> tuple[FloatArray, FloatArray]:
     """(z, z2) of the variables ``first`` and ``second`` on the same recorded samples of
-    ``windows`` (as :func:`sampled`, a sample left out where either is not finite or beyond
-    :data:`GUARD`), at most :data:`JOINT_MOST` of them evenly spaced: where the training runs
+    ``windows`` (as :func:`sampled`, a sample left out where either is not a state,
+    :func:`usable`), at most :data:`JOINT_MOST` of them evenly spaced: where the training runs
     went in the plane of the two, where a surface is compared with closed forms."""
     th, sh = params.theta, params.ship
     pairs = [
@@ -243,7 +254,7 @@ def jointly_sampled(
         for w in windows
     ]
     zz = np.concatenate(pairs, axis=1) if pairs else np.zeros((2, 0))
-    keep = np.all(np.isfinite(zz) & (np.abs(zz) < GUARD), axis=0)
+    keep = usable(first, zz[0]) & usable(second, zz[1])
     zz = zz[:, keep]
     if zz.shape[1] > JOINT_MOST:
         zz = zz[:, np.linspace(0, zz.shape[1] - 1, JOINT_MOST).astype(int)]
@@ -359,8 +370,7 @@ def support(group: Group, windows: Sequence[Recording], params: Parameters) -> F
         )
         for v in (group.variable, group.variable2)
     ]
-    ok = np.isfinite(zs[0]) & np.isfinite(zs[1]) & (np.abs(zs[0]) < GUARD)
-    ok &= np.abs(zs[1]) < GUARD
+    ok = usable(group.variable, zs[0]) & usable(group.variable2, zs[1])
     if not ok.any():
         return np.zeros(group.size)
     mass = basis2(group, zs[0][ok], zs[1][ok]).mean(axis=0)

@@ -60,7 +60,15 @@ from sweep.diagnose.fit import Fit
 from sweep.diagnose.naming import WAVE_KNOTS, form_transform
 from sweep.diagnose.proposals import ProbeProposal
 from sweep.diagnose.scoring import delta_bic
-from sweep.diagnose.shapes import ShapeColumns, _block_diag, _tmul, candidate_groups
+from sweep.diagnose.shapes import (
+    N_BASIS,
+    RANGE_QUANTILES,
+    ShapeColumns,
+    _block_diag,
+    _groups,
+    _tmul,
+    sampled,
+)
 from sweep.diagnose.shaping import default_variables
 from sweep.diagnose.threshold import CEILING
 from sweep.identification.polish import PolishSettings
@@ -70,6 +78,13 @@ FloatArray = NDArray[np.float64]
 
 #: the variable of the waves (a key of :data:`mmg.shapes.VARIABLES`)
 TIME = "t"
+#: the gate's time shapes span the clock times below this [s] (a session's first runs): a wave
+#: enters the gate as the time shapes' columns times the wave in their basis, which holds a 40-s
+#: wave only with knots about 10 s apart (:data:`~sweep.diagnose.shapes.TIME_KNOT_SPACING`), as
+#: many as a 40-function spline keeps over a few hundred seconds. With the time shapes' knots
+#: over a session's hour (95 s apart) the gate's best wave on the strong planted seiche lay at
+#: 410 s (dBIC -2.6 against the null's -10) and the 40-s one was missed
+GATE_CLOCK = 1e3
 #: successive periods of the grid differ by this factor: a wave of period T fitted where one
 #: of 1.08 T is, over the 400 s the training runs span, drifts by a quarter of a cycle only
 #: after three cycles (T = 130 s and longer: within the range), and the fit by output error
@@ -373,6 +388,20 @@ def _by_output_error(
     return effect, start, record
 
 
+def gate_groups(windows: Sequence[Recording], params: Parameters) -> list[Group]:
+    """The time shapes whose columns carry the gate's waves: on the ship's axes and fixed to
+    the basin, their knots over the 0.5-99.5 % range of the clock times below
+    :data:`GATE_CLOCK` (none where no window was recorded there, or the clock does not vary)."""
+    clock = sampled(windows, params, (TIME,))[TIME]
+    early = clock[clock < GATE_CLOCK]
+    if early.size == 0:
+        return []
+    lo, hi = (float(v) for v in np.quantile(early, RANGE_QUANTILES))
+    if not hi - lo > 1e-4 * max(1.0, abs(lo), abs(hi)):
+        return []
+    return _groups({TIME: (lo, hi)}, (TIME,), (), (), (), N_BASIS)
+
+
 def propose_waves(ctx: Context, base: Fit, cal: Calibration) -> WaveProposal | None:
     """The best wave in time at the ``base`` model, proposed when its dBIC passes the null's
     quantile (None with shapes off, time not among the shapes' variables, or the base within
@@ -385,9 +414,7 @@ def propose_waves(ctx: Context, base: Fit, cal: Calibration) -> WaveProposal | N
         return None
     t0 = time.perf_counter()
     params = base.params
-    groups = candidate_groups(
-        ctx.windows, params, variables=(TIME,), products=(), shares=(), quadrants=()
-    )
+    groups = gate_groups(ctx.windows, params)
     if not groups:
         return None
     cols = ShapeColumns(cal.lin, groups)

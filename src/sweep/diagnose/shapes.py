@@ -280,10 +280,10 @@ def candidate_groups(
     :data:`N_MEMORY_BASIS` functions)."""
     used = {*variables, *(v for v, _ in products), *(v for v, _ in shares)}
     ranges = variable_ranges(windows, params, sorted(used))
-    return _groups(ranges, variables, products, shares, quadrants, n)
+    return groups_over(ranges, variables, products, shares, quadrants, n)
 
 
-def _groups(
+def groups_over(
     ranges: Mapping[str, tuple[float, float]],
     variables: Sequence[str],
     products: Sequence[tuple[str, str]],
@@ -400,7 +400,7 @@ def probe_groups(groups: Sequence[Group]) -> list[Group]:
     other data, with other variables, and a selection's groups of one component then share
     one probe kernel, compiled once (a new probe took 1.5-2.5 minutes to compile)."""
     unit = {v: (0.0, 1.0) for v in {*VARIABLES, *(v for v, _ in (*PRODUCTS, *SHARE_PRODUCTS))}}
-    out = _groups(unit, VARIABLES, PRODUCTS, SHARE_PRODUCTS, QUADRANTS, N_BASIS)
+    out = groups_over(unit, VARIABLES, PRODUCTS, SHARE_PRODUCTS, QUADRANTS, N_BASIS)
     for g in groups:
         if not any(serves(h, g) for h in out):
             if g.tensor:

@@ -65,8 +65,8 @@ from sweep.diagnose.shapes import (
     RANGE_QUANTILES,
     ShapeColumns,
     _block_diag,
-    _groups,
     _tmul,
+    groups_over,
     sampled,
 )
 from sweep.diagnose.shaping import default_variables
@@ -399,7 +399,7 @@ def gate_groups(windows: Sequence[Recording], params: Parameters) -> list[Group]
     lo, hi = (float(v) for v in np.quantile(early, RANGE_QUANTILES))
     if not hi - lo > 1e-4 * max(1.0, abs(lo), abs(hi)):
         return []
-    return _groups({TIME: (lo, hi)}, (TIME,), (), (), (), N_BASIS)
+    return groups_over({TIME: (lo, hi)}, (TIME,), (), (), (), N_BASIS)
 
 
 def propose_waves(ctx: Context, base: Fit, cal: Calibration) -> WaveProposal | None:

@@ -427,9 +427,10 @@ def explainable_text(d: Diagnosis) -> str:
         )
     fitted = next((c for c in d.candidates if c.effect == final), None)
     if fitted is not None:
+        change = 100 * -fitted.improvement_total
         text += (
             f" Fitted by output error with the 57 parameters it changed the held-out runs' "
-            f"summed J by {100 * -fitted.improvement_total:+.0f} %"
+            f"summed J by {change:+.{0 if abs(change) >= 9.5 else 1}f} %"
             + ("." if fitted.carries_over else ": the linearised gain does not carry over.")
         )
     return text

@@ -22,6 +22,7 @@ from mmg.effect import Effect
 from mmg.effects import get_effect
 from mmg.fixed import kernel_effects
 from mmg.kernel import load_kernel
+from mmg.orphans import exit_with_parent
 from mmg.params import N_THETA, efd_parameters
 
 #: entry point -> the compiled function of the kernel module behind it
@@ -125,7 +126,12 @@ def precompile(
     t0 = time.perf_counter()
     done = 0
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+    with ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=context,
+        initializer=exit_with_parent,
+        initargs=(os.getpid(),),
+    ) as pool:
         futures = {
             pool.submit(compile_entry, names, entry): (names, entry) for names, entry in missing
         }

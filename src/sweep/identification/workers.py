@@ -25,6 +25,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from mmg.orphans import exit_with_parent
 from sweep.data.objective import Objective
 
 FloatArray = NDArray[np.float64]
@@ -89,8 +90,9 @@ class InProcess:
 _WORKER_OBJECTIVE: Objective | None = None
 
 
-def _init_worker(objective: Objective, threads: int) -> None:
+def _init_worker(objective: Objective, threads: int, parent: int) -> None:
     global _WORKER_OBJECTIVE
+    exit_with_parent(parent)
     numba.set_num_threads(max(1, min(threads, _max_threads())))
     _WORKER_OBJECTIVE = objective
 
@@ -114,7 +116,7 @@ class ProcessPool:
             max_workers=self.workers,
             mp_context=mp.get_context("spawn"),
             initializer=_init_worker,
-            initargs=(self.objective, self.threads),
+            initargs=(self.objective, self.threads, os.getpid()),
         )
 
     def __call__(self, thetas: FloatArray) -> FloatArray:

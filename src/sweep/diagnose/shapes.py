@@ -203,16 +203,30 @@ def variable_ranges(
     the log's steps are few, and the largest matter."""
     out: dict[str, tuple[float, float]] = {}
     for n, z in sampled(windows, params, names).items():
-        if z.size == 0:
-            continue
-        lo, hi = (float(v) for v in np.quantile(z, quantiles))
-        if SHAPE_VARIABLES[n].control:
-            hi = float(np.max(np.abs(z)))
-            lo = -hi
-        # (wider than the 6 significant digits a group's range is written with)
-        if hi - lo > 1e-4 * max(1.0, abs(lo), abs(hi)):
-            out[n] = (lo, hi)
+        if SHAPE_VARIABLES[n].control and z.size:
+            m = float(np.max(np.abs(z)))
+            r = (-m, m) if _varies(-m, m) else None
+        else:
+            r = range_of(z, quantiles)
+        if r is not None:
+            out[n] = r
     return out
+
+
+def range_of(
+    z: FloatArray, quantiles: tuple[float, float] = RANGE_QUANTILES
+) -> tuple[float, float] | None:
+    """The knot range of the values ``z``: their ``quantiles``; None where there are none or
+    they do not vary (a range narrower than 1e-4 of their size)."""
+    if z.size == 0:
+        return None
+    lo, hi = (float(v) for v in np.quantile(z, quantiles))
+    return (lo, hi) if _varies(lo, hi) else None
+
+
+def _varies(lo: float, hi: float) -> bool:
+    # (wider than the 6 significant digits a group's range is written with)
+    return hi - lo > 1e-4 * max(1.0, abs(lo), abs(hi))
 
 
 def sampled(

@@ -62,11 +62,11 @@ from sweep.diagnose.proposals import ProbeProposal
 from sweep.diagnose.scoring import delta_bic
 from sweep.diagnose.shapes import (
     N_BASIS,
-    RANGE_QUANTILES,
     ShapeColumns,
     _block_diag,
     _tmul,
     groups_over,
+    range_of,
     sampled,
 )
 from sweep.diagnose.shaping import default_variables
@@ -393,13 +393,8 @@ def gate_groups(windows: Sequence[Recording], params: Parameters) -> list[Group]
     the basin, their knots over the 0.5-99.5 % range of the clock times below
     :data:`GATE_CLOCK` (none where no window was recorded there, or the clock does not vary)."""
     clock = sampled(windows, params, (TIME,))[TIME]
-    early = clock[clock < GATE_CLOCK]
-    if early.size == 0:
-        return []
-    lo, hi = (float(v) for v in np.quantile(early, RANGE_QUANTILES))
-    if not hi - lo > 1e-4 * max(1.0, abs(lo), abs(hi)):
-        return []
-    return groups_over({TIME: (lo, hi)}, (TIME,), (), (), (), N_BASIS)
+    r = range_of(clock[clock < GATE_CLOCK])
+    return [] if r is None else groups_over({TIME: r}, (TIME,), (), (), (), N_BASIS)
 
 
 def propose_waves(ctx: Context, base: Fit, cal: Calibration) -> WaveProposal | None:

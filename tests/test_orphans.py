@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 PARENT = """
-import os, sys, time, multiprocessing
+import multiprocessing, os, time
 from concurrent.futures import ProcessPoolExecutor
 from mmg.orphans import exit_with_parent
 

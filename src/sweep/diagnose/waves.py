@@ -14,16 +14,18 @@ went, give the times between. The probe has three steps.
 
 1. *Is a wave there?* Each component's wave a + b sin(2 pi t / T + phi) (forces on the ship's
    axes, X, Y, N, and fixed to the basin, x and y), and the basin's two together, over a
-   geometric grid of periods (:data:`PERIOD_RATIO`): its trajectory columns are the time
-   shapes' columns times the wave in their basis
+   geometric grid of periods (:data:`PERIOD_RATIO`): its trajectory columns are the gate's
+   own time shapes' columns (:func:`gate_groups`: knots about 10 s apart over the clock
+   below :data:`GATE_CLOCK`, where the selection's span the whole clock) times the wave in
+   their basis
    (:func:`~sweep.diagnose.naming.form_transform`, at phases 0 and pi / 2: the phase is then
    linear), the base's 57 parameters refitted beside them (linearised, with the prior, on all
    windows). The best in-sample dBIC (the coefficients and the period counted) is compared
    with the same statistic on noise-only copies of the training windows (the ``alpha``
    quantile, capped at :data:`~sweep.diagnose.threshold.CEILING`).
 2. *Its period* (:func:`period_peaks`): the linearised columns are derivatives at the base,
-   whose trajectories the missing force has moved, and the time shapes' knots end where
-   their range does; they do not place the period. A periodogram of the equation-level
+   whose trajectories the missing force has moved, and the gate's knots end where its range
+   does; they do not place the period. A periodogram of the equation-level
    residual of every sample does, to one cycle over the span of the clock.
 3. *The wave* (:func:`_by_output_error`): the basin's two components (a force of the water or
    the air that comes and goes is fixed to the basin; the two at one period hold a push along

@@ -248,3 +248,29 @@ def test_null_tracker_records_make_the_same_table() -> None:
         summary_tables(tracker.job_outcomes(parent), tracker.efd_reference(parent))["J2"],
         summary_tables(objects, EFD)["J2"],
     )
+
+
+def test_the_explainable_share_says_what_its_gain_is_measured_against():
+    """A held-out gain of the learned shapes is measured against the base refitted on the other
+    half of the runs. When that refit makes the held-out windows' J far above the base's own
+    (on the real Train-R about 8 x), the report says so, and says which part of the
+    gain goes beyond the base's whole J there: that part can only undo the refit's drift."""
+    from sweep.diagnose.report import drift_text
+
+    real = {
+        "heldout": 9251.0,
+        "base": 1166.6,
+        "ratio": 9251.0 / 1166.6,
+        "window": "w1",
+        "share": 0.8,
+    }
+    text = drift_text(real, 0.6053)
+    assert "7.9 x the base's own (w1: 80 % of it)" in text
+    assert "5.6e+03, is 4.8 x the base's whole J there (1.17e+03)" in text
+    assert "at least 79 % of it undoes the refit's drift" in text
+    # a gain within the base's J: the drift is stated, no share is claimed
+    assert drift_text(real, 0.05).endswith("(w1: 80 % of it).")
+    # a refit that stays near the base: nothing to say
+    near = {**real, "heldout": 1500.0, "ratio": 1500.0 / 1166.6}
+    assert drift_text(near, 0.6) == ""
+    assert drift_text(None, 0.6) == ""

@@ -164,3 +164,31 @@ def test_a_fit_with_the_effect_held_refits_the_base_alone(case):
     assert dict(dict(none.params.effects)[eff.name])["C_Y_one"] == pytest.approx(0.0, abs=1e-10)
     assert right.params.theta != ship.theta  # the base did move
     assert right.f < 0.8 * none.f
+
+
+def test_the_refit_drift_is_what_the_control_s_fold_fits_make_of_the_other_fold(case):
+    """:meth:`Linearised.refit_drift`: the control fitted on one fold's windows (57 parameters,
+    the prior) and judged on the other's, both ways round: its held-out J is what the real fold
+    fits (Levenberg-Marquardt) give on the held-out windows, its base J the base model's J on
+    all windows, and its worst window one of them with its share."""
+    from sweep.data.objective import Objective
+
+    ship, _, data = _planted(case, 2e-4)
+    folds = ([0, 2], [1, 3])
+    lin = Linearised(ship, data, folds, ())
+    drift = lin.refit_drift(lin.residuals(data))
+
+    polish = PolishSettings(
+        max_iterations=40, rtol=1e-6, max_evaluations=10**6, prior_weight=1.0, prior_dims=N_THETA
+    )
+    settings = FitSettings(budget=0, effect_only_budget=40, polish=polish)
+    held = 0.0
+    for fitted, judged in (folds, folds[::-1]):
+        refit = fit([data[i] for i in fitted], ship, (), settings, prior_center=ship).params
+        held += float(Objective([data[i] for i in judged], "J2").evaluate(refit)[0])
+    base = float(Objective(data, "J2").evaluate(ship)[0])
+    assert drift.base == pytest.approx(base, rel=1e-6)
+    assert drift.heldout == pytest.approx(held, rel=0.10)
+    assert drift.ratio == pytest.approx(drift.heldout / base)
+    assert drift.window in {w.name for w in data}
+    assert 0.25 <= drift.share <= 1.0  # four windows: the worst carries at least a quarter

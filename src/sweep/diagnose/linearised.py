@@ -210,6 +210,35 @@ class HeldOut:
     worst_run: FloatArray
 
 
+@dataclass(frozen=True)
+class RefitDrift:
+    """What the control's fold fits (the base's 57 parameters refitted, linearised with the
+    prior, on one fold's windows) make of the other fold's windows, both ways round: their
+    held-out J against the base's own J on the same windows, and the held-out window of the
+    largest J with its share. Every held-out gain of the diagnosis is measured against these
+    fits: where they drift far above the base, a gain can be the drift undone rather than the
+    base's misfit explained."""
+
+    heldout: float  # the control fits' J on the held-out windows, summed over both pairs
+    base: float  # the base's J on the same windows
+    window: str  # the held-out window of the largest control J
+    share: float  # its share of ``heldout``
+
+    @property
+    def ratio(self) -> float:
+        """The control fits' held-out J over the base's own J there."""
+        return self.heldout / max(self.base, 1e-300)
+
+    def as_dict(self) -> dict[str, float | str]:
+        return {
+            "heldout": self.heldout,
+            "base": self.base,
+            "ratio": self.ratio,
+            "window": self.window,
+            "share": self.share,
+        }
+
+
 @dataclass
 class TrajectorySelection:
     """Library terms chosen on the trajectory residuals (:meth:`Linearised.select`)."""
@@ -577,6 +606,29 @@ class Linearised:
                     )
                 out[t].append(h)
         return {t: np.concatenate(v) for t, v in out.items()}
+
+    def refit_drift(self, r: FloatArray) -> RefitDrift:
+        """:class:`RefitDrift` of the control's fold fits for the base's residual vector ``r``
+        (S, M)."""
+        R = r[..., None]
+        J_ho: list[float] = []
+        J_base: list[float] = []
+        names: list[str] = []
+        for j, k in ((0, 1), (1, 0)):
+            pair = self._pair(j, k, R)
+            J0_w = np.asarray(pair["J0_w"])[:, 0]
+            ix = self.folds[k].ix
+            J_ho += [float(v) for v in J0_w]
+            J_base += [float(np.sum(r[i] * r[i])) for i in ix]
+            names += [self.windows[i].name for i in ix]
+        total = float(sum(J_ho))
+        worst = int(np.argmax(J_ho)) if J_ho else 0
+        return RefitDrift(
+            heldout=total,
+            base=float(sum(J_base)),
+            window=names[worst] if names else "",
+            share=J_ho[worst] / total if total > 0.0 else 0.0,
+        )
 
     def refit_factor(self, R: FloatArray) -> float:
         """Mean J of the base refitted (linearised, with the prior) on all windows over the mean

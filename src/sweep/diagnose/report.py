@@ -379,23 +379,55 @@ def _shape_text(d: Diagnosis) -> str:
     )
 
 
+#: the control's fold fits drift far from the base when they make the held-out windows' J more
+#: than this many times the base's own there: the report then says what the held-out gains are
+#: measured against (:func:`drift_text`)
+DRIFT_RATIO = 2.0
+
+
 def explainable(d: Diagnosis) -> dict[str, Any] | None:
     """How much of the misfit a smooth correction explains on held-out runs: the held-out gain
     (share of the control's held-out J, linearised) of the learned shapes and of the library
     terms chosen on the trajectories, and the share of the first that the named terms keep;
-    None without the shape selection."""
+    with what the control's fold fits make of the held-out windows (``refit_drift``,
+    :class:`~sweep.diagnose.linearised.RefitDrift`); None without the shape selection."""
     if d.shape is None:
         return None
     sel = d.shape.flexible
     flexible = sel.heldout_gain[-1] if sel.heldout_gain else 0.0
     tr = d.extra.get("trajectory_discovery") or {}
     named = float(tr.get("heldout_share") or 0.0)
+    drift = d.shape.drift
     return {
         "flexible_heldout_gain": flexible,
         "named_heldout_gain": named,
         "named_share": named / flexible if flexible > 0 else None,
         "shape": sel.spec,
+        "refit_drift": drift.as_dict() if drift is not None else None,
     }
+
+
+def drift_text(drift: dict[str, Any] | None, gain: float) -> str:
+    """What the held-out ``gain`` (share of the control fits' held-out J) is measured against,
+    in words, when the control's fold fits ``drift`` (:meth:`RefitDrift.as_dict`) make the
+    held-out windows' J more than :data:`DRIFT_RATIO` x the base's own ("" otherwise): the
+    part of the gain beyond the base's whole J there cannot be the base's misfit explained."""
+    if drift is None or drift["ratio"] <= DRIFT_RATIO:
+        return ""
+    text = (
+        " That gain is measured against the 57 parameters refitted on the other half of the "
+        f"runs, which make the held-out windows' J {drift['ratio']:.1f} x the base's own "
+        f"({drift['window']}: {100 * drift['share']:.0f} % of it)"
+    )
+    absolute = gain * drift["heldout"]
+    if gain > 0.0 and absolute > drift["base"]:
+        beyond = (absolute - drift["base"]) / absolute
+        return text + (
+            f": the gain, {absolute:.3g}, is {absolute / drift['base']:.1f} x the base's whole "
+            f"J there ({drift['base']:.3g}), so at least {100 * beyond:.0f} % of it undoes the "
+            "refit's drift rather than explaining the base's misfit."
+        )
+    return text + "."
 
 
 def explainable_text(d: Diagnosis) -> str:
@@ -413,7 +445,7 @@ def explainable_text(d: Diagnosis) -> str:
     text = (
         f" A flexible smooth correction (learned shapes, {e['shape']}) takes "
         f"{100 * e['flexible_heldout_gain']:.0f} % off the held-out runs' J when linearised"
-        f"{kept}."
+        f"{kept}." + drift_text(e["refit_drift"], e["flexible_heldout_gain"])
     )
     sp = d.shape
     final = e["shape"]
@@ -1240,7 +1272,11 @@ def _shape_md(d: Diagnosis) -> list[str]:
         + ", ".join(f"{100 * g:.0f} %" for g in sel.heldout_gain)
         + f" of the control's held-out J; linearised dBIC {sel.dbic:.1f} against the null's "
         f"quantile {sp.threshold:.1f} ({len(sp.null)} noise-only copies): "
-        + ("proposed." if sp.proposed else "not proposed."),
+        + ("proposed." if sp.proposed else "not proposed.")
+        + drift_text(
+            sp.drift.as_dict() if sp.drift is not None else None,
+            sel.heldout_gain[-1] if sel.heldout_gain else 0.0,
+        ),
         "",
     ]
     md += _memory_probe_md(d.extra.get("memory"))

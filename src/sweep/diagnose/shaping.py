@@ -38,6 +38,7 @@ from sweep.diagnose.corners import ITERATIONS as CORNER_ITERATIONS
 from sweep.diagnose.corners import fit_numbers
 from sweep.diagnose.discover import null_sets
 from sweep.diagnose.fit import Fit
+from sweep.diagnose.linearised import RefitDrift
 from sweep.diagnose.naming import (
     FAMILY,
     GRID,
@@ -125,6 +126,9 @@ class ShapeProposal:
     #: the shapes of two variables tried (:func:`paired`): the pairs, the selection with them,
     #: its dBIC and its null's threshold, whether it was taken (None: not tried)
     pairs: dict[str, Any] | None = None
+    #: what the control's fold fits, against which the held-out gains are measured, make of
+    #: the held-out windows (:meth:`~sweep.diagnose.linearised.Linearised.refit_drift`)
+    drift: RefitDrift | None = None
 
     @property
     def flexible(self) -> ShapeSelection:
@@ -163,6 +167,7 @@ class ShapeProposal:
             "dropped": [d.as_dict() for d in self.dropped],
             "screened": [x.as_dict() for x in self.screened],
             "pairs": self.pairs,
+            "refit_drift": self.drift.as_dict() if self.drift is not None else None,
         }
 
 
@@ -686,6 +691,7 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
     columns = ShapeColumns(cal.lin, candidate_groups(ctx.windows, params, variables=variables))
     r = cal.lin.residuals(ctx.windows)
     selection = columns.select(r, ctx.n_eff)
+    drift = cal.lin.refit_drift(r)
     null: list[float] = []
     threshold = CEILING
     R: FloatArray | None = None
@@ -701,7 +707,9 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
         f"shapes: {selection.spec or 'no group'} ({sum(selection.edf):.1f} effective degrees "
         f"of freedom, held-out gain {100 * gain:.0f} % of the control's held-out J), linearised "
         f"dBIC {selection.dbic:.1f} against the null's {s.alpha:.0%} quantile {threshold:.1f} "
-        f"-> {'proposed' if proposed else 'not proposed'}"
+        f"-> {'proposed' if proposed else 'not proposed'}; the control's fold fits make the "
+        f"held-out windows' J {drift.ratio:.2f} x the base's ({drift.window}: "
+        f"{100 * drift.share:.0f} % of it)"
     )
     samples: dict[str, list[float]] = {}
     named: list[ClosedForm | None] = []
@@ -778,6 +786,7 @@ def propose_shape(ctx: Context, base: Fit, cal: Calibration) -> ShapeProposal | 
         screened,
         numbers,
         pairs,
+        drift,
     )
     if proposed:
         register(ctx, selection)

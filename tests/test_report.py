@@ -266,10 +266,13 @@ def test_the_explainable_share_says_what_its_gain_is_measured_against():
     }
     text = drift_text(real, 0.6053)
     assert "7.9 x the base's own (w1: 80 % of it)" in text
+    assert "with the correction it is still 3.1 x." in text
     assert "5.6e+03, is 4.8 x the base's whole J there (1.17e+03)" in text
     assert "at least 79 % of it undoes the refit's drift" in text
     # a gain within the base's J: the drift is stated, no share is claimed
-    assert drift_text(real, 0.05).endswith("(w1: 80 % of it).")
+    assert drift_text(real, 0.05).endswith(
+        "(w1: 80 % of it); with the correction it is still 7.5 x."
+    )
     # a refit that stays near the base: nothing to say
     near = {**real, "heldout": 1500.0, "ratio": 1500.0 / 1166.6}
     assert drift_text(near, 0.6) == ""

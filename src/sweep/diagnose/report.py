@@ -414,20 +414,22 @@ def drift_text(drift: dict[str, Any] | None, gain: float) -> str:
     part of the gain beyond the base's whole J there cannot be the base's misfit explained."""
     if drift is None or drift["ratio"] <= DRIFT_RATIO:
         return ""
+    after = drift["ratio"] * (1.0 - max(gain, 0.0))
     text = (
         " That gain is measured against the 57 parameters refitted on the other half of the "
         f"runs, which make the held-out windows' J {drift['ratio']:.1f} x the base's own "
-        f"({drift['window']}: {100 * drift['share']:.0f} % of it)"
+        f"({drift['window']}: {100 * drift['share']:.0f} % of it); with the correction it is "
+        f"still {after:.1f} x."
     )
     absolute = gain * drift["heldout"]
     if gain > 0.0 and absolute > drift["base"]:
         beyond = (absolute - drift["base"]) / absolute
-        return text + (
-            f": the gain, {absolute:.3g}, is {absolute / drift['base']:.1f} x the base's whole "
+        text += (
+            f" The gain, {absolute:.3g}, is {absolute / drift['base']:.1f} x the base's whole "
             f"J there ({drift['base']:.3g}), so at least {100 * beyond:.0f} % of it undoes the "
             "refit's drift rather than explaining the base's misfit."
         )
-    return text + "."
+    return text
 
 
 def explainable_text(d: Diagnosis) -> str:

@@ -276,4 +276,6 @@ def test_the_explainable_share_says_what_its_gain_is_measured_against():
     # a refit that stays near the base: nothing to say
     near = {**real, "heldout": 1500.0, "ratio": 1500.0 / 1166.6}
     assert drift_text(near, 0.6) == ""
+    # no correction chosen: the drift alone
+    assert drift_text(real, 0.0).endswith("(w1: 80 % of it).")
     assert drift_text(None, 0.6) == ""

@@ -414,15 +414,16 @@ def drift_text(drift: dict[str, Any] | None, gain: float) -> str:
     part of the gain beyond the base's whole J there cannot be the base's misfit explained."""
     if drift is None or drift["ratio"] <= DRIFT_RATIO:
         return ""
-    after = drift["ratio"] * (1.0 - max(gain, 0.0))
     text = (
-        " That gain is measured against the 57 parameters refitted on the other half of the "
-        f"runs, which make the held-out windows' J {drift['ratio']:.1f} x the base's own "
-        f"({drift['window']}: {100 * drift['share']:.0f} % of it); with the correction it is "
-        f"still {after:.1f} x."
+        " The held-out gains are measured against the 57 parameters refitted on the other half "
+        f"of the runs, which make the held-out windows' J {drift['ratio']:.1f} x the base's own "
+        f"({drift['window']}: {100 * drift['share']:.0f} % of it)"
     )
+    if gain <= 0.0:
+        return text + "."
+    text += f"; with the correction it is still {drift['ratio'] * (1.0 - gain):.1f} x."
     absolute = gain * drift["heldout"]
-    if gain > 0.0 and absolute > drift["base"]:
+    if absolute > drift["base"]:
         beyond = (absolute - drift["base"]) / absolute
         text += (
             f" The gain, {absolute:.3g}, is {absolute / drift['base']:.1f} x the base's whole "

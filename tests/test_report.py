@@ -279,3 +279,8 @@ def test_the_explainable_share_says_what_its_gain_is_measured_against():
     # no correction chosen: the drift alone
     assert drift_text(real, 0.0).endswith("(w1: 80 % of it).")
     assert drift_text(None, 0.6) == ""
+    # the real Train-TZR: one turning window; the lower bound is rounded down, not up to 100 %
+    tzr = {"heldout": 2.9e6, "base": 1522.0, "ratio": 2.9e6 / 1522.0, "window": "w2", "share": 1.0}
+    text = drift_text(tzr, 0.9)
+    assert "1905 x the base's own (w2: 100 % of it); with the correction it is still 191 x." in text
+    assert "at least 99 % of it" in text

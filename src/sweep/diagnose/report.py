@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
@@ -416,21 +417,26 @@ def drift_text(drift: dict[str, Any] | None, gain: float) -> str:
         return ""
     text = (
         " The held-out gains are measured against the 57 parameters refitted on the other half "
-        f"of the runs, which make the held-out windows' J {drift['ratio']:.1f} x the base's own "
-        f"({drift['window']}: {100 * drift['share']:.0f} % of it)"
+        f"of the runs, which make the held-out windows' J {_times(drift['ratio'])} x the base's "
+        f"own ({drift['window']}: {100 * drift['share']:.0f} % of it)"
     )
     if gain <= 0.0:
         return text + "."
-    text += f"; with the correction it is still {drift['ratio'] * (1.0 - gain):.1f} x."
+    text += f"; with the correction it is still {_times(drift['ratio'] * (1.0 - gain))} x."
     absolute = gain * drift["heldout"]
     if absolute > drift["base"]:
-        beyond = (absolute - drift["base"]) / absolute
+        beyond = math.floor(100.0 * (absolute - drift["base"]) / absolute)  # a lower bound
         text += (
-            f" The gain, {absolute:.3g}, is {absolute / drift['base']:.1f} x the base's whole "
-            f"J there ({drift['base']:.3g}), so at least {100 * beyond:.0f} % of it undoes the "
+            f" The gain, {absolute:.3g}, is {_times(absolute / drift['base'])} x the base's "
+            f"whole J there ({drift['base']:.3g}), so at least {beyond} % of it undoes the "
             "refit's drift rather than explaining the base's misfit."
         )
     return text
+
+
+def _times(ratio: float) -> str:
+    """A ratio to a tenth below 100, whole above."""
+    return f"{ratio:.1f}" if ratio < 99.95 else f"{ratio:.0f}"
 
 
 def explainable_text(d: Diagnosis) -> str:

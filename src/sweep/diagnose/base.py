@@ -50,11 +50,15 @@ def identify_base(ctx: Context) -> Fit:
 def second_start(
     ctx: Context, base: Fit, cal: Calibration
 ) -> tuple[Fit, Calibration, dict[str, float] | None]:
-    """Stage ``base-retry``: when the misfit is significant, a second CMA-ES start (another
-    seed) unless the base's routes already agree; a lower end replaces the base and the
-    calibration is redone there. Returns (base, calibration, the ``base_retry`` record)."""
+    """Stage ``base-retry``: a second CMA-ES start (another seed) unless the base's routes
+    already agree; a lower end replaces the base and the calibration is redone there. Also
+    when the misfit is within the floor: routes that end apart show more than one basin, and
+    a base in the worse one can fit the training windows within the floor and still miss the
+    test recordings (on a planted no-effect case J2 0.720 on the training windows, the true
+    model's 0.670, and 5.4 x the true model's test J2). Returns (base, calibration, the
+    ``base_retry`` record)."""
     s = ctx.settings
-    if not (cal.misfit.significant and s.base_retry):
+    if not s.base_retry:
         return base, cal, None
     routes = {f"J_route{i + 1}": f for i, f in enumerate(base.ends)}
     if routes_agree(base.ends, s.base_retry_agreement):

@@ -673,6 +673,31 @@ def test_a_second_base_start_runs_when_asked_and_the_lower_end_is_the_base(runs,
     assert report["verdict"] == "rudder_offset"
 
 
+@pytest.mark.integration  # a planted case, end to end
+@CANDIDATES
+def test_a_base_within_the_floor_gets_the_second_start_when_its_routes_end_apart(
+    runs, tmp_path, capsys
+):
+    """Nothing planted: the base fits the training windows within the noise floor, and still its
+    two routes may end in different basins, the worse of which can miss the test recordings.
+    The second CMA-ES start runs then too (forced here with ``--base-retry-agreement 0``: the
+    routes are never taken as agreeing), and the lower end is the base."""
+    case = tmp_path / "case"
+    _case(runs, PlantedSpec("none"), case)
+    out = tmp_path / "out"
+    extra = ("--no-discovery", "--no-shapes", "--no-tracking", "--candidates", "rudder_offset")
+    assert _diagnose(case, out, "--base-retry-agreement", "0", *extra) == 0
+    report = json.loads((out / "report.json").read_text())
+    err = capsys.readouterr().err
+    assert report["misfit"]["significant"] is False  # within the floor
+    retry = report["base_retry"]
+    assert retry is not None and "skipped" not in retry
+    assert re.search(r"base, second start: J = [\d.]+ against [\d.]+", err)
+    J_base = report["training"]["J_base_fit"]
+    assert J_base == pytest.approx(min(retry["J_first"], retry["J_second"]), rel=1e-9)
+    assert report["verdict"] == "none"
+
+
 @pytest.mark.kernels(*kernels((), "moments"))
 def test_test_recordings_where_the_model_diverges_are_named_with_their_subsequences(runs):
     """A model whose simulation diverges on a test recording: the test table is the same as

@@ -55,7 +55,7 @@ def second_start(
     when the misfit is within the floor: routes that end apart show more than one basin, and
     a base in the worse one can fit the training windows within the floor and still miss the
     test recordings (on a planted no-effect case J2 0.720 on the training windows, the true
-    model's 0.670, and 5.4 x the true model's test J2). Returns (base, calibration, the
+    model's 0.670, and 5.1 x the true model's test J2). Returns (base, calibration, the
     ``base_retry`` record)."""
     s = ctx.settings
     if not s.base_retry:

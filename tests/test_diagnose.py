@@ -135,7 +135,9 @@ def test_planted_rudder_offset_is_found_end_to_end(runs, tmp_path, capsys):
         assert J_base == pytest.approx(retry["J_first"], rel=1e-9)
     else:
         assert "skipped" not in retry and "base, second start: J" in captured.err
-        assert J_base == pytest.approx(min(retry["J_first"], retry["J_second"]), rel=1e-9)
+        two = min(retry["J_first"], retry["J_second"])
+        grown = retry["J_horizons"]
+        assert J_base == pytest.approx(grown if grown < 0.99 * two else two, rel=1e-9)
 
     from mlflow import MlflowClient
 
@@ -653,6 +655,40 @@ def test_the_second_base_start_is_skipped_only_when_both_routes_ended_together()
     assert not routes_agree((1.0, float("nan")), 0.01)
 
 
+def test_the_descent_over_growing_horizons_leaves_a_basin_the_descent_alone_stops_in(
+    runs, tmp_path
+):
+    """From a start 30 % off the true ship (every parameter), Levenberg-Marquardt over the
+    100-s windows stops in a basin of 4 x the true model's J; over pieces of 10, 25 and 50 s
+    first, then the windows, it ends near the true model. The route's J is the objective's on
+    the windows themselves, and its cost counts every horizon's."""
+    from dataclasses import replace
+
+    from mmg import Parameters
+    from sweep.data.objective import Objective
+    from sweep.diagnose.base import horizon_descent
+    from sweep.diagnose.context import Context
+    from sweep.diagnose.settings import DiagnoseSettings
+
+    rng = np.random.default_rng(3)
+    wins = pick_windows(runs, {"random": 3, "turning": 1, "zigzag": 1}, rng)
+    noise = noise_levels([r for v in runs.values() for r in v])
+    recs, diverged = generate(wins, efd_parameters(), PlantedSpec("none"), noise, rng)
+    assert not diverged
+    v = efd_parameters().vector()
+    start = Parameters.from_vector(v * np.exp(np.random.default_rng(8).normal(0, 0.3, v.size)))
+    ctx = Context.open(start, recs[1:], [], tmp_path, DiagnoseSettings(), None, lambda m: None)
+    J_true = float(Objective(ctx.windows, "J2").evaluate(efd_parameters())[0])
+    alone = ctx.refit(
+        ctx.windows, start, (), replace(ctx.common, budget=0, polish=ctx.lm(300, 1e-4)), "alone"
+    )
+    grown = horizon_descent(ctx, (10.0, 25.0, 50.0), 300)
+    assert alone.f > 3.0 * J_true
+    assert grown.f < 1.2 * J_true < alone.f / 2.5
+    assert grown.f == pytest.approx(float(Objective(ctx.windows, "J2").evaluate(grown.params)[0]))
+    assert grown.evaluations > alone.evaluations / 2
+
+
 @pytest.mark.integration  # a planted case, end to end
 @CANDIDATES
 @pytest.mark.parametrize(
@@ -666,11 +702,11 @@ def test_the_second_base_start_is_skipped_only_when_both_routes_ended_together()
 def test_a_second_base_start_runs_when_asked_and_the_lower_end_is_the_base(
     runs, tmp_path, capsys, spec, verdict
 ):
-    """``--base-retry-agreement 0``: the second CMA-ES start always runs (the routes are never
-    taken as agreeing); the lower of the two ends is the base the rest of the diagnosis starts
-    from. Also when the base fits the training windows within the noise floor (nothing
-    planted): its two routes may still end in different basins, the worse of which can miss the
-    test recordings."""
+    """``--base-retry-agreement 0``: the second CMA-ES start and the descent over growing
+    horizons always run (the routes are never taken as agreeing); the lowest end is the base
+    the rest of the diagnosis starts from. Also when the base fits the training windows within
+    the noise floor (nothing planted): its two routes may still end in different basins, the
+    worse of which can miss the test recordings."""
     case = tmp_path / "case"
     _case(runs, spec, case)
     out = tmp_path / "out"
@@ -683,8 +719,13 @@ def test_a_second_base_start_runs_when_asked_and_the_lower_end_is_the_base(
     retry = report["base_retry"]
     assert retry is not None and "skipped" not in retry
     assert re.search(r"base, second start: J = [\d.]+ against [\d.]+", err)
+    # beside it the descent over growing horizons (its pieces logged), which replaces the
+    # lower of the two when it ends lower (by more than the tolerance, here 0)
+    assert re.search(r"base, descent over 10-s horizons: J = [\d.e+-]+ on \d+ pieces", err)
+    assert re.search(r"base, descent over growing horizons: J = [\d.]+ against [\d.]+", err)
     J_base = report["training"]["J_base_fit"]
-    assert J_base == pytest.approx(min(retry["J_first"], retry["J_second"]), rel=1e-9)
+    ends = (retry["J_first"], retry["J_second"], retry["J_horizons"])
+    assert J_base == pytest.approx(min(ends), rel=1e-9)
     assert report["verdict"] == verdict
 
 

@@ -25,6 +25,7 @@ See :mod:`sweep.diagnose.run` for the procedure.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -69,6 +70,36 @@ def _split_names(group: str) -> list[str]:
     return sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
 
 
+def _base_options(ap: argparse.ArgumentParser, d: DiagnoseSettings) -> None:
+    """The options of the base's identification."""
+    ap.add_argument("--budget", type=int, default=d.base_budget, help="base identification")
+    ap.add_argument(
+        "--base-descent",
+        type=int,
+        default=d.base_lm_iterations,
+        help="Levenberg-Marquardt iterations of the base's second route, the descent alone from "
+        "--params (0: CMA-ES route only)",
+    )
+    ap.add_argument(
+        "--base-horizons",
+        type=float,
+        nargs="*",
+        default=list(d.base_horizons),
+        metavar="SECONDS",
+        help="beside the base's second start, the descent from --params over the training "
+        "windows cut to each of these horizons in turn, then over the windows (default "
+        "%(default)s; none given: off)",
+    )
+    ap.add_argument(
+        "--base-retry-agreement",
+        type=float,
+        default=d.base_retry_agreement,
+        help="the base gets a second CMA-ES start and the descent over growing horizons unless "
+        "its two routes ended within this share of each other's J (default %(default)s; 0: "
+        "always); the descent over horizons replaces the base only when lower by more than this",
+    )
+
+
 def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     """The command line's options (``argv`` None: ``sys.argv[1:]``)."""
     ap = argparse.ArgumentParser(
@@ -91,21 +122,7 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     ap.add_argument("--data-dir", default=None, help="recordings of split names (MMG_DATA_DIR)")
     ap.add_argument("--out", required=True, help="output directory")
-    ap.add_argument("--budget", type=int, default=d.base_budget, help="base identification")
-    ap.add_argument(
-        "--base-descent",
-        type=int,
-        default=d.base_lm_iterations,
-        help="Levenberg-Marquardt iterations of the base's second route, the descent alone from "
-        "--params (0: CMA-ES route only)",
-    )
-    ap.add_argument(
-        "--base-retry-agreement",
-        type=float,
-        default=d.base_retry_agreement,
-        help="a misfit above the noise floor gets the base a second CMA-ES start unless its two "
-        "routes ended within this share of each other's J (default %(default)s; 0: always)",
-    )
+    _base_options(ap, d)
     ap.add_argument("--candidate-budget", type=int, default=d.candidate_budget)
     ap.add_argument("--final-budget", type=int, default=d.final_budget)
     ap.add_argument("--seed", type=int, default=d.seed)
@@ -216,6 +233,8 @@ def _checked(args: argparse.Namespace) -> tuple[str, ...]:
         raise UserError(f"--alpha must be between 0 and 1; got {args.alpha}")
     if args.base_descent < 0:
         raise UserError(f"--base-descent must be >= 0 iterations; got {args.base_descent}")
+    if any(not (h > 0.0 and math.isfinite(h)) for h in args.base_horizons):
+        raise UserError(f"--base-horizons must be positive seconds; got {args.base_horizons}")
     if not args.base_retry_agreement >= 0.0:
         raise UserError(f"--base-retry-agreement must be >= 0; got {args.base_retry_agreement}")
     if not args.prior_weight >= 0.0:
@@ -241,6 +260,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
         base_budget=args.budget,
         base_lm_iterations=args.base_descent,
         base_retry_agreement=args.base_retry_agreement,
+        base_horizons=tuple(float(h) for h in args.base_horizons),
         candidate_budget=args.candidate_budget,
         final_budget=args.final_budget,
         seed=args.seed,

@@ -1663,7 +1663,16 @@ def _procedure_md(d: Diagnosis) -> list[str]:
         f"{d.heldout_windows}; base identification on all of them: {d.base.evaluations} "
         f"evaluations (CMA-ES {s.base_budget} then Levenberg-Marquardt, and "
         f"Levenberg-Marquardt alone for up to {s.base_lm_iterations} iterations; the "
-        f"lower end kept), J = "
+        "lower end kept"
+        + (
+            f"; where they ended more than {100 * s.base_retry_agreement:g} % apart, a second "
+            "CMA-ES start and the descent over the windows cut to "
+            + ", ".join(f"{h:g}" for h in s.base_horizons)
+            + " s in turn, then over the windows"
+            if s.base_retry and s.base_horizons and s.base_lm_iterations > 0
+            else ""
+        )
+        + "), J = "
         f"{d.base.f:.2f}. Control: fitted on each half from the base; each candidate from "
         "two starts, the control's fit of that half and the base, the first end kept unless the "
         f"other fits more than {100 * s.base_retry_agreement:.0f} % better (effect grid "

@@ -35,6 +35,9 @@ PRIOR_WEIGHT = 1.0
 #: directions the windows leave flat; on the planted benchmark the test J2 over the true
 #: model's went from 1.0-4.3 x (weight 1) to 1.0-1.7 x (0.01); at 0 some ends wandered (5.2 x)
 FINAL_PRIOR_WEIGHT = 0.01
+#: the horizons [s] of the base's descent over growing horizons: from a tenth of the
+#: objective's 100-s windows to a half
+BASE_HORIZONS = (10.0, 25.0, 50.0)
 #: version of the fitting procedure; raise it when a change alters what a stage computes
 PROCEDURE_VERSION = 7
 
@@ -61,6 +64,10 @@ class DiagnoseSettings:
     refine_iterations: int = 70  # further Levenberg-Marquardt iterations of their fold fits
     final_polish_iterations: int = 100  # ... of the base and final identifications
     base_lm_iterations: int = 300  # Levenberg-Marquardt alone from --params, competing (0: off)
+    #: beside the base's second start, Levenberg-Marquardt (``base_lm_iterations``) from the
+    #: start over the training windows cut to these horizons [s] in turn, then over the windows
+    #: (empty: off; :func:`sweep.diagnose.base.horizon_descent`)
+    base_horizons: tuple[float, ...] = BASE_HORIZONS
     #: weight mu of the prior mu |z - z_start|^2 on the 57 base parameters (normalised box) in
     #: every refinement: among parameter sets that fit about equally well, the one nearest the
     #: starting (captive-model) values; 0 switches it off
@@ -88,11 +95,13 @@ class DiagnoseSettings:
     generalisation_draws: int = GENERALISATION_DRAWS
     generalisation_alpha: float = GENERALISATION_ALPHA
     generalisation_margin: float = GENERALISATION_MARGIN
-    #: a misfit above the floor first gets the base a second CMA-ES start (another seed) ...
+    #: the base gets a second CMA-ES start (another seed) and the descent over growing horizons
     base_retry: bool = True
     #: ... unless the base's two routes ended within this share of each other's J: the
     #: landscape led CMA-ES and the descent alone to one point (the planted case the second
-    #: start was made for had ended at 1.52 and 2.77)
+    #: start was made for had ended at 1.52 and 2.77). The descent over growing horizons
+    #: replaces the base only when it ends lower by more than this share (closer ends are one
+    #: point reached two ways)
     base_retry_agreement: float = 0.01
     #: learn the shape of the missing force (:mod:`sweep.diagnose.shaping`) as one more candidate
     shapes: bool = True
@@ -157,5 +166,7 @@ class DiagnoseSettings:
             "shape_pairs",
         )
         data = {k: v for k, v in asdict(self).items() if k not in skip}
+        if not self.base_horizons:  # off: the stages stored before the horizons existed
+            del data["base_horizons"]
         data["procedure"] = PROCEDURE_VERSION  # stages of an older procedure are not reused
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]

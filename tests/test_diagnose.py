@@ -655,6 +655,29 @@ def test_the_second_base_start_is_skipped_only_when_both_routes_ended_together()
     assert not routes_agree((1.0, float("nan")), 0.01)
 
 
+def test_the_report_names_where_each_route_of_the_base_ended_and_which_is_the_base():
+    from sweep.diagnose.report import base_routes_text
+
+    # the forced run on Train-R: the descent over growing horizons ended lowest
+    forced = {
+        "J_first": 1173.2055,
+        "J_second": 1173.2055,
+        "J_route1": 1174.9353,
+        "J_route2": 1173.2055,
+        "J_horizons": 1158.8494,
+    }
+    text = base_routes_text(forced, 1158.8494)
+    assert text == (
+        "; ends: CMA-ES then Levenberg-Marquardt 1174.94, Levenberg-Marquardt alone 1173.21, "
+        "second start 1173.21, descent over growing horizons 1158.85 (the base)"
+    )
+    agreed = {"J_first": 1173.2055, "skipped": 1.0, "J_route1": 1174.9353, "J_route2": 1173.2055}
+    text = base_routes_text(agreed, 1173.2055)
+    assert "Levenberg-Marquardt alone 1173.21 (the base)" in text
+    assert text.endswith("the two routes agree, no second start") and "horizons" not in text
+    assert base_routes_text(None, 1.0) == ""
+
+
 def test_the_descent_over_growing_horizons_leaves_a_basin_the_descent_alone_stops_in(
     runs, tmp_path
 ):

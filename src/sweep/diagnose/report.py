@@ -1654,6 +1654,24 @@ def _trust_md(d: Diagnosis) -> list[str]:
     ]
 
 
+def base_routes_text(retry: dict[str, float] | None, J_base: float) -> str:
+    """Where each of the base's routes ended (the ``base_retry`` record), the base's own end
+    marked: ``""`` when there is no record (the second start switched off)."""
+    if not retry:
+        return ""
+    labels = (
+        ("J_route1", "CMA-ES then Levenberg-Marquardt"),
+        ("J_route2", "Levenberg-Marquardt alone"),
+        ("J_second", "second start"),
+        ("J_horizons", "descent over growing horizons"),
+    )
+    ends = [(label, retry[k]) for k, label in labels if k in retry]
+    kept = min(ends, key=lambda e: abs(e[1] - J_base))[0] if ends else ""
+    parts = [f"{label} {f:.2f}" + (" (the base)" if label == kept else "") for label, f in ends]
+    skipped = "; the two routes agree, no second start" if retry.get("skipped") else ""
+    return "; ends: " + ", ".join(parts) + skipped if parts else ""
+
+
 def _procedure_md(d: Diagnosis) -> list[str]:
     s = d.settings
     return [
@@ -1672,6 +1690,7 @@ def _procedure_md(d: Diagnosis) -> list[str]:
             if s.base_retry and s.base_horizons and s.base_lm_iterations > 0
             else ""
         )
+        + base_routes_text(d.extra.get("base_retry"), d.base.f)
         + "), J = "
         f"{d.base.f:.2f}. Control: fitted on each half from the base; each candidate from "
         "two starts, the control's fit of that half and the base, the first end kept unless the "

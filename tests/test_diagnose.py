@@ -454,6 +454,10 @@ def test_user_mistakes_are_one_line_errors(runs, tmp_path, capsys):
     assert "--base-descent must be >= 0" in capsys.readouterr().err
     assert _diagnose(case, tmp_path / "o1", "--base-retry-agreement", "-0.1") == 2
     assert "--base-retry-agreement must be >= 0" in capsys.readouterr().err
+    assert _diagnose(case, tmp_path / "o1", "--base-horizons", "10", "-25") == 2
+    assert "--base-horizons must be positive seconds" in capsys.readouterr().err
+    assert _diagnose(case, tmp_path / "o1", "--base-horizons", "50", "10") == 2
+    assert "--base-horizons must grow, shortest first; got [50.0, 10.0]" in capsys.readouterr().err
     assert _diagnose(case, tmp_path / "o1", "--rounds", "0") == 2
     assert "--rounds must be >= 1" in capsys.readouterr().err
     one = tmp_path / "one"

@@ -28,6 +28,7 @@ import argparse
 import math
 import sys
 from collections.abc import Sequence
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -233,8 +234,11 @@ def _checked(args: argparse.Namespace) -> tuple[str, ...]:
         raise UserError(f"--alpha must be between 0 and 1; got {args.alpha}")
     if args.base_descent < 0:
         raise UserError(f"--base-descent must be >= 0 iterations; got {args.base_descent}")
-    if any(not (h > 0.0 and math.isfinite(h)) for h in args.base_horizons):
-        raise UserError(f"--base-horizons must be positive seconds; got {args.base_horizons}")
+    horizons = args.base_horizons
+    if any(not (h > 0.0 and math.isfinite(h)) for h in horizons):
+        raise UserError(f"--base-horizons must be positive seconds; got {horizons}")
+    if any(b <= a for a, b in pairwise(horizons)):
+        raise UserError(f"--base-horizons must grow, shortest first; got {horizons}")
     if not args.base_retry_agreement >= 0.0:
         raise UserError(f"--base-retry-agreement must be >= 0; got {args.base_retry_agreement}")
     if not args.prior_weight >= 0.0:

@@ -689,11 +689,9 @@ def test_the_descent_over_growing_horizons_leaves_a_basin_the_descent_alone_stop
     100-s windows stops in a basin of 4 x the true model's J; over pieces of 10, 25 and 50 s
     first, then the windows, it ends near the true model. The route's J is the objective's on
     the windows themselves, and its cost counts every horizon's."""
-    from dataclasses import replace
-
     from mmg import Parameters
     from sweep.data.objective import Objective
-    from sweep.diagnose.base import horizon_descent
+    from sweep.diagnose.base import descent_alone, horizon_descent
     from sweep.diagnose.context import Context
     from sweep.diagnose.settings import DiagnoseSettings
 
@@ -706,9 +704,7 @@ def test_the_descent_over_growing_horizons_leaves_a_basin_the_descent_alone_stop
     start = Parameters.from_vector(v * np.exp(np.random.default_rng(8).normal(0, 0.3, v.size)))
     ctx = Context.open(start, recs[1:], [], tmp_path, DiagnoseSettings(), None, lambda m: None)
     J_true = float(Objective(ctx.windows, "J2").evaluate(efd_parameters())[0])
-    alone = ctx.refit(
-        ctx.windows, start, (), replace(ctx.common, budget=0, polish=ctx.lm(300, 1e-4)), "alone"
-    )
+    alone = ctx.refit(ctx.windows, start, (), descent_alone(ctx, 300), "alone")
     grown = horizon_descent(ctx, (10.0, 25.0, 50.0), 300)
     assert alone.f > 3.0 * J_true
     assert grown.f < 1.2 * J_true < alone.f / 2.5

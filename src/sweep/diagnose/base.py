@@ -13,7 +13,7 @@ from dataclasses import replace
 
 from sweep.diagnose.calibration import Calibration, calibrate
 from sweep.diagnose.context import Context
-from sweep.diagnose.fit import Fit
+from sweep.diagnose.fit import Fit, FitSettings
 from sweep.diagnose.windows import cut_windows
 
 
@@ -25,6 +25,11 @@ def routes_agree(ends: Sequence[float], tolerance: float) -> bool:
     return max(ends) - min(ends) <= tolerance * abs(min(ends))
 
 
+def descent_alone(ctx: Context, iterations: int) -> FitSettings:
+    """The settings of Levenberg-Marquardt alone (no CMA-ES) for up to ``iterations``."""
+    return replace(ctx.common, budget=0, polish=ctx.lm(iterations, 1e-4))
+
+
 def base_fit(ctx: Context) -> Fit:
     """The better end of CMA-ES then Levenberg-Marquardt and of Levenberg-Marquardt alone, both
     from the start on all windows; its ``ends`` are the routes' J, its cost their sum."""
@@ -32,8 +37,8 @@ def base_fit(ctx: Context) -> Fit:
     first = replace(common, budget=s.base_budget, seed=s.seed)
     ends = [ctx.refit(ctx.windows, ctx.start, (), first, "base")]
     if s.base_lm_iterations > 0:
-        descent = replace(common, budget=0, polish=ctx.lm(s.base_lm_iterations, 1e-4))
-        ends.append(ctx.refit(ctx.windows, ctx.start, (), descent, "base, descent alone"))
+        alone = descent_alone(ctx, s.base_lm_iterations)
+        ends.append(ctx.refit(ctx.windows, ctx.start, (), alone, "base, descent alone"))
         ctx.log(f"base: CMA-ES then descent J = {ends[0].f:.2f}, descent alone J = {ends[1].f:.2f}")
     best = min(ends, key=lambda e: e.f)
     return replace(
@@ -58,7 +63,7 @@ def horizon_descent(ctx: Context, horizons: Sequence[float], iterations: int) ->
     ended nearest the true model: training J2 0.838 and 0.740 from the other routes, 0.799 and
     0.683 over horizons of 10, 25 and 50 s, the true model's 0.791 and 0.664 (test J2 0.425 ->
     0.294 and 0.426 -> 0.346; the true model's 0.240 and 0.199)."""
-    descent = replace(ctx.common, budget=0, polish=ctx.lm(iterations, 1e-4))
+    descent = descent_alone(ctx, iterations)
     p = ctx.start
     evaluations, seconds = 0, 0.0
     for tf in horizons:

@@ -119,7 +119,7 @@ def second_start(
     ctx.log(f"base, second start: J = {retry.f:.4g} against {base.f:.4g}")
     tried = [base, retry]
     best = retry if retry.f < base.f else base
-    if s.base_horizons and s.base_lm_iterations > 0:
+    if s.horizons_on:
         grown = ctx.staged(
             "base-horizons",
             (),

@@ -1687,7 +1687,7 @@ def _procedure_md(d: Diagnosis) -> list[str]:
             "CMA-ES start and the descent over the windows cut to "
             + ", ".join(f"{h:g}" for h in s.base_horizons)
             + " s in turn, then over the windows"
-            if s.base_retry and s.base_horizons and s.base_lm_iterations > 0
+            if s.horizons_on
             else ""
         )
         + base_routes_text(d.extra.get("base_retry"), d.base.f)

@@ -141,6 +141,11 @@ class DiagnoseSettings:
         names = self.candidates or tuple(sorted(catalog()))
         return tuple(get_effect(n) for n in names)
 
+    @property
+    def horizons_on(self) -> bool:
+        """Whether the base's descent over growing horizons runs beside its second start."""
+        return self.base_retry and bool(self.base_horizons) and self.base_lm_iterations > 0
+
     def fingerprint(self) -> str:
         """12 hex digits naming what the stored stages depend on (with the procedure version)."""
         # thresholds decide the verdict only: stages fitted under other thresholds are reused

@@ -24,7 +24,7 @@ from sweep.diagnose.__main__ import main
 from sweep.diagnose.floor import NoiseModel, calibrated_noise, misfit_test, noise_floor
 from sweep.diagnose.windows import cut_windows
 from sweep.identification.vector import with_effects
-from tests.conftest import kernels, planted_case_args, probe_kernels
+from tests.conftest import kernels, noisy_windows, planted_case_args, probe_kernels
 
 pytestmark = pytest.mark.kernels(
     *kernels((), "simulate", "moments", "derivatives"), *probe_kernels()
@@ -296,6 +296,34 @@ def test_noise_model_recovers_coloured_noise_and_the_floor_of_a_true_model(runs)
     assert not test.significant
     off = misfit_test(noise_floor(efd_parameters(), windows, est, rng, 8))
     assert off.significant and off.ratio > 3.0
+
+
+def test_windows_that_begin_at_the_exact_state_are_told_from_recorded_ones(small_case):
+    """Windows simulated from their first state, noise on every later sample: the first samples
+    are found exact, and the noise copies then begin exactly (the same numbers but the first
+    row); the same windows with noise on the first sample too, or simulated by a model off the
+    truth, keep noisy starts (a misfit leans that way)."""
+    from dataclasses import replace
+
+    from sweep.diagnose.floor import FIRST_LOG_ODDS, first_sample_noise
+
+    ship, windows, levels = small_case
+    noise = NoiseModel(dict(levels.sigma), dict.fromkeys(levels.sigma, 0.6))
+    noisy = noisy_windows(ship, windows, noise, 5)
+    exact = [
+        Recording(w.name, None, w.t, np.vstack([c.x[:1], w.x[1:]]), w.u, w.w)
+        for w, c in zip(noisy, windows, strict=True)
+    ]
+    found = first_sample_noise(exact, ship, noise)
+    assert not found.noisy and found.log_odds >= FIRST_LOG_ODDS and found.items == 3 * len(windows)
+    assert first_sample_noise(noisy, ship, noise).noisy
+    assert first_sample_noise(exact, efd_parameters(), noise).noisy
+    begins = replace(noise, first=found)
+    a = noise.draw_many(np.random.default_rng(9), [50, 7])
+    b = begins.draw_many(np.random.default_rng(9), [50, 7])
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(y[0], 0.0)
+        np.testing.assert_array_equal(x[1:], y[1:])
 
 
 def test_noise_draws_for_many_windows_are_the_sequential_draws_and_scipys_filter():

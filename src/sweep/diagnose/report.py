@@ -55,10 +55,18 @@ def misfit_text(d: Diagnosis) -> str:
         if m.refit_factor != 1.0
         else ""
     )
+    first = d.extra.get("noise_first_sample") or {}
+    exact = (
+        " The windows begin at exact states, not recorded ones (the start of a simulation: "
+        f"log-odds {first['log_odds_exact']:.0f} over {first['items']} windows x channels), and "
+        "so do the noise-only copies behind this floor and every null."
+        if first and not first["noisy"]
+        else ""
+    )
     return (
         f"The base model's {m.objective} on the training windows is {m.J:.3g}, {m.ratio:.2f} x "
         f"the floor that measurement noise alone gives ({m.floor:.3g}, z = {m.z:.1f}; "
-        f"significant above {1 + m.margin:.2f} x and z > {m.z_crit:.0f}).{refit}"
+        f"significant above {1 + m.margin:.2f} x and z > {m.z_crit:.0f}).{refit}{exact}"
     )
 
 
@@ -749,6 +757,7 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
         "generalisation_after": _generalisation_dict(d.generalisation_after),
         "remainder": remainder(d),
         "noise_model": d.extra.get("noise", {}),
+        "noise_first_sample": d.extra.get("noise_first_sample"),
         "discovery": (
             {
                 "proposed": prop.proposed,

@@ -371,6 +371,7 @@ def report(
             "J_heldout_control": float(J_ho_control.sum()),
             "J_heldout_control_per_window": [float(v) for v in J_ho_control],
             "noise": cal.noise.as_dict(),
+            "noise_first_sample": cal.noise.first.as_dict(),
             "resemblance": final.resemblance,
             "acceptance": {
                 **cal.null.as_dict(),

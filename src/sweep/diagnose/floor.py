@@ -209,9 +209,10 @@ def calibrated_noise(
     model's own simulation of the recordings plus noise of the first estimate, and each sigma is
     scaled by first estimate / re-estimate (the variogram fit trades a little noise for motion)."""
     first = estimate_noise(recordings, params)
+    sims = simulate_windows(params, recordings)
     synthetic = [
         Recording(r.name, None, r.t, x + first.draw(rng, x.shape[0]), r.u, r.w)
-        for r, x in zip(recordings, simulate_windows(params, recordings), strict=True)
+        for r, x in zip(recordings, sims, strict=True)
     ]
     second = estimate_noise(synthetic, params)
     sigma = {
@@ -219,7 +220,7 @@ def calibrated_noise(
         for c in STATES
     }
     noise = NoiseModel(sigma, dict(first.phi), first.window_s, True)
-    return replace(noise, first=first_sample_noise(recordings, params, noise))
+    return replace(noise, first=first_sample_noise(recordings, params, noise, sims))
 
 
 #: channels whose error at a window's first sample persists along the simulation (positions and
@@ -237,7 +238,10 @@ FIRST_FORGOTTEN = 0.05
 
 
 def first_sample_noise(
-    windows: Sequence[Recording], params: Parameters, noise: NoiseModel
+    windows: Sequence[Recording],
+    params: Parameters,
+    noise: NoiseModel,
+    sims: Sequence[FloatArray] | None = None,
 ) -> FirstSample:
     """Do the windows begin at a recorded state (noisy, as the other samples) or at an exact one
     (a simulation's start)?
@@ -253,17 +257,15 @@ def first_sample_noise(
     first sample, against recordings that begin exactly, make every null wider than the data's:
     on a planted case without an effect (every window the exact start of a simulation) the test
     recordings' null median was 2.5 x what it was with exact starts, the no-effect model's own
-    test J 0.5 x that median."""
+    test J 0.5 x that median. ``sims``: the model's states on the windows
+    (:func:`simulate_windows`), when the caller has them."""
     if not windows:
         return FirstSample()
-    sims = simulate_windows(params, windows)
+    if sims is None:
+        sims = simulate_windows(params, windows)
     log_odds = 0.0
     items = 0
     for w, sim in zip(windows, sims, strict=True):
-        t = np.asarray(w.t, dtype=np.float64) - float(w.t[0])
-        dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
-        if dt <= 0.0:
-            continue
         x = np.asarray(w.x, dtype=np.float64)
         for c in PERSISTING:
             j = STATES.index(c)
@@ -271,7 +273,7 @@ def first_sample_noise(
             if sig <= 0.0:
                 continue
             k0 = 1 if phi <= 0.0 else max(1, int(np.ceil(np.log(FIRST_FORGOTTEN) / np.log(phi))))
-            k = np.arange(k0, k0 + max(1, round(FIRST_SPAN_S / dt)) + 1)
+            k = np.arange(k0, k0 + max(1, round(FIRST_SPAN_S / w.dt)) + 1)
             if k[-1] >= x.shape[0]:
                 continue
             r = x[k, j] - sim[k, j]

@@ -2,8 +2,9 @@
 
 1. **Noise model** (:func:`estimate_noise`): per state channel (x0, u, y0, v_m, psi, r) an AR(1)
    process (standard deviation sigma, lag-1 correlation phi; phi > 0 is coloured noise), fitted to
-   the residual of a cubic Savitzky-Golay smoother (``window_s``): its variance and lag-1 and
-   lag-2 correlations are matched to those an AR(1) noise leaves through the same filter.
+   the variogram of the recordings against the model's short simulations from their own samples
+   (lags up to ``window_s``): the noise's sigma^2 (1 - phi^k) plus what the model misses, which
+   grows with the lag; :func:`calibrated_noise` removes the estimator's bias.
    Whether the windows' first samples carry that noise too (:func:`first_sample_noise`): a
    recorded state does, a simulation's exact start does not, and every noise-only copy of the
    windows begins as they do.

@@ -192,3 +192,18 @@ def test_the_refit_drift_is_what_the_control_s_fold_fits_make_of_the_other_fold(
     assert drift.ratio == pytest.approx(drift.heldout / base)
     assert drift.window in {w.name for w in data}
     assert 0.25 <= drift.share <= 1.0  # four windows: the worst carries at least a quarter
+
+
+def test_a_linearisation_with_another_prior_is_the_one_built_with_it(case):
+    """:meth:`Linearised.with_prior`: the fold fits with another prior weight are those of a
+    linearisation built with that weight, and the one it came from keeps its own."""
+    ship, _, data = _planted(case, 2e-4)
+    folds = ([0, 2], [1, 3])
+    lin = Linearised(ship, data, folds, ())
+    r = lin.residuals(data)
+    before = lin.refit_drift(r)
+    heavy = lin.with_prior(100.0)
+    built = Linearised(ship, data, folds, (), prior_weight=100.0).refit_drift(r)
+    assert heavy.refit_drift(r).heldout == pytest.approx(built.heldout, rel=1e-9)
+    assert heavy.refit_drift(r).heldout != pytest.approx(before.heldout, rel=1e-6)
+    assert lin.refit_drift(r).heldout == before.heldout

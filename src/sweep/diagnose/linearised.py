@@ -11,6 +11,7 @@ The procedure is described in the user guide (docs/guide/diagnosis.md).
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -319,6 +320,14 @@ class Linearised:
         self.folds = [_Fold(list(idx), A, float(prior_weight)) for idx in folds]
         self.all = _Fold(list(range(len(self.windows))), A, float(prior_weight))
         self.term_ids = [c.term for c in self.columns]  # (T,) the term of each column
+
+    def with_prior(self, prior_weight: float) -> Linearised:
+        """The same linearisation (Jacobian, candidates, library) with the fold fits' prior
+        weight ``prior_weight``: a new object, this one unchanged."""
+        out = copy.copy(self)
+        out.folds = [_Fold(f.ix, self.A, float(prior_weight)) for f in self.folds]
+        out.all = _Fold(self.all.ix, self.A, float(prior_weight))
+        return out
 
     def select(self, r: FloatArray, n_eff: float, min_gain: float = 0.15) -> TrajectorySelection:
         """Discovery in trajectory space for the base's residual ``r`` (S, M).

@@ -801,6 +801,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--shape-pairs)",
     )
     ap.add_argument(
+        "--exact-starts",
+        action="store_true",
+        help="the noise-only copies begin exactly where the windows do (the diagnosis' "
+        "--exact-starts; the planted windows begin at their simulation's exact state)",
+    )
+    ap.add_argument(
         "--reach",
         action="store_true",
         help="also refit each effect case's planted form itself from the diagnosis' base "
@@ -935,6 +941,7 @@ def main(argv: list[str] | None = None) -> int:
         base_retry_agreement=args.base_retry_agreement,
         rounds=args.rounds,
         shape_pairs=args.shape_pairs,
+        exact_starts=args.exact_starts,
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

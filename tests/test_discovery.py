@@ -300,12 +300,13 @@ def test_noise_model_recovers_coloured_noise_and_the_floor_of_a_true_model(runs)
 
 def test_windows_that_begin_at_the_exact_state_are_told_from_recorded_ones(small_case):
     """Windows simulated from their first state, noise on every later sample: the first samples
-    are found exact, and the noise copies then begin exactly (the same numbers but the first
-    row); the same windows with noise on the first sample too, or simulated by a model off the
-    truth, keep noisy starts (a misfit leans that way)."""
+    are found exact, and the noise copies, asked to begin as the windows do, begin exactly (the
+    same numbers but the first row), by default noisy all the same; the same windows with noise
+    on the first sample too, or simulated by a model off the truth, keep noisy starts (a misfit
+    leans that way)."""
     from dataclasses import replace
 
-    from sweep.diagnose.floor import FIRST_LOG_ODDS, first_sample_noise
+    from sweep.diagnose.floor import FIRST_LOG_ODDS, calibrated_noise, first_sample_noise
 
     ship, windows, levels = small_case
     noise = NoiseModel(dict(levels.sigma), dict.fromkeys(levels.sigma, 0.6))
@@ -318,12 +319,22 @@ def test_windows_that_begin_at_the_exact_state_are_told_from_recorded_ones(small
     assert not found.noisy and found.log_odds >= FIRST_LOG_ODDS and found.items == 3 * len(windows)
     assert first_sample_noise(noisy, ship, noise).noisy
     assert first_sample_noise(exact, efd_parameters(), noise).noisy
-    begins = replace(noise, first=found)
+    assert not found.copies_exact
     a = noise.draw_many(np.random.default_rng(9), [50, 7])
-    b = begins.draw_many(np.random.default_rng(9), [50, 7])
-    for x, y in zip(a, b, strict=True):
+    same = replace(noise, first=found).draw_many(np.random.default_rng(9), [50, 7])
+    b = replace(noise, first=replace(found, copies_exact=True)).draw_many(
+        np.random.default_rng(9), [50, 7]
+    )
+    for x, y, z in zip(a, b, same, strict=True):
         np.testing.assert_array_equal(y[0], 0.0)
         np.testing.assert_array_equal(x[1:], y[1:])
+        np.testing.assert_array_equal(x, z)
+    asked = calibrated_noise(exact, ship, np.random.default_rng(3), exact_starts=True).first
+    assert not asked.noisy and asked.copies_exact
+    default = calibrated_noise(exact, ship, np.random.default_rng(3)).first
+    assert not default.noisy and not default.copies_exact
+    recorded = calibrated_noise(noisy, ship, np.random.default_rng(3), exact_starts=True).first
+    assert recorded.noisy and not recorded.copies_exact
 
 
 def test_noise_draws_for_many_windows_are_the_sequential_draws_and_scipys_filter():

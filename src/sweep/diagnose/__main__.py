@@ -150,6 +150,13 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         "learnt where the training runs went can make other manoeuvres far worse",
     )
     ap.add_argument(
+        "--exact-starts",
+        action="store_true",
+        help="where the windows begin at exact states (a simulation's start, as planted data "
+        "may), the noise-only copies behind the floor and every null begin exactly too; off "
+        "by default: the diagnosis' rules were set with copies that begin noisy",
+    )
+    ap.add_argument(
         "--rounds",
         type=int,
         default=d.rounds,
@@ -273,6 +280,7 @@ def run(argv: Sequence[str] | None = None) -> dict[str, Any]:
         outside=args.outside,
         shapes=not args.no_shapes,
         shape_pairs=args.shape_pairs,
+        exact_starts=args.exact_starts,
         rounds=args.rounds,
         shape_variables=_shape_variables(args.shape_variables),
         max_delta_bic=args.max_delta_bic,

@@ -38,12 +38,17 @@ class Calibration:
 def noise_and_floor(ctx: Context, params: Parameters) -> tuple[NoiseModel, Floor]:
     """The noise of the training windows around ``params`` and the floor of J it gives."""
     rng = np.random.default_rng(ctx.settings.seed + 7)
-    noise = calibrated_noise(ctx.windows, params, rng)
+    noise = calibrated_noise(ctx.windows, params, rng, ctx.settings.exact_starts)
     if not noise.first.noisy:
+        copies = (
+            "the noise-only copies begin exactly too"
+            if noise.first.copies_exact
+            else "the noise-only copies begin noisy all the same (--exact-starts: exactly)"
+        )
         ctx.log(
             "noise: the windows begin at exact states, not recorded ones (a simulation's start; "
             f"log-odds {noise.first.log_odds:.0f} over {noise.first.items} windows x channels): "
-            "the noise-only copies begin exactly too"
+            + copies
         )
     return noise, noise_floor(params, ctx.windows, noise, rng, ctx.settings.floor_draws)
 

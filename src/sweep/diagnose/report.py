@@ -59,7 +59,12 @@ def misfit_text(d: Diagnosis) -> str:
     exact = (
         " The windows begin at exact states, not recorded ones (the start of a simulation: "
         f"log-odds {first['log_odds_exact']:.0f} over {first['items']} windows x channels), and "
-        "so do the noise-only copies behind this floor and every null."
+        + (
+            "so do the noise-only copies behind this floor and every null."
+            if first.get("copies_exact", True)
+            else "the noise-only copies behind this floor and every null begin noisy all the "
+            "same (`--exact-starts`: exactly)."
+        )
         if first and not first["noisy"]
         else ""
     )

@@ -129,6 +129,14 @@ class DiagnoseSettings:
     #: what a finding does beyond the states of the training recordings (:mod:`mmg.domain`):
     #: ``held`` at its value on the boundary of their box, or switched ``off``
     outside: str = "held"
+    #: the noise-only copies behind the floor and every null begin exactly where the windows
+    #: are read to begin at exact states (a simulation's start,
+    #: :func:`sweep.diagnose.floor.first_sample_noise`); off: they begin noisy, as recorded
+    #: windows do. Off by default: the rules were set with noisy copies, and with exact ones
+    #: the planted forms' strong and medium rows lost two explained cases (the rudder play's
+    #: worst held-out run judged against a narrower null) and gained two harmful findings and a
+    #: false alarm, where the weak row gained four flagged cases
+    exact_starts: bool = False
 
     @property
     def refines(self) -> bool:
@@ -171,6 +179,9 @@ class DiagnoseSettings:
             "shape_pairs",
         )
         data = {k: v for k, v in asdict(self).items() if k not in skip}
+        # (the floor decides the base's second start; off, the stages stored before it existed)
+        if not self.exact_starts:
+            del data["exact_starts"]
         if not self.base_horizons:  # off: the stages stored before the horizons existed
             del data["base_horizons"]
         data["procedure"] = PROCEDURE_VERSION  # stages of an older procedure are not reused

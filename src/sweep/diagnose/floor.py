@@ -225,7 +225,7 @@ def calibrated_noise(
     reported; the noise-only copies begin exactly too only with ``exact_starts`` (otherwise
     noisy, as recorded windows begin: the rules of the diagnosis were set with those copies,
     and with exact ones the planted strong and medium rows lost two explained cases and gained
-    two harmful findings and a false alarm)."""
+    a harmful finding and a false alarm)."""
     first = estimate_noise(recordings, params)
     sims = simulate_windows(params, recordings)
     synthetic = [

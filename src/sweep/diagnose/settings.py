@@ -134,7 +134,7 @@ class DiagnoseSettings:
     #: :func:`sweep.diagnose.floor.first_sample_noise`); off: they begin noisy, as recorded
     #: windows do. Off by default: the rules were set with noisy copies, and with exact ones
     #: the planted forms' strong and medium rows lost two explained cases (the rudder play's
-    #: worst held-out run judged against a narrower null) and gained two harmful findings and a
+    #: worst held-out run judged against a narrower null) and gained a harmful finding and a
     #: false alarm, where the weak row gained four flagged cases
     exact_starts: bool = False
 

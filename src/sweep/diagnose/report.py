@@ -61,6 +61,8 @@ def misfit_text(d: Diagnosis) -> str:
         f"log-odds {first['log_odds_exact']:.0f} over {first['items']} windows x channels), and "
         + (
             "so do the noise-only copies behind this floor and every null."
+            # (a report without the field was written when the copies always began as the
+            # windows did)
             if first.get("copies_exact", True)
             else "the noise-only copies behind this floor and every null begin noisy all the "
             "same (`--exact-starts`: exactly)."

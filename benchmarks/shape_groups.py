@@ -18,7 +18,6 @@ CASE_DIR is a case of ``benchmarks/diagnose_planted.py --out DIR`` whose diagnos
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
@@ -28,7 +27,7 @@ from benchmarks.refit_forms import open_case
 from sweep.diagnose.base import identify_base, second_start
 from sweep.diagnose.calibration import calibrate
 from sweep.diagnose.context import stderr_log
-from sweep.diagnose.shapes import ShapeColumns, candidate_groups
+from sweep.diagnose.shapes import ShapeColumns, candidate_groups, insample_share
 from sweep.diagnose.shaping import default_variables
 
 
@@ -75,10 +74,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {'held-out':>8}  {'in-sample':>9}  {'edf':>5}  {'dBIC':>6}  group (kappa)")
             for gain, group, kappa in columns.singles(r)[: args.top]:
                 one = columns.restricted(r, n, [(group, kappa)])
-                edf = sum(one.edf)
-                share = 1.0 - math.exp((one.dbic - edf * math.log(n)) / n)
+                share = insample_share(one.dbic, one.edf, n)
                 print(
-                    f"  {100 * gain:7.1f}%  {100 * share:8.2f}%  {edf:5.1f}  {one.dbic:6.1f}  "
+                    f"  {100 * gain:7.1f}%  {100 * share:8.2f}%  {sum(one.edf):5.1f}  "
+                    f"{one.dbic:6.1f}  "
                     f"{group.text} ({kappa:g})"
                 )
     return 0

@@ -955,3 +955,12 @@ def test_a_shape_the_output_error_fitted_is_named_from_that_fit() -> None:
     other = selection([Group("Y", "beta", -1.5, 1.5, 6)])
     assert fitted_coefficients(other, fits) is other
     assert fitted_coefficients(selection([g2, g1]), fits).coefficients == [[0.1] * 4, [0.2] * 6]
+
+
+def test_the_in_sample_share_read_back_from_a_dbic_is_the_share_that_made_it():
+    """:func:`insample_share` inverts the linearised dBIC of a gain and its degrees of freedom."""
+    from sweep.diagnose.shapes import _dbic, insample_share
+
+    for share, edf in ((0.022, [5.9]), (0.169, [3.0, 3.4]), (0.0004, [2.6])):
+        dbic = _dbic(0.613, share * 0.613, edf, 840.0)
+        assert insample_share(dbic, edf, 840.0) == pytest.approx(share, rel=1e-9)

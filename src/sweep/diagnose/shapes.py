@@ -509,6 +509,12 @@ def _dbic(J0: float, gain: float, edf: Sequence[float], n_eff: float) -> float:
     return float(n_eff * np.log(ratio) + sum(edf) * np.log(n_eff))
 
 
+def insample_share(dbic: float, edf: Sequence[float], n_eff: float) -> float:
+    """The share of the control's J that units take off in-sample, read back from their
+    linearised dBIC and effective degrees of freedom (the inverse of :func:`_dbic`)."""
+    return float(1.0 - np.exp((dbic - sum(edf) * np.log(n_eff)) / n_eff))
+
+
 #: what the selection gives for one residual vector: ((unit, kappa) chosen, held-out gain path
 #: as a share of the control fits' held-out J, edf per chosen unit, dBIC)
 _Row = tuple[list[tuple[int, float]], list[float], list[float], float]

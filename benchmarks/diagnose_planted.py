@@ -457,6 +457,12 @@ def run_case(
         # the test recordings' J of the re-identified base over the null's median
         "generalisation_ratio": d.generalisation.ratio if d.generalisation else None,
         "generalisation_significant": d.generalisation.significant if d.generalisation else None,
+        # ... over the null's 1 - alpha quantile (significant beyond 1 + margin), and whether
+        # the null's copies began exactly, as the windows do
+        "generalisation_over_quantile": (
+            d.generalisation.J / d.generalisation.quantile if d.generalisation else None
+        ),
+        "generalisation_copies_exact": d.generalisation.copies_exact if d.generalisation else None,
         # the report says more is missing than the finding: the model after is still above the
         # floor on the training windows, or still significant on the test recordings
         "more_missing": bool(

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from mmg import get_effect
 from mmg.discovered import with_bounds
+from sweep.diagnose.floor import FirstSample
 from sweep.diagnose.generalise import generalisation_test
 from sweep.identification.vector import with_effects
 from tests.conftest import kernels, noisy_windows
@@ -48,3 +51,32 @@ def test_the_exact_model_carries_over_and_a_missing_force_does_not(case):
     assert other.per_run[0]["significant"]
     # the null does not depend on the test recordings' values, only on their windows
     assert other.median == pytest.approx(same.median)
+
+
+def test_copies_begin_as_the_windows_do(case):
+    """Windows that begin at the exact simulated state (planted data) get copies that begin
+    exactly too, and a narrower null: the exact model's test J near its median (on this case the
+    99 % quantile 4.5 x lower). The same
+    windows begun at a noisy state (recorded data) keep copies that begin noisy, whose null
+    is wider."""
+    ship, train, test, noise = case
+    exact = replace(noise, first=FirstSample(noisy=False, copies_exact=True))
+    data = noisy_windows(ship, train, exact, 1)
+    held = noisy_windows(ship, test, exact, 2)
+    g = generalisation_test(ship, data, held, noise, np.random.default_rng(4), draws=60)
+    assert g.copies_exact
+    assert not g.starts["noisy"]
+    assert not g.significant
+    assert 0.5 < g.ratio < 2.0
+    recorded = generalisation_test(
+        ship,
+        noisy_windows(ship, train, noise, 1),
+        noisy_windows(ship, test, noise, 2),
+        noise,
+        np.random.default_rng(4),
+        draws=60,
+    )
+    assert not recorded.copies_exact
+    assert recorded.starts["noisy"]
+    assert recorded.median > 1.2 * g.median
+    assert recorded.quantile > 2.0 * g.quantile

@@ -11,6 +11,14 @@ identification linearised (Gauss-Newton, as in :mod:`sweep.diagnose.linearised`)
 2. on ``draws`` noise-only copies of the test windows, the model's residual plus the test
    Jacobian times ``dz_d`` is the refitted model's residual: J of it is one draw.
 
+The copies begin as the windows do (:func:`sweep.diagnose.floor.first_sample_noise`, read on
+the training and test windows together): at an exact state where the windows do (a
+simulation's start), noisy where they begin at a recorded state. Copies that begin noisy
+against windows that begin exactly carry the first sample's noise as an offset along every
+simulated position and heading, and make the null wider than the data's. Unlike the floor and
+the acceptance nulls (which follow the windows only with ``exact_starts``), this test does so
+by default, and its margin was measured that way.
+
 The misfit is significant when the test J exceeds the null's ``1 - alpha`` quantile by more than
 ``margin`` (:data:`MARGIN`, an allowance for identifications that stop short of the optimum); the
 same comparison per test run says where.
@@ -19,7 +27,7 @@ same comparison per test run says where.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -28,17 +36,21 @@ from numpy.typing import NDArray
 from mmg import Parameters
 from sweep.data.recordings import Recording
 from sweep.diagnose.discover import null_sets
-from sweep.diagnose.floor import NoiseModel, run_of
+from sweep.diagnose.floor import FirstSample, NoiseModel, first_sample_noise, run_of
 from sweep.diagnose.linearised import Linearised
 
 FloatArray = NDArray[np.float64]
 
 #: false-alarm rate of the test, before the margin
 ALPHA = 0.01
-#: the test J must exceed the null's 1 - ALPHA quantile by this share. Measured on the planted
-#: benchmark's eight no-effect cases: test J at 0.47-1.15 x that quantile, the highest a base
-#: whose training J had stopped 8 % above the floor of a fitted model
-MARGIN = 0.25
+#: the test J must exceed the null's 1 - ALPHA quantile by this share: an allowance for
+#: identifications that stop short of the optimum or leave directions the training runs do not
+#: constrain where the prior put them, which the linearised refit does not hold. Measured on the
+#: planted benchmark's 21 no-effect cases with copies that begin as the windows do: test J at
+#: 0.41-1.01 x that quantile but one, 1.39 x (a base whose test runs go astern beyond the
+#: training's range, its test J2 1.46 x the true model's); with the headroom of the margin
+#: before (0.25 over the highest, 1.15 x, of eight cases with copies that began noisy)
+MARGIN = 0.5
 #: noise-only copies of the training and of the test windows
 DRAWS = 100
 #: copies processed at once (bounds the memory of the residual stacks on long test sets)
@@ -60,6 +72,14 @@ class GeneralisationTest:
     draws: int
     prior_weight: float  # of the linearised refit (the model's own identification)
     per_run: list[dict[str, Any]] = field(default_factory=list)
+    #: how the training and test windows begin (read on both together), and with them the
+    #: copies (:meth:`FirstSample.as_dict`)
+    starts: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def copies_exact(self) -> bool:
+        """Whether the noise-only copies begin exactly (as the windows do)."""
+        return bool(self.starts.get("copies_exact", False))
 
     @property
     def ratio(self) -> float:
@@ -87,9 +107,13 @@ def generalisation_test(
 ) -> GeneralisationTest:
     """The test of the module docstring for ``params`` identified on the windows ``train``,
     judged on the windows ``test`` (both cut as the objective cuts them, e.g. by
-    :func:`sweep.diagnose.windows.cut_windows`)."""
+    :func:`sweep.diagnose.windows.cut_windows`). ``noise``: the noise's levels (how its copies
+    begin is read from each set of windows here)."""
     if not test:
         raise ValueError("the generalisation test needs test recordings")
+    # (both sets read together: one window's few channels cannot reach the odds alone)
+    start = first_sample_noise([*train, *test], params, noise)
+    noise_tr = noise_te = begun_as(noise, start)
     lin = Linearised(params, train, [], (), objective=objective, prior_weight=prior_weight)
     lte = Linearised(params, test, [], (), objective=objective, prior_weight=prior_weight)
     r_act = lte.residuals(test)  # (S, M)
@@ -102,8 +126,8 @@ def generalisation_test(
     done = 0
     while done < draws:
         k = min(CHUNK, draws - done)
-        R_tr = np.stack([lin.residuals(c) for c in null_sets(params, train, noise, rng, k)], -1)
-        R_te = np.stack([lte.residuals(c) for c in null_sets(params, test, noise, rng, k)], -1)
+        R_tr = np.stack([lin.residuals(c) for c in null_sets(params, train, noise_tr, rng, k)], -1)
+        R_te = np.stack([lte.residuals(c) for c in null_sets(params, test, noise_te, rng, k)], -1)
         coef = lin.all.base_coef(lin.all.stack(R_tr))  # (57, k): least squares with the prior
         E = R_te - np.einsum("smp,pd->smd", A_te, coef)  # residual of the refitted model
         per_window = (E * E).sum(axis=1)  # (S, k)
@@ -141,4 +165,11 @@ def generalisation_test(
         draws=draws,
         prior_weight=prior_weight,
         per_run=per_run,
+        starts=noise_te.first.as_dict(),
     )
+
+
+def begun_as(noise: NoiseModel, start: FirstSample) -> NoiseModel:
+    """``noise`` whose copies begin as windows of the first samples ``start`` do: exactly where
+    they begin exactly, noisy otherwise."""
+    return replace(noise, first=replace(start, copies_exact=not start.noisy))

@@ -153,8 +153,9 @@ def parse(argv: Sequence[str] | None) -> argparse.Namespace:
         "--exact-starts",
         action="store_true",
         help="where the windows begin at exact states (a simulation's start, as planted data "
-        "may), the noise-only copies behind the floor and every null begin exactly too; off "
-        "by default: the diagnosis' rules were set with copies that begin noisy",
+        "may), the noise-only copies behind the floor and the acceptance nulls begin exactly "
+        "too; off by default: the diagnosis' rules were set with copies that begin noisy (the "
+        "test recordings' null begins as the windows do either way)",
     )
     ap.add_argument(
         "--rounds",

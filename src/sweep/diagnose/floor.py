@@ -6,8 +6,10 @@
    (lags up to ``window_s``): the noise's sigma^2 (1 - phi^k) plus what the model misses, which
    grows with the lag; :func:`calibrated_noise` removes the estimator's bias.
    Whether the windows' first samples carry that noise too (:func:`first_sample_noise`): a
-   recorded state does, a simulation's exact start does not; the noise-only copies of the
-   windows begin noisy unless asked to begin as the windows do (``exact_starts``).
+   recorded state does, a simulation's exact start does not; the noise-only copies behind the
+   floor and the acceptance nulls begin noisy unless asked to begin as the windows do
+   (``exact_starts``); those of the test recordings' null always do
+   (:mod:`sweep.diagnose.generalise`).
 2. **Floor of J** (:func:`noise_floor`): J, computed as the objective does, of the identified
    model against synthetic recordings (its own simulation of each training window plus one of
    ``draws`` noise series): what a model exact in form and values would reach, with its spread.

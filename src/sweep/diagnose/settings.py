@@ -129,13 +129,14 @@ class DiagnoseSettings:
     #: what a finding does beyond the states of the training recordings (:mod:`mmg.domain`):
     #: ``held`` at its value on the boundary of their box, or switched ``off``
     outside: str = "held"
-    #: the noise-only copies behind the floor and every null begin exactly where the windows
-    #: are read to begin at exact states (a simulation's start,
+    #: the noise-only copies behind the floor and the acceptance nulls begin exactly where the
+    #: windows are read to begin at exact states (a simulation's start,
     #: :func:`sweep.diagnose.floor.first_sample_noise`); off: they begin noisy, as recorded
     #: windows do. Off by default: the rules were set with noisy copies, and with exact ones
     #: the planted forms' strong and medium rows lost two explained cases (the rudder play's
     #: worst held-out run judged against a narrower null) and gained a harmful finding and a
-    #: false alarm, where the weak row gained four flagged cases
+    #: false alarm, where the weak row gained four flagged cases. (The test recordings' null,
+    #: :mod:`sweep.diagnose.generalise`, begins as the windows do either way.)
     exact_starts: bool = False
 
     @property

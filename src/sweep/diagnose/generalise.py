@@ -108,12 +108,12 @@ def generalisation_test(
     """The test of the module docstring for ``params`` identified on the windows ``train``,
     judged on the windows ``test`` (both cut as the objective cuts them, e.g. by
     :func:`sweep.diagnose.windows.cut_windows`). ``noise``: the noise's levels (how its copies
-    begin is read from each set of windows here)."""
+    begin is read here, on both sets of windows together)."""
     if not test:
         raise ValueError("the generalisation test needs test recordings")
     # (both sets read together: one window's few channels cannot reach the odds alone)
     start = first_sample_noise([*train, *test], params, noise)
-    noise_tr = noise_te = begun_as(noise, start)
+    copies = begun_as(noise, start)
     lin = Linearised(params, train, [], (), objective=objective, prior_weight=prior_weight)
     lte = Linearised(params, test, [], (), objective=objective, prior_weight=prior_weight)
     r_act = lte.residuals(test)  # (S, M)
@@ -126,8 +126,8 @@ def generalisation_test(
     done = 0
     while done < draws:
         k = min(CHUNK, draws - done)
-        R_tr = np.stack([lin.residuals(c) for c in null_sets(params, train, noise_tr, rng, k)], -1)
-        R_te = np.stack([lte.residuals(c) for c in null_sets(params, test, noise_te, rng, k)], -1)
+        R_tr = np.stack([lin.residuals(c) for c in null_sets(params, train, copies, rng, k)], -1)
+        R_te = np.stack([lte.residuals(c) for c in null_sets(params, test, copies, rng, k)], -1)
         coef = lin.all.base_coef(lin.all.stack(R_tr))  # (57, k): least squares with the prior
         E = R_te - np.einsum("smp,pd->smd", A_te, coef)  # residual of the refitted model
         per_window = (E * E).sum(axis=1)  # (S, k)
@@ -165,7 +165,7 @@ def generalisation_test(
         draws=draws,
         prior_weight=prior_weight,
         per_run=per_run,
-        starts=noise_te.first.as_dict(),
+        starts=copies.first.as_dict(),
     )
 
 

@@ -132,7 +132,7 @@ def generalisation_text(d: Diagnosis) -> str:
         f"these training windows with noise of the estimated level, reaches there ({g.median:.3g}"
         f"; {100 * (1 - g.alpha):.0f} % quantile {g.quantile:.3g}, significant above "
         f"{1 + g.margin:.2f} x it"
-        + ("; its copies of the test windows begin exactly, as these do" if g.copies_exact else "")
+        + ("; its noise-only copies begin exactly, as these windows do" if g.copies_exact else "")
         + "): "
         + ("it does not carry over." if g.significant else "within what noise explains.")
     )

@@ -64,8 +64,9 @@ def misfit_text(d: Diagnosis) -> str:
             # (a report without the field was written when the copies always began as the
             # windows did)
             if first.get("copies_exact", True)
-            else "the noise-only copies behind this floor and every null begin noisy all the "
-            "same (`--exact-starts`: exactly)."
+            else "the noise-only copies behind this floor and the acceptance nulls begin noisy "
+            "all the same (`--exact-starts`: exactly; the test recordings' null begins as the "
+            "windows do)."
         )
         if first and not first["noisy"]
         else ""

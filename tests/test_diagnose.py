@@ -204,6 +204,9 @@ def test_no_planted_effect_gives_verdict_none(runs, tmp_path, capsys):
     assert report["fitted_effect_params"] == {}
     gen = report["generalisation"]
     assert gen is not None and not gen["significant"] and gen["J"] < gen["limit"]
+    # planted windows begin at the simulation's exact state: so do the test null's copies
+    # (the floor's and the acceptance nulls' begin noisy without --exact-starts)
+    assert gen["starts"]["copies_exact"] and not report["noise_first_sample"]["copies_exact"]
     assert report["taken"] is False
 
     # what the best refused candidate would do: taken with --take, re-identified on all the

@@ -809,8 +809,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument(
         "--exact-starts",
         action="store_true",
-        help="the noise-only copies begin exactly where the windows do (the diagnosis' "
-        "--exact-starts; the planted windows begin at their simulation's exact state)",
+        help="the noise-only copies behind the floor and the acceptance nulls begin exactly "
+        "where the windows do (the diagnosis' --exact-starts; the planted windows begin at "
+        "their simulation's exact state)",
     )
     ap.add_argument(
         "--reach",

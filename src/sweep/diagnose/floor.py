@@ -240,8 +240,13 @@ def calibrated_noise(
         for c in STATES
     }
     noise = NoiseModel(sigma, dict(first.phi), first.window_s, True)
-    start = first_sample_noise(recordings, params, noise, sims)
-    return replace(noise, first=replace(start, copies_exact=exact_starts and not start.noisy))
+    return begun_as(noise, first_sample_noise(recordings, params, noise, sims), exact_starts)
+
+
+def begun_as(noise: NoiseModel, start: FirstSample, exact: bool = True) -> NoiseModel:
+    """``noise`` with the windows' first samples ``start``, its copies beginning exactly where
+    the windows do when ``exact`` (noisy otherwise)."""
+    return replace(noise, first=replace(start, copies_exact=exact and not start.noisy))
 
 
 #: channels whose error at a window's first sample persists along the simulation (positions and

@@ -27,7 +27,7 @@ same comparison per test run says where.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from mmg import Parameters
 from sweep.data.recordings import Recording
 from sweep.diagnose.discover import null_sets
-from sweep.diagnose.floor import FirstSample, NoiseModel, first_sample_noise, run_of
+from sweep.diagnose.floor import NoiseModel, begun_as, first_sample_noise, run_of
 from sweep.diagnose.linearised import Linearised
 
 FloatArray = NDArray[np.float64]
@@ -168,9 +168,3 @@ def generalisation_test(
         per_run=per_run,
         starts=copies.first.as_dict(),
     )
-
-
-def begun_as(noise: NoiseModel, start: FirstSample) -> NoiseModel:
-    """``noise`` whose copies begin as windows of the first samples ``start`` do: exactly where
-    they begin exactly, noisy otherwise."""
-    return replace(noise, first=replace(start, copies_exact=not start.noisy))

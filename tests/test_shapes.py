@@ -210,6 +210,36 @@ def test_the_hook_multiplies_the_thrust_the_normal_force_and_the_propeller_loadi
     np.testing.assert_allclose(got, [0.0, 0.0, want], rtol=1e-12, atol=1e-9)
 
 
+def test_a_shape_in_the_surge_velocity_times_the_wind_s_side_force() -> None:
+    """The heel product of the default candidates, ``N~u[..]*Y_A``: a yaw moment f(u) Y_A L_pp,
+    Y_A the model's wind side force (Eq. (27)) from the apparent wind (all coefficients c: c
+    times it); it is among the default candidates' products."""
+    from mmg.wind import apparent_wind, wind_forces
+    from sweep.diagnose.shapes import PRODUCTS
+
+    assert ("u", "Y_A") in PRODUCTS
+    p = efd_parameters()
+    th, sh = p.theta, p.ship
+    eff = get_effect("shape:N~u[-0.2:0.6]/4*Y_A")
+    assert eff.force_at is not None
+    force_at = eff.force_at
+    u, v_m, r, psi, delta, n_p = 0.3, -0.04, 0.01, 0.3, 0.1, 10.0
+
+    def force(U_T: float) -> np.ndarray:
+        e = eff.param_type(**{n: 0.25 for n in eff.param_names})
+        return np.array(force_at(12.0, 1.0, 2.0, u, v_m, r, psi, delta, n_p, U_T, 0.5, e, th, sh))
+
+    sp, cp = math.sin(psi), math.cos(psi)
+    u_A, v_A = apparent_wind(u, v_m, sp, cp, 1.5, math.sin(0.5), math.cos(0.5))[:2]
+    Y_A = wind_forces(u_A, v_A, th, sh)[1]
+    assert abs(Y_A) > 0.0
+    np.testing.assert_allclose(force(1.5), [0.0, 0.0, 0.25 * Y_A * sh.L_pp], rtol=1e-12)
+    # without true wind the apparent wind is the ship's own motion: the same rule
+    u_A, v_A = apparent_wind(u, v_m, sp, cp, 0.0, math.sin(0.5), math.cos(0.5))[:2]
+    Y_A0 = wind_forces(u_A, v_A, th, sh)[1]
+    np.testing.assert_allclose(force(0.0), [0.0, 0.0, 0.25 * Y_A0 * sh.L_pp], rtol=1e-12)
+
+
 def test_a_share_of_the_thrust_in_one_quadrant_acts_in_that_branch_alone() -> None:
     """``X_P*pos``: a shape times the thrust of Eq. (5), where n_p >= 0; with the propeller
     reversed (Eq. (11)) it adds nothing. Named as such, and a force times anything but a

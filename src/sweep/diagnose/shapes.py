@@ -111,7 +111,10 @@ SPEED_SCALED_PLACE = ("x0", "y0")
 #: propeller model alone, the reversed propeller's thrust is another formula (Eq. (11)); on the
 #: planted thrust deduction growing with drift, its named form a + b cos 2 beta refitted by output
 #: error as a share of both branches to a training J of 3.56, as a share of Eq. (5)'s to 0.858,
-#: the planted form's own (benchmarks/refit_forms.py)
+#: the planted form's own (benchmarks/refit_forms.py). The wind's side force Y_A heels the ship,
+#: and a heeled hull sailing at speed turns and drifts: forces varying with the surge velocity
+#: times Y_A (``u``, ``Y_A``), which vanish at rest as the hull's forces do, where the wind's
+#: own forces (a shape in gamma_A or U_A at the wind's pressure) do not
 PRODUCTS = (
     ("U", "v"),
     ("U", "rp"),
@@ -122,6 +125,7 @@ PRODUCTS = (
     ("JP", "X_P*pos"),
     ("delta", "F_N"),
     ("alphaR", "F_N"),
+    ("u", "Y_A"),
 )
 #: share candidates (component S): one shape scaling a sub-model's whole force (its surge force,
 #: sway force and yaw moment alike), a change of that force component of the model: the hull's

@@ -111,11 +111,11 @@ SPEED_SCALED_PLACE = ("x0", "y0")
 #: propeller model alone, the reversed propeller's thrust is another formula (Eq. (11)); on the
 #: planted thrust deduction growing with drift, its named form a + b cos 2 beta refitted by output
 #: error as a share of both branches to a training J of 3.56, as a share of Eq. (5)'s to 0.858,
-#: the planted form's own (benchmarks/refit_forms.py). The wind's side force Y_A heels the ship,
-#: and a heeled hull sailing at speed turns and drifts: forces varying with the surge velocity
-#: times Y_A (``u``, ``Y_A``), which change with the ship's speed as the hull's forces do, where
-#: the wind's own forces (a shape in gamma_A or U_A at the wind's pressure) depend on the wind
-#: alone
+#: the planted form's own (benchmarks/refit_forms.py). Last, the wind's heel: the wind's side
+#: force Y_A (Eq. (27)) heels the ship, and a heeled hull sailing at speed turns and drifts, a
+#: force f(u) Y_A [N] (times L_pp in N) that changes with the ship's speed as the hull's forces
+#: do, where the wind's own forces (a shape in gamma_A or U_A at the wind's pressure) depend on
+#: the wind alone
 PRODUCTS = (
     ("U", "v"),
     ("U", "rp"),
